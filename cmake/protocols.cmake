@@ -1,0 +1,18 @@
+# Generates C pack/unpack code for every DBC file under protocols/ with
+# `cantools generate_c_source`, and wraps it in the static library `hil_protocols`.
+set(HIL_GEN_DIR ${CMAKE_BINARY_DIR}/generated)
+file(MAKE_DIRECTORY ${HIL_GEN_DIR})
+set(HIL_PROTOCOL_SOURCES "")
+foreach(dbc drive vio bench)
+  set(src ${CMAKE_SOURCE_DIR}/protocols/${dbc}.dbc)
+  add_custom_command(
+    OUTPUT ${HIL_GEN_DIR}/hil_${dbc}.c ${HIL_GEN_DIR}/hil_${dbc}.h
+    COMMAND ${Python3_EXECUTABLE} -m cantools generate_c_source
+            --database-name hil_${dbc} --output-directory ${HIL_GEN_DIR} ${src}
+    DEPENDS ${src}
+    COMMENT "cantools: C pack/unpack from protocols/${dbc}.dbc"
+    VERBATIM)
+  list(APPEND HIL_PROTOCOL_SOURCES ${HIL_GEN_DIR}/hil_${dbc}.c)
+endforeach()
+add_library(hil_protocols STATIC ${HIL_PROTOCOL_SOURCES})
+target_include_directories(hil_protocols PUBLIC ${HIL_GEN_DIR})
