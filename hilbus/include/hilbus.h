@@ -1,0 +1,67 @@
+/* hilbus: one CAN interface for the rig's C programs, over two transports.
+ *
+ *  - "socketcan": Linux SocketCAN raw socket (AF_CAN), CAN FD frames enabled.
+ *  - "unixcan":   the userspace fallback for kernels without CAN: the same struct
+ *                 canfd_frame over Unix datagram sockets, broadcast to every other node
+ *                 of the channel (docs/interfaces.md).
+ *
+ * Frames are always struct canfd_frame; `fd` says whether it is a CAN FD frame
+ * (len up to 64) or a classic one (len up to 8). Sending never blocks: a receiver
+ * whose queue is full counts as a transmit drop (hilbus_stats), never a silent loss.
+ */
+#ifndef HILBUS_H
+#define HILBUS_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <linux/can.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct hilbus hilbus_t;
+
+typedef struct {
+    uint64_t tx_frames;     /* frames handed to the transport */
+    uint64_t tx_drops;      /* (frame, receiver) pairs lost to a full receiver */
+    uint64_t tx_errors;     /* other send failures */
+    uint64_t rx_frames;     /* frames delivered to the caller */
+    uint64_t rx_overflows;  /* frames the kernel dropped on our socket (SO_RXQ_OVFL), socketcan only */
+    uint64_t rx_filtered;   /* frames received but not matching the filters (unixcan) */
+    uint64_t peers_removed; /* unixcan: dead peers removed */
+} hilbus_stats_t;
+
+/* transport: "socketcan", "unixcan" or "auto" (socketcan when the kernel has the
+ * interface, else unixcan). Returns NULL with a message in err on failure. */
+hilbus_t *hilbus_open(const char *transport, const char *channel, char *err, size_t errlen);
+void hilbus_close(hilbus_t *bus);
+
+/* Which transport an open bus uses: "socketcan" or "unixcan". */
+const char *hilbus_transport(const hilbus_t *bus);
+
+/* Receive only frames whose (can_id & mask) == (id & mask) for one of the filters
+ * (SocketCAN semantics). n = 0 receives everything. Returns 0, or -1 on error. */
+int hilbus_set_filters(hilbus_t *bus, const struct can_filter *filters, int n);
+
+/* Send one frame. fd != 0: CAN FD frame (len <= 64, a valid FD length); else classic
+ * (len <= 8). Returns 0 when handed over (drops to full receivers are counted, not
+ * errors), -1 on an error (invalid frame, socket error) with errno set. */
+int hilbus_send(hilbus_t *bus, const struct canfd_frame *frame, int fd);
+
+/* Receive one frame, waiting at most timeout_us (0: poll, < 0: wait forever).
+ * Returns 1 with *frame and *fd set, 0 on time-out, -1 on error. */
+int hilbus_recv(hilbus_t *bus, struct canfd_frame *frame, int *fd, int64_t timeout_us);
+
+/* File descriptor to poll() for readability. */
+int hilbus_fileno(const hilbus_t *bus);
+
+void hilbus_get_stats(const hilbus_t *bus, hilbus_stats_t *stats);
+
+/* Rounds a payload length up to the next valid CAN FD length (0..8, 12, 16, 20, 24, 32, 48, 64). */
+uint8_t hilbus_fd_len(size_t len);
+
+#ifdef __cplusplus
+}
+#endif
+#endif
