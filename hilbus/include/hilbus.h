@@ -53,6 +53,11 @@ int hilbus_send(hilbus_t *bus, const struct canfd_frame *frame, int fd);
  * Returns 1 with *frame and *fd set, 0 on time-out, -1 on error. */
 int hilbus_recv(hilbus_t *bus, struct canfd_frame *frame, int *fd, int64_t timeout_us);
 
+/* Busy-poll for up to spin_us microseconds before sleeping in hilbus_recv. A sleeping
+ * receiver costs a scheduler wake-up per frame (tens of µs on a VM); spinning trades CPU
+ * for latency. Default: the HILBUS_SPIN_US environment variable, else 0. */
+void hilbus_set_spin(hilbus_t *bus, int32_t spin_us);
+
 /* File descriptor to poll() for readability. */
 int hilbus_fileno(const hilbus_t *bus);
 

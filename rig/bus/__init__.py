@@ -1,0 +1,85 @@
+"""The rig's CAN bus: SocketCAN where the kernel has it, the unixcan fallback elsewhere.
+
+Selection order: an explicit argument, then ``HIL_BUS`` / ``HIL_CHANNEL``, then ``auto``:
+SocketCAN when the kernel supports CAN and the interface exists (or, as root, can be
+created), else unixcan.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import can
+
+TRANSPORTS = ("auto", "socketcan", "unixcan")
+DEFAULT_CHANNEL = "vcan0"
+
+
+def kernel_has_can() -> bool:
+    """True when this kernel can open a raw CAN socket (CONFIG_CAN and can-raw)."""
+    try:
+        s = socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW)
+    except OSError:
+        return False
+    s.close()
+    return True
+
+
+def interface_exists(channel: str) -> bool:
+    return Path("/sys/class/net", channel).exists()
+
+
+def vcan_up(channel: str = DEFAULT_CHANNEL) -> None:
+    """Create (if needed) and bring up a CAN FD capable vcan interface. Needs root."""
+    if not kernel_has_can():
+        raise RuntimeError(
+            "this kernel has no CAN support (AF_CAN unavailable); use the unixcan fallback "
+            "or run inside the VM: rig vm -- <command>"
+        )
+    if not interface_exists(channel):
+        subprocess.run(["modprobe", "vcan"], check=False, capture_output=True)
+        _ip("link", "add", "dev", channel, "type", "vcan")
+    _ip("link", "set", "dev", channel, "mtu", "72")  # CANFD_MTU: the interface carries FD
+    _ip("link", "set", "dev", channel, "up")
+
+
+def _ip(*args: str) -> None:
+    done = subprocess.run(["ip", *args], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"ip {' '.join(args)} failed: {done.stderr.strip()}")
+
+
+def select_transport(bus: str | None = None, channel: str | None = None) -> tuple[str, str]:
+    """The (transport, channel) to use, resolving ``auto`` and the environment."""
+    choice = bus or os.environ.get("HIL_BUS") or "auto"
+    chan = channel or os.environ.get("HIL_CHANNEL") or DEFAULT_CHANNEL
+    if choice not in TRANSPORTS:
+        raise ValueError(f"unknown bus {choice!r}; choose one of {', '.join(TRANSPORTS)}")
+    if choice == "auto":
+        if kernel_has_can() and (interface_exists(chan) or _can_create_vcan(chan)):
+            choice = "socketcan"
+        else:
+            choice = "unixcan"
+    return choice, chan
+
+
+def _can_create_vcan(channel: str) -> bool:
+    if os.geteuid() != 0 or not channel.startswith("vcan"):
+        return False
+    try:
+        vcan_up(channel)
+    except RuntimeError:
+        return False
+    return True
+
+
+def open_bus(bus: str | None = None, channel: str | None = None, **kwargs: Any) -> can.BusABC:
+    """A python-can bus on the selected transport, CAN FD enabled."""
+    transport, chan = select_transport(bus, channel)
+    if transport == "socketcan":
+        return can.Bus(interface="socketcan", channel=chan, fd=True, **kwargs)
+    return can.Bus(interface="unixcan", channel=chan, **kwargs)

@@ -1,0 +1,308 @@
+"""python-can interface for the userspace fallback bus ``unixcan`` (docs/interfaces.md).
+
+The same ``struct canfd_frame`` as SocketCAN, carried over Unix datagram sockets: every node
+of a channel binds ``$UNIXCAN_DIR/<channel>/<pid>-<serial>.sock`` and sends each frame to all
+other sockets of the channel. Registered as the python-can interface ``unixcan``, so
+``can.Bus(interface="unixcan", channel="vcan0")``, ``can.Logger`` and ``cantools monitor``
+work on it.
+
+The kernel queues only a few datagrams per receiving socket (``net.unix.max_dgram_qlen``), so
+a reader thread drains the socket into a bounded buffer at once; a frame that finds the
+buffer full is counted in ``stats["rx_overflows"]``, and a frame a peer could not deliver to
+us is counted by that peer as a transmit drop. Nothing is lost silently.
+"""
+
+from __future__ import annotations
+
+import collections
+import errno
+import itertools
+import os
+import select
+import socket
+import struct
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+from can.bus import CanProtocol
+from can.typechecking import AutoDetectedConfig, CanFilters
+
+CAN_EFF_FLAG = 0x80000000
+CAN_RTR_FLAG = 0x40000000
+CAN_ERR_FLAG = 0x20000000
+CAN_EFF_MASK = 0x1FFFFFFF
+CANFD_BRS = 0x01
+CANFD_ESI = 0x02
+CANFD_FDF = 0x04
+CAN_MTU = 16
+CANFD_MTU = 72
+_FRAME = struct.Struct("<IBBBB64s")
+_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+_RESCAN_INTERVAL_S = 1.0
+_RECENT_CHANGE_S = 0.1
+# A receiving socket queues only net.unix.max_dgram_qlen datagrams (often 10). A sender that
+# finds a peer full waits this long for it to drain before counting a drop; a peer still
+# full after that is marked congested and costs no more waiting until it accepts a frame.
+_FULL_PEER_GRACE_S = 0.002
+_serial = itertools.count()
+
+
+def base_dir() -> Path:
+    """Folder holding one sub-folder per channel."""
+    return Path(os.environ.get("UNIXCAN_DIR") or "/tmp/unixcan")
+
+
+def fd_length(n: int) -> int:
+    """The smallest valid CAN FD payload length that holds n bytes."""
+    for length in _FD_LENGTHS:
+        if n <= length:
+            return length
+    raise ValueError(f"CAN FD payload of {n} bytes exceeds 64")
+
+
+def pack_frame(msg: can.Message) -> bytes:
+    """The datagram for a message: 16 bytes (classic) or 72 bytes (CAN FD)."""
+    can_id = msg.arbitration_id & CAN_EFF_MASK
+    if msg.is_extended_id:
+        can_id |= CAN_EFF_FLAG
+    if msg.is_remote_frame:
+        can_id |= CAN_RTR_FLAG
+    if msg.is_error_frame:
+        can_id |= CAN_ERR_FLAG
+    data = bytes(msg.data)
+    if msg.is_fd:
+        length = fd_length(len(data))
+        flags = CANFD_FDF | (CANFD_BRS if msg.bitrate_switch else 0) | (
+            CANFD_ESI if msg.error_state_indicator else 0
+        )
+        return _FRAME.pack(can_id, length, flags, 0, 0, data.ljust(64, b"\0"))
+    if len(data) > 8:
+        raise ValueError(f"classic CAN frame with {len(data)} data bytes; set is_fd=True")
+    length = msg.dlc if msg.is_remote_frame else len(data)
+    return _FRAME.pack(can_id, length, 0, 0, 0, data.ljust(64, b"\0"))[:CAN_MTU]
+
+
+def unpack_frame(datagram: bytes, timestamp: float, channel: str) -> can.Message | None:
+    """The message in a datagram, or None for a datagram that is not a frame."""
+    if len(datagram) == CANFD_MTU:
+        is_fd = True
+    elif len(datagram) == CAN_MTU:
+        is_fd = False
+        datagram = datagram.ljust(CANFD_MTU, b"\0")
+    else:
+        return None
+    can_id, length, flags, _, _, data = _FRAME.unpack(datagram)
+    if length > (64 if is_fd else 8):
+        return None
+    is_remote = bool(can_id & CAN_RTR_FLAG)
+    return can.Message(
+        timestamp=timestamp,
+        arbitration_id=can_id & CAN_EFF_MASK,
+        is_extended_id=bool(can_id & CAN_EFF_FLAG),
+        is_remote_frame=is_remote,
+        is_error_frame=bool(can_id & CAN_ERR_FLAG),
+        is_fd=is_fd,
+        bitrate_switch=bool(flags & CANFD_BRS),
+        error_state_indicator=bool(flags & CANFD_ESI),
+        dlc=length,
+        data=b"" if is_remote else data[:length],
+        channel=channel,
+        is_rx=True,
+    )
+
+
+class UnixCanBus(can.BusABC):
+    """A node on a unixcan channel (the userspace stand-in for a SocketCAN interface)."""
+
+    def __init__(
+        self,
+        channel: str = "vcan0",
+        can_filters: CanFilters | None = None,
+        fd: bool = True,
+        receive_buffer: int = 1_000_000,
+        **kwargs: Any,
+    ) -> None:
+        if not channel or "/" in str(channel):
+            raise can.CanInitializationError(f"invalid unixcan channel name {channel!r}")
+        self.channel = str(channel)
+        self.channel_info = f"unixcan channel {self.channel}"
+        self._dir = base_dir() / self.channel
+        try:
+            self._dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise can.CanInitializationError(f"unixcan: cannot create {self._dir}: {exc}") from exc
+        self._path = self._dir / f"{os.getpid()}-py{next(_serial)}.sock"
+        if len(os.fsencode(self._path)) >= 108:
+            raise can.CanInitializationError(f"unixcan: socket path {self._path} is too long")
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        for opt in (socket.SO_SNDBUF, socket.SO_RCVBUF):
+            self._sock.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
+        self._path.unlink(missing_ok=True)
+        self._sock.bind(str(self._path))
+        os.chmod(self._path, 0o666)
+        self._sock.setblocking(False)
+        self._peers: list[str] = []
+        self._congested: set[str] = set()
+        self._dir_mtime = 0.0
+        self._last_scan = 0.0
+        self._lock = threading.Lock()
+        self.stats = {"tx_frames": 0, "tx_drops": 0, "tx_errors": 0, "rx_frames": 0,
+                      "rx_overflows": 0, "peers_removed": 0}
+        self._rx: collections.deque[can.Message] = collections.deque()
+        self._rx_limit = receive_buffer
+        self._rx_ready = threading.Condition()
+        self._closing = False
+        self._wake_r, self._wake_w = os.pipe()
+        self._scan_peers()
+        self._reader = threading.Thread(target=self._read_loop, name=f"unixcan-{channel}",
+                                        daemon=True)
+        self._reader.start()
+        self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
+        super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+
+    # -- membership -------------------------------------------------------------------
+    def _scan_peers(self) -> None:
+        self._last_scan = time.time()
+        try:
+            self._dir_mtime = self._dir.stat().st_mtime
+            names = os.listdir(self._dir)
+        except OSError:
+            self._peers = []
+            return
+        own = self._path.name
+        self._peers = [str(self._dir / n) for n in names if n.endswith(".sock") and n != own]
+        self._congested.intersection_update(self._peers)
+
+    def _refresh_peers(self) -> None:
+        now = time.time()
+        # Directory timestamps are coarse: keep re-reading while a change is recent.
+        if now - self._last_scan > _RESCAN_INTERVAL_S or now - self._dir_mtime < _RECENT_CHANGE_S:
+            self._scan_peers()
+            return
+        try:
+            if self._dir.stat().st_mtime != self._dir_mtime:
+                self._scan_peers()
+        except OSError:
+            pass
+
+    # -- sending ----------------------------------------------------------------------
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.is_fd and self._can_protocol is CanProtocol.CAN_20:
+            raise can.CanOperationError("this unixcan bus was opened with fd=False")
+        try:
+            datagram = pack_frame(msg)
+        except ValueError as exc:
+            raise can.CanOperationError(str(exc)) from exc
+        with self._lock:
+            self._refresh_peers()
+            for peer in list(self._peers):
+                try:
+                    self._send_to(datagram, peer)
+                    self._congested.discard(peer)
+                except BlockingIOError:
+                    self.stats["tx_drops"] += 1
+                    self._congested.add(peer)
+                except (ConnectionRefusedError, FileNotFoundError):
+                    # Nobody reads that socket any more: its node died without cleaning up.
+                    self._peers.remove(peer)
+                    self.stats["peers_removed"] += 1
+                    try:
+                        os.unlink(peer)
+                    except OSError:
+                        pass
+                except OSError as exc:
+                    self.stats["tx_errors"] += 1
+                    if exc.errno not in (errno.ENOBUFS,):
+                        raise can.CanOperationError(f"unixcan send to {peer}: {exc}") from exc
+            self.stats["tx_frames"] += 1
+
+    def _send_to(self, datagram: bytes, peer: str) -> None:
+        try:
+            self._sock.sendto(datagram, peer)
+            return
+        except BlockingIOError:
+            if peer in self._congested:
+                raise
+        give_up = time.monotonic() + _FULL_PEER_GRACE_S
+        while True:
+            time.sleep(0)  # lets this process's own reader thread drain, if it is the peer
+            try:
+                self._sock.sendto(datagram, peer)
+                return
+            except BlockingIOError:
+                if time.monotonic() >= give_up:
+                    raise
+
+    # -- receiving --------------------------------------------------------------------
+    def _read_loop(self) -> None:
+        poller = select.poll()
+        poller.register(self._sock, select.POLLIN)
+        poller.register(self._wake_r, select.POLLIN)
+        while not self._closing:
+            try:
+                events = poller.poll(500)
+            except InterruptedError:
+                continue
+            if not events:
+                continue
+            batch: list[can.Message] = []
+            while True:
+                try:
+                    datagram = self._sock.recv(CANFD_MTU)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:
+                    return
+                msg = unpack_frame(datagram, time.time(), self.channel)
+                if msg is not None:
+                    batch.append(msg)
+            if batch:
+                with self._rx_ready:
+                    room = self._rx_limit - len(self._rx)
+                    if len(batch) > room:
+                        self.stats["rx_overflows"] += len(batch) - max(room, 0)
+                        batch = batch[: max(room, 0)]
+                    self._rx.extend(batch)
+                    self._rx_ready.notify_all()
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        with self._rx_ready:
+            if not self._rx:
+                self._rx_ready.wait_for(lambda: bool(self._rx) or self._closing, timeout)
+            if not self._rx:
+                return None, False
+            self.stats["rx_frames"] += 1
+            return self._rx.popleft(), False
+
+    def fileno(self) -> int:
+        # The socket itself is drained by the reader thread; there is no pollable handle
+        # whose readability means "recv() will not block".
+        raise NotImplementedError("unixcan buses are not pollable; use recv(timeout)")
+
+    def shutdown(self) -> None:
+        if self._closing:
+            return
+        self._closing = True
+        os.write(self._wake_w, b"x")
+        self._reader.join(timeout=2.0)
+        with self._rx_ready:
+            self._rx_ready.notify_all()
+        self._sock.close()
+        os.close(self._wake_r)
+        os.close(self._wake_w)
+        self._path.unlink(missing_ok=True)
+        super().shutdown()
+
+    @staticmethod
+    def _detect_available_configs() -> list[AutoDetectedConfig]:
+        base = base_dir()
+        if not base.is_dir():
+            return []
+        return [
+            {"interface": "unixcan", "channel": d.name}
+            for d in sorted(base.iterdir())
+            if d.is_dir()
+        ]

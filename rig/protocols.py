@@ -1,0 +1,26 @@
+"""The wire definitions in protocols/ (DBC files), loaded once per process."""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+import cantools
+from cantools.database.can import Database
+
+from rig._paths import data_dir
+
+DATABASES = ("drive", "vio", "bench")
+
+
+def path(name: str) -> Path:
+    if name not in DATABASES:
+        raise ValueError(f"unknown protocol {name!r}; one of {', '.join(DATABASES)}")
+    return data_dir("protocols") / f"{name}.dbc"
+
+
+@cache
+def database(name: str) -> Database:
+    db = cantools.database.load_file(str(path(name)), strict=True)
+    assert isinstance(db, Database)
+    return db
