@@ -1,0 +1,94 @@
+/* Checks of incoming PWM commands (docs/interfaces.md, "Bad input"). */
+#include <string.h>
+
+#include "hil_vio.h"
+#include "plant_core.h"
+
+const char *plant_reject_name(int reason)
+{
+    static const char *const NAMES[PLANT_REJ_COUNT] = {
+        "none",         "unknown_id",    "bad_length",   "out_of_range", "stale_period",
+        "future_period", "too_many_soc", "soc_outside", "malformed",
+    };
+    if (reason < 0 || reason >= PLANT_REJ_COUNT) {
+        return "invalid";
+    }
+    return NAMES[reason];
+}
+
+int plant_pwm_validate(const plant_pwm_cmd_t *cmd, uint32_t expected_period)
+{
+    int k;
+    for (k = 0; k < 3; ++k) {
+        if (cmd->cmp_up[k] > PLANT_TBPRD || cmd->cmp_dn[k] > PLANT_TBPRD) {
+            return PLANT_REJ_OUT_OF_RANGE;
+        }
+    }
+    if (cmd->gate_enable > 1) {
+        return PLANT_REJ_OUT_OF_RANGE;
+    }
+    if (cmd->n_soc > PLANT_MAX_SOC) {
+        return PLANT_REJ_TOO_MANY_SOC;
+    }
+    for (k = 0; k < cmd->n_soc; ++k) {
+        if (cmd->soc[k] >= PLANT_PERIOD_TICKS) {
+            return PLANT_REJ_SOC_OUTSIDE;
+        }
+    }
+    /* Period checks last: a frame that is broken and also stale counts as broken. The
+     * difference is taken modulo 2^32 so that a wrapped counter stays ordered. */
+    if (cmd->period != expected_period) {
+        const int32_t ahead = (int32_t)(cmd->period - expected_period);
+        return ahead < 0 ? PLANT_REJ_STALE_PERIOD : PLANT_REJ_FUTURE_PERIOD;
+    }
+    return PLANT_REJ_NONE;
+}
+
+int plant_decode_pwm(uint32_t can_id, int fd, const uint8_t *data, size_t len,
+                     uint32_t expected_period, plant_pwm_cmd_t *out)
+{
+    struct hil_vio_vio_pwm_t m;
+    if (can_id != HIL_VIO_VIO_PWM_FRAME_ID) {
+        return PLANT_REJ_UNKNOWN_ID;
+    }
+    if (!fd) {
+        return PLANT_REJ_MALFORMED; /* VIO_PWM is a CAN FD frame; a classic one is not it */
+    }
+    if (len != HIL_VIO_VIO_PWM_LENGTH) {
+        return PLANT_REJ_BAD_LENGTH;
+    }
+    if (hil_vio_vio_pwm_unpack(&m, data, len) != 0) {
+        return PLANT_REJ_MALFORMED;
+    }
+    /* Bits 137..143 (after gate_enable) are unused: set ones mean a foreign layout. */
+    if (data[17] & 0xFEu) {
+        return PLANT_REJ_MALFORMED;
+    }
+    memset(out, 0, sizeof(*out));
+    out->period = m.period;
+    out->cmp_up[0] = m.cmp_a_up;
+    out->cmp_dn[0] = m.cmp_a_dn;
+    out->cmp_up[1] = m.cmp_b_up;
+    out->cmp_dn[1] = m.cmp_b_dn;
+    out->cmp_up[2] = m.cmp_c_up;
+    out->cmp_dn[2] = m.cmp_c_dn;
+    out->n_soc = m.n_soc;
+    out->gate_enable = m.gate_enable;
+    out->soc[0] = m.soc_0;
+    out->soc[1] = m.soc_1;
+    out->soc[2] = m.soc_2;
+    out->soc[3] = m.soc_3;
+    out->soc[4] = m.soc_4;
+    out->soc[5] = m.soc_5;
+    out->soc[6] = m.soc_6;
+    out->soc[7] = m.soc_7;
+    out->soc[8] = m.soc_8;
+    out->soc[9] = m.soc_9;
+    out->soc[10] = m.soc_10;
+    out->soc[11] = m.soc_11;
+    out->soc[12] = m.soc_12;
+    out->soc[13] = m.soc_13;
+    out->soc[14] = m.soc_14;
+    out->soc[15] = m.soc_15;
+    return plant_pwm_validate(out, expected_period);
+}

@@ -1,0 +1,326 @@
+/* Machine right-hand side and the conduction modes of the three legs.
+ *
+ * Electrical state: flux linkages in the rotor (dq) frame, amplitude-invariant Park:
+ *     d psi_d/dt = v_d - rs*i_d + w_e*psi_q
+ *     d psi_q/dt = v_q - rs*i_q - w_e*psi_d
+ * with (i_d, i_q) from the inverse flux map. Phase x (axis angle 0, 2pi/3, 4pi/3) has
+ * i_x = c_x . i_dq with c_x = (cos(theta - ax), -sin(theta - ax)), and the dq voltage of the
+ * leg voltages u_x (to DC-) is v_dq = 2/3 * sum_x u_x c_x: the common mode of the legs
+ * (and so the star-point voltage) drops out, as it does for an isolated neutral. This is
+ * the paper's abc model (eqs. 1-7) with its zero sequence removed: Ll acts only there.
+ *
+ * Conduction modes: a leg whose current is non-zero has the terminal voltage of that
+ * current's sign (inverter.c). A leg at zero current is "open" (mode ZERO) while the
+ * voltage that keeps its current at zero stays inside the leg's band; that voltage is
+ * solved from d i_x/dt = 0, which is linear in u_x with a positive coefficient
+ * (2/3 c_x' Gamma c_x, Gamma = incremental inductance inverse). With two legs at zero the
+ * third is at zero too (KCL at the star point): then the fluxes stay at their zero-current
+ * value, the phase voltages equal the back-EMF, and the legs stay open while one common
+ * star-point potential keeps every terminal inside its band (the diode bridge blocks).
+ */
+#include <math.h>
+
+#include "plant_internal.h"
+
+#define TWO_THIRDS (2.0 / 3.0)
+
+int plant_machine_zero_count(const plant_machine_t *m)
+{
+    return (m->mode[0] == LEG_ZERO) + (m->mode[1] == LEG_ZERO) + (m->mode[2] == LEG_ZERO);
+}
+
+static void phase_axes(double theta, double cph[3][2], double *s_out, double *c_out)
+{
+    const double s = sin(theta), c = cos(theta);
+    const double h = 0.5, r = 0.5 * PLANT_SQRT3;
+    /* cos/sin of theta - 2pi/3 and theta + 2pi/3 */
+    const double cb = -h * c + r * s, sb = -h * s - r * c;
+    const double cc = -h * c - r * s, sc = -h * s + r * c;
+    cph[0][0] = c;
+    cph[0][1] = -s;
+    cph[1][0] = cb;
+    cph[1][1] = -sb;
+    cph[2][0] = cc;
+    cph[2][1] = -sc;
+    *s_out = s;
+    *c_out = c;
+}
+
+/* Load-machine torque and shaft acceleration for motor torque te at speed w. */
+static void mechanics(const plant_machine_t *m, double te, double w, double *tl, double *dw)
+{
+    switch (m->load_mode) {
+    case PLANT_LOAD_SPEED_HOLD:
+        /* The dynamometer holds the speed: it supplies whatever torque that takes. */
+        *dw = 0.0;
+        *tl = te - m->b_total * w;
+        return;
+    case PLANT_LOAD_TORQUE:
+        *tl = m->load_torque + m->load_k * w;
+        break;
+    default:
+        *tl = 0.0;
+        break;
+    }
+    *dw = (te - *tl - m->b_total * w) / m->j_total;
+}
+
+static void currents_from_flux(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d)
+{
+    double i[2], l[3];
+    int it;
+    /* Warm start: last solution plus one linear step with its inverse inductance. */
+    const double dpd = x->psi_d - m->psi_last[0], dpq = x->psi_q - m->psi_last[1];
+    i[0] = m->i_guess[0] + m->g_last[0] * dpd + m->g_last[2] * dpq;
+    i[1] = m->i_guess[1] + m->g_last[2] * dpd + m->g_last[1] * dpq;
+    it = plant_mag_invert(m->mag, x->psi_d, x->psi_q, i, l);
+    if (it < 0) {
+        m->stats->newton_failures++;
+        it = -it;
+    }
+    m->stats->newton_iterations += (uint64_t)it;
+    d->id = i[0];
+    d->iq = i[1];
+    d->ldd = l[0];
+    d->lqq = l[1];
+    d->ldq = l[2];
+    {
+        const double det = l[0] * l[1] - l[2] * l[2];
+        d->gdd = l[1] / det;
+        d->gqq = l[0] / det;
+        d->gdq = -l[2] / det;
+    }
+    m->i_guess[0] = i[0];
+    m->i_guess[1] = i[1];
+    m->psi_last[0] = x->psi_d;
+    m->psi_last[1] = x->psi_q;
+    m->g_last[0] = d->gdd;
+    m->g_last[1] = d->gqq;
+    m->g_last[2] = d->gdq;
+}
+
+void plant_machine_rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d)
+{
+    const int nz = plant_machine_zero_count(m);
+    const double we = m->pp * x->omega_m;
+    double sn, cs, vd = 0.0, vq = 0.0;
+    int k;
+
+    m->stats->rhs_evals++;
+    phase_axes(x->theta, d->cph, &sn, &cs);
+    d->n_monitor = 3;
+
+    if (nz == 3) {
+        /* All phases open: i = 0, psi stays at its zero-current value, phase voltages are
+         * the back-EMF; the leg potentials float with one common star-point potential. */
+        double lo[3], hi[3], m_lo = -1e300, m_hi = 1e300, un;
+        double l[3];
+        plant_mag_flux(m->mag, 0.0, 0.0, NULL, l);
+        d->id = d->iq = 0.0;
+        d->ldd = l[0];
+        d->lqq = l[1];
+        d->ldq = l[2];
+        {
+            const double det = l[0] * l[1] - l[2] * l[2];
+            d->gdd = l[1] / det;
+            d->gqq = l[0] / det;
+            d->gdq = -l[2] / det;
+        }
+        vd = -we * x->psi_q;
+        vq = we * x->psi_d;
+        for (k = 0; k < 3; ++k) {
+            d->u_ph[k] = d->cph[k][0] * vd + d->cph[k][1] * vq;
+            d->i_ph[k] = 0.0;
+            d->di_ph[k] = 0.0;
+            plant_leg_band(m->gate[k], m->vdc, m->vdrop, &lo[k], &hi[k]);
+            if (lo[k] - d->u_ph[k] > m_lo) {
+                m_lo = lo[k] - d->u_ph[k];
+            }
+            if (hi[k] - d->u_ph[k] < m_hi) {
+                m_hi = hi[k] - d->u_ph[k];
+            }
+        }
+        un = 0.5 * (m_lo + m_hi);
+        for (k = 0; k < 3; ++k) {
+            d->u_leg[k] = d->u_ph[k] + un;
+            d->monitor[k] = 1.0;
+        }
+        d->monitor[0] = m_hi - m_lo; /* >= 0 while one star potential fits every band */
+        d->dpsi_d = 0.0;
+        d->dpsi_q = 0.0;
+    } else {
+        double bd, bq, dpd, dpq, didd, didq, mean;
+        int z = -1;
+
+        currents_from_flux(m, x, d);
+        bd = -m->rs * d->id + we * x->psi_q;
+        bq = -m->rs * d->iq - we * x->psi_d;
+        for (k = 0; k < 3; ++k) {
+            if (m->mode[k] == LEG_ZERO) {
+                z = k;
+                continue;
+            }
+            d->u_leg[k] = plant_leg_voltage(m->gate[k], m->mode[k], m->vdc, m->vdrop);
+            vd += TWO_THIRDS * d->u_leg[k] * d->cph[k][0];
+            vq += TWO_THIRDS * d->u_leg[k] * d->cph[k][1];
+        }
+        if (z >= 0) {
+            /* Open leg z: d i_z/dt = A + B u_z = 0. */
+            const double *c = d->cph[z];
+            const double rd = bd + vd, rq = bq + vq;
+            const double gcd = d->gdd * c[0] + d->gdq * c[1]; /* (Gamma c)_d */
+            const double gcq = d->gdq * c[0] + d->gqq * c[1];
+            const double a = we * (c[1] * d->id - c[0] * d->iq) + gcd * rd + gcq * rq;
+            const double b = TWO_THIRDS * (c[0] * gcd + c[1] * gcq);
+            d->u_leg[z] = -a / b;
+            vd += TWO_THIRDS * d->u_leg[z] * c[0];
+            vq += TWO_THIRDS * d->u_leg[z] * c[1];
+        }
+        dpd = bd + vd;
+        dpq = bq + vq;
+        d->dpsi_d = dpd;
+        d->dpsi_q = dpq;
+        didd = d->gdd * dpd + d->gdq * dpq;
+        didq = d->gdq * dpd + d->gqq * dpq;
+        mean = (d->u_leg[0] + d->u_leg[1] + d->u_leg[2]) / 3.0;
+        for (k = 0; k < 3; ++k) {
+            const double *c = d->cph[k];
+            double lo, hi;
+            d->i_ph[k] = c[0] * d->id + c[1] * d->iq;
+            /* d c_x/d theta = (c_x[1], -c_x[0]) */
+            d->di_ph[k] = we * (c[1] * d->id - c[0] * d->iq) + c[0] * didd + c[1] * didq;
+            d->u_ph[k] = d->u_leg[k] - mean;
+            plant_leg_band(m->gate[k], m->vdc, m->vdrop, &lo, &hi);
+            if (k == z) {
+                const double a = d->u_leg[k] - lo, b = hi - d->u_leg[k];
+                d->monitor[k] = a < b ? a : b;
+            } else if (hi > lo) {
+                d->monitor[k] = m->mode[k] == LEG_POS ? d->i_ph[k] : -d->i_ph[k];
+            } else {
+                d->monitor[k] = 1.0; /* the sign of the current changes nothing */
+            }
+        }
+    }
+
+    d->te = 1.5 * m->pp * (x->psi_d * d->iq - x->psi_q * d->id);
+    d->dtheta = we;
+    mechanics(m, d->te, x->omega_m, &d->tl, &d->domega);
+}
+
+/* Moves the state so that phase z carries exactly zero current (removes integration
+ * drift of an open phase; the change is of the order of the integration error). */
+static void project_zero(plant_machine_t *m, plant_state_t *x, int z)
+{
+    double i[2], l[3], psi[2], cph[3][2], sn, cs, iz;
+    phase_axes(x->theta, cph, &sn, &cs);
+    i[0] = m->i_guess[0];
+    i[1] = m->i_guess[1];
+    if (plant_mag_invert(m->mag, x->psi_d, x->psi_q, i, l) < 0) {
+        m->stats->newton_failures++;
+    }
+    iz = cph[z][0] * i[0] + cph[z][1] * i[1];
+    i[0] -= iz * cph[z][0];
+    i[1] -= iz * cph[z][1];
+    plant_mag_flux(m->mag, i[0], i[1], psi, NULL);
+    x->psi_d = psi[0];
+    x->psi_q = psi[1];
+    m->i_guess[0] = i[0];
+    m->i_guess[1] = i[1];
+}
+
+void plant_machine_project(plant_machine_t *m, plant_state_t *x)
+{
+    const int nz = plant_machine_zero_count(m);
+    int k;
+    if (nz == 1) {
+        for (k = 0; k < 3; ++k) {
+            if (m->mode[k] == LEG_ZERO) {
+                project_zero(m, x, k);
+            }
+        }
+    } else if (nz >= 2) {
+        x->psi_d = m->psi_zero[0];
+        x->psi_q = m->psi_zero[1];
+        m->i_guess[0] = 0.0;
+        m->i_guess[1] = 0.0;
+    }
+}
+
+int plant_machine_resolve(plant_machine_t *m, plant_state_t *x)
+{
+    int changes = 0, iter, k;
+    plant_deriv_t d;
+
+    for (iter = 0; iter < 8; ++iter) {
+        int nz = plant_machine_zero_count(m);
+        if (nz == 0) {
+            return changes;
+        }
+        if (nz == 2) {
+            /* KCL: the third phase is at zero current as well. */
+            for (k = 0; k < 3; ++k) {
+                m->mode[k] = LEG_ZERO;
+            }
+            ++changes;
+            nz = 3;
+        }
+        plant_machine_project(m, x);
+        plant_machine_rhs(m, x, &d);
+        if (nz == 3) {
+            /* Does one star potential keep every open terminal inside its band? If not, the
+             * leg that most needs a lower terminal voltage starts to source current through
+             * its lower path (POS) and the one that most needs a higher one sinks (NEG). */
+            double lo, hi, best_lo = -1e300, best_hi = 1e300;
+            int p = 0, n = 1;
+            for (k = 0; k < 3; ++k) {
+                plant_leg_band(m->gate[k], m->vdc, m->vdrop, &lo, &hi);
+                if (lo - d.u_ph[k] > best_lo) {
+                    best_lo = lo - d.u_ph[k];
+                    p = k;
+                }
+                if (hi - d.u_ph[k] < best_hi) {
+                    best_hi = hi - d.u_ph[k];
+                    n = k;
+                }
+            }
+            if (best_lo <= best_hi || p == n) {
+                return changes;
+            }
+            m->mode[p] = LEG_POS;
+            m->mode[n] = LEG_NEG;
+            ++changes;
+            continue;
+        }
+        /* nz == 1 */
+        for (k = 0; k < 3; ++k) {
+            if (m->mode[k] == LEG_ZERO) {
+                double lo, hi;
+                const double u = d.u_leg[k];
+                plant_leg_band(m->gate[k], m->vdc, m->vdrop, &lo, &hi);
+                if (hi > lo && u >= lo && u <= hi) {
+                    return changes;
+                }
+                /* Above the band: the current goes negative through the upper path. */
+                m->mode[k] = u > 0.5 * (lo + hi) ? LEG_NEG : LEG_POS;
+                ++changes;
+                return changes;
+            }
+        }
+    }
+    m->stats->mode_loops_cut++;
+    return changes;
+}
+
+void plant_machine_modes_from_currents(plant_machine_t *m, plant_state_t *x)
+{
+    plant_deriv_t d;
+    int k;
+    for (k = 0; k < 3; ++k) {
+        m->mode[k] = LEG_POS;
+    }
+    plant_machine_rhs(m, x, &d);
+    for (k = 0; k < 3; ++k) {
+        m->mode[k] = d.i_ph[k] > 0.0 ? LEG_POS : (d.i_ph[k] < 0.0 ? LEG_NEG : LEG_ZERO);
+    }
+    plant_machine_resolve(m, x);
+}

@@ -1,0 +1,948 @@
+/* plant_rt: the bench emulator on the bus (DESIGN.md section 4, docs/interfaces.md).
+ *
+ * Receives VIO_PWM, LOAD_CMD and BENCH_STEP; sends VIO_ADC_x per period, BENCH_TRUTH and
+ * BENCH_TRUTH_MAG (decimated on the bus, every period in the trace), BENCH_COUNTERS,
+ * BENCH_REJECTS and BENCH_PROGRESS every 100 ms. Lockstep (default) or real-time pacing.
+ *
+ * Period 0 runs with the start-up command: gates disabled, one SOC at tick 0, so that
+ * ADC(0) reaches the firmware, which answers with PWM(1).
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <getopt.h>
+#include <limits.h>
+#include <math.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sched.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "hil_bench.h"
+#include "hil_vio.h"
+#include "hilbus.h"
+#include "hiltrace.h"
+#include "plant_core.h"
+
+#define NS_PER_S 1000000000LL
+#define HOUSEKEEPING_NS (100LL * 1000000LL) /* counters, progress: every 100 ms */
+#define RESEND_NS (100LL * 1000000LL)       /* lockstep: ADC(k) again after 100 ms */
+#define VIO_RANGE_LO 0x10u
+#define VIO_RANGE_HI 0x2Fu
+#define BENCH_RANGE_LO 0x300u
+#define BENCH_RANGE_HI 0x33Fu
+
+static volatile sig_atomic_t g_stop = 0;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    g_stop = 1;
+}
+
+typedef struct options {
+    const char *bus;
+    const char *channel;
+    int realtime;
+    const char *profile;
+    const char *profiles_dir;
+    const char *trace;
+    int trace_vio;
+    const char *ready_file;
+    uint64_t max_periods;
+    uint32_t run_until;
+    uint32_t truth_every;
+    int rt_priority;
+} options_t;
+
+typedef struct counters {
+    uint64_t periods, late_cmds, overruns, adc_clipped, resends;
+    uint64_t rejects[PLANT_REJ_COUNT];
+    uint64_t max_late_us;
+    uint64_t load_cmds, steps;
+    const char *rt_note;
+} counters_t;
+
+typedef struct app {
+    options_t opt;
+    plant_t *plant;
+    const plant_config_t *cfg;
+    hilbus_t *bus;
+    hiltrace_t *trace;
+    counters_t cnt;
+    uint32_t run_until;
+    uint8_t step_seq;
+    int64_t log_window_start;
+    int log_lines_in_window;
+    uint64_t log_suppressed;
+    /* last period's ADC frames, for the lockstep re-send */
+    struct canfd_frame adc_frames[3];
+    int n_adc_frames;
+} app_t;
+
+static int64_t now_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * NS_PER_S + ts.tv_nsec;
+}
+
+/* ------------------------------------------------------------------ logging */
+
+static void log_reject(app_t *a, const char *fmt, ...)
+{
+    const int64_t t = now_ns();
+    va_list ap;
+    if (t - a->log_window_start > NS_PER_S) {
+        if (a->log_suppressed) {
+            fprintf(stderr, "plant_rt: (%llu more rejections not logged)\n",
+                    (unsigned long long)a->log_suppressed);
+        }
+        a->log_window_start = t;
+        a->log_lines_in_window = 0;
+        a->log_suppressed = 0;
+    }
+    if (a->log_lines_in_window >= 10) {
+        a->log_suppressed++;
+        return;
+    }
+    a->log_lines_in_window++;
+    fputs("plant_rt: rejected: ", stderr);
+    va_start(ap, fmt);
+    vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    fputc('\n', stderr);
+}
+
+static void reject(app_t *a, int reason, uint32_t can_id, uint32_t period)
+{
+    a->cnt.rejects[reason]++;
+    log_reject(a, "%s (id 0x%03X, period %u, expected %u)", plant_reject_name(reason),
+               (unsigned)can_id, (unsigned)period, (unsigned)plant_next_period(a->plant));
+}
+
+/* ------------------------------------------------------------------ sending */
+
+static void send_frame(app_t *a, uint32_t id, const uint8_t *data, uint8_t len, int to_trace)
+{
+    struct canfd_frame f;
+    memset(&f, 0, sizeof(f));
+    f.can_id = id;
+    f.len = len;
+    memcpy(f.data, data, len);
+    if (hilbus_send(a->bus, &f, 1) != 0) {
+        /* counted by hilbus (tx_errors); the period goes on */
+    }
+    if (to_trace && a->trace) {
+        hiltrace_write(a->trace, &f);
+    }
+}
+
+static void trace_frame(app_t *a, uint32_t id, const uint8_t *data, uint8_t len)
+{
+    struct canfd_frame f;
+    if (!a->trace) {
+        return;
+    }
+    memset(&f, 0, sizeof(f));
+    f.can_id = id;
+    f.len = len;
+    memcpy(f.data, data, len);
+    hiltrace_write(a->trace, &f);
+}
+
+static uint64_t total_rejects(const counters_t *c)
+{
+    uint64_t n = 0;
+    int k;
+    for (k = 1; k < PLANT_REJ_COUNT; ++k) {
+        n += c->rejects[k];
+    }
+    return n;
+}
+
+static uint32_t sat32(uint64_t v)
+{
+    return v > UINT32_MAX ? UINT32_MAX : (uint32_t)v;
+}
+
+static void send_housekeeping(app_t *a, int state)
+{
+    uint8_t buf[64];
+    hilbus_stats_t bs;
+    const uint32_t period = plant_next_period(a->plant);
+    hilbus_get_stats(a->bus, &bs);
+    {
+        struct hil_bench_bench_counters_t m;
+        memset(&m, 0, sizeof(m));
+        m.period = period;
+        m.late_cmds = sat32(a->cnt.late_cmds);
+        m.overruns = sat32(a->cnt.overruns);
+        m.rejected = sat32(total_rejects(&a->cnt));
+        m.adc_clipped = sat32(a->cnt.adc_clipped);
+        m.tx_drops = sat32(bs.tx_drops);
+        m.max_late_us = sat32(a->cnt.max_late_us);
+        hil_bench_bench_counters_pack(buf, &m, sizeof(buf));
+        send_frame(a, HIL_BENCH_BENCH_COUNTERS_FRAME_ID, buf, HIL_BENCH_BENCH_COUNTERS_LENGTH, 0);
+    }
+    {
+        struct hil_bench_bench_rejects_t m;
+        memset(&m, 0, sizeof(m));
+        m.period = period;
+        m.unknown_id = sat32(a->cnt.rejects[PLANT_REJ_UNKNOWN_ID]);
+        m.bad_length = sat32(a->cnt.rejects[PLANT_REJ_BAD_LENGTH]);
+        m.out_of_range = sat32(a->cnt.rejects[PLANT_REJ_OUT_OF_RANGE]);
+        m.stale_period = sat32(a->cnt.rejects[PLANT_REJ_STALE_PERIOD]);
+        m.future_period = sat32(a->cnt.rejects[PLANT_REJ_FUTURE_PERIOD]);
+        m.too_many_soc = sat32(a->cnt.rejects[PLANT_REJ_TOO_MANY_SOC]);
+        m.soc_outside = sat32(a->cnt.rejects[PLANT_REJ_SOC_OUTSIDE]);
+        m.malformed = sat32(a->cnt.rejects[PLANT_REJ_MALFORMED]);
+        hil_bench_bench_rejects_pack(buf, &m, sizeof(buf));
+        send_frame(a, HIL_BENCH_BENCH_REJECTS_FRAME_ID, buf, HIL_BENCH_BENCH_REJECTS_LENGTH, 0);
+    }
+    {
+        struct hil_bench_bench_progress_t m;
+        memset(&m, 0, sizeof(m));
+        m.period = period;
+        m.seq = a->step_seq;
+        m.state = (uint8_t)state;
+        hil_bench_bench_progress_pack(buf, &m, sizeof(buf));
+        send_frame(a, HIL_BENCH_BENCH_PROGRESS_FRAME_ID, buf, HIL_BENCH_BENCH_PROGRESS_LENGTH, 0);
+    }
+}
+
+static void send_progress(app_t *a, int state)
+{
+    uint8_t buf[8];
+    struct hil_bench_bench_progress_t m;
+    memset(&m, 0, sizeof(m));
+    m.period = plant_next_period(a->plant);
+    m.seq = a->step_seq;
+    m.state = (uint8_t)state;
+    hil_bench_bench_progress_pack(buf, &m, sizeof(buf));
+    send_frame(a, HIL_BENCH_BENCH_PROGRESS_FRAME_ID, buf, HIL_BENCH_BENCH_PROGRESS_LENGTH, 0);
+}
+
+static void send_adc(app_t *a, const plant_samples_t *s)
+{
+    uint8_t buf[64];
+    const uint32_t n = s->n_soc;
+    a->n_adc_frames = 0;
+    if (n > 0) {
+        struct hil_vio_vio_adc_0_t m;
+        memset(&m, 0, sizeof(m));
+        m.period = s->period;
+        m.n_soc = (uint8_t)n;
+        m.vdc_code = s->vdc_code[0];
+        m.ia_0 = s->ia_code[0], m.ib_0 = s->ib_code[0];
+        m.ia_1 = s->ia_code[1], m.ib_1 = s->ib_code[1];
+        m.ia_2 = s->ia_code[2], m.ib_2 = s->ib_code[2];
+        m.ia_3 = s->ia_code[3], m.ib_3 = s->ib_code[3];
+        m.ia_4 = s->ia_code[4], m.ib_4 = s->ib_code[4];
+        m.ia_5 = s->ia_code[5], m.ib_5 = s->ib_code[5];
+        m.ia_6 = s->ia_code[6], m.ib_6 = s->ib_code[6];
+        hil_vio_vio_adc_0_pack(buf, &m, sizeof(buf));
+        send_frame(a, HIL_VIO_VIO_ADC_0_FRAME_ID, buf, 64, 0);
+        a->adc_frames[a->n_adc_frames].can_id = HIL_VIO_VIO_ADC_0_FRAME_ID;
+        memcpy(a->adc_frames[a->n_adc_frames++].data, buf, 64);
+    }
+    if (n > 7) {
+        struct hil_vio_vio_adc_1_t m;
+        memset(&m, 0, sizeof(m));
+        m.period = s->period;
+        m.n_soc = (uint8_t)n;
+        m.vdc_code = s->vdc_code[7];
+        m.ia_7 = s->ia_code[7], m.ib_7 = s->ib_code[7];
+        m.ia_8 = s->ia_code[8], m.ib_8 = s->ib_code[8];
+        m.ia_9 = s->ia_code[9], m.ib_9 = s->ib_code[9];
+        m.ia_10 = s->ia_code[10], m.ib_10 = s->ib_code[10];
+        m.ia_11 = s->ia_code[11], m.ib_11 = s->ib_code[11];
+        m.ia_12 = s->ia_code[12], m.ib_12 = s->ib_code[12];
+        m.ia_13 = s->ia_code[13], m.ib_13 = s->ib_code[13];
+        hil_vio_vio_adc_1_pack(buf, &m, sizeof(buf));
+        send_frame(a, HIL_VIO_VIO_ADC_1_FRAME_ID, buf, 64, 0);
+        a->adc_frames[a->n_adc_frames].can_id = HIL_VIO_VIO_ADC_1_FRAME_ID;
+        memcpy(a->adc_frames[a->n_adc_frames++].data, buf, 64);
+    }
+    if (n > 14) {
+        struct hil_vio_vio_adc_2_t m;
+        memset(&m, 0, sizeof(m));
+        m.period = s->period;
+        m.n_soc = (uint8_t)n;
+        m.vdc_code = s->vdc_code[14];
+        m.ia_14 = s->ia_code[14], m.ib_14 = s->ib_code[14];
+        m.ia_15 = s->ia_code[15], m.ib_15 = s->ib_code[15];
+        hil_vio_vio_adc_2_pack(buf, &m, sizeof(buf));
+        send_frame(a, HIL_VIO_VIO_ADC_2_FRAME_ID, buf, 64, 0);
+        a->adc_frames[a->n_adc_frames].can_id = HIL_VIO_VIO_ADC_2_FRAME_ID;
+        memcpy(a->adc_frames[a->n_adc_frames++].data, buf, 64);
+    }
+    if (a->opt.trace_vio) {
+        int k;
+        for (k = 0; k < a->n_adc_frames; ++k) {
+            trace_frame(a, a->adc_frames[k].can_id, a->adc_frames[k].data, 64);
+        }
+    }
+}
+
+static void resend_adc(app_t *a)
+{
+    int k;
+    for (k = 0; k < a->n_adc_frames; ++k) {
+        send_frame(a, a->adc_frames[k].can_id, a->adc_frames[k].data, 64, 0);
+    }
+    if (a->n_adc_frames) {
+        a->cnt.resends++;
+    }
+}
+
+static void send_truth(app_t *a, const plant_truth_t *t)
+{
+    uint8_t buf[64];
+    const int on_bus = a->opt.truth_every > 0 && (t->period % a->opt.truth_every) == 0;
+    {
+        struct hil_bench_bench_truth_t m;
+        m.period = t->period;
+        m.theta_e = (float)t->theta_e;
+        m.omega_m = (float)t->omega_m;
+        m.id = (float)t->id;
+        m.iq = (float)t->iq;
+        m.te = (float)t->te;
+        m.tl = (float)t->tl;
+        m.t_shaft = (float)t->t_shaft;
+        m.ia = (float)t->ia;
+        m.ib = (float)t->ib;
+        m.vdc = (float)t->vdc;
+        m.psi_d = (float)t->psi_d;
+        m.psi_q = (float)t->psi_q;
+        m.ua = (float)t->ua;
+        m.ub = (float)t->ub;
+        m.uc = (float)t->uc;
+        hil_bench_bench_truth_pack(buf, &m, sizeof(buf));
+        if (on_bus) {
+            send_frame(a, HIL_BENCH_BENCH_TRUTH_FRAME_ID, buf, 64, 0);
+        }
+        trace_frame(a, HIL_BENCH_BENCH_TRUTH_FRAME_ID, buf, 64);
+    }
+    {
+        struct hil_bench_bench_truth_mag_t m;
+        memset(&m, 0, sizeof(m));
+        m.period = t->period;
+        m.ld_inc = (float)t->ld_inc;
+        m.lq_inc = (float)t->lq_inc;
+        m.ldq_inc = (float)t->ldq_inc;
+        m.ld_app = (float)t->ld_app;
+        m.lq_app = (float)t->lq_app;
+        m.lambda_m = (float)t->lambda_m;
+        m.rs = (float)t->rs;
+        hil_bench_bench_truth_mag_pack(buf, &m, sizeof(buf));
+        if (on_bus) {
+            send_frame(a, HIL_BENCH_BENCH_TRUTH_MAG_FRAME_ID, buf, 64, 0);
+        }
+        trace_frame(a, HIL_BENCH_BENCH_TRUTH_MAG_FRAME_ID, buf, 64);
+    }
+}
+
+/* ------------------------------------------------------------------ receiving */
+
+typedef struct inbox {
+    int have_pwm;
+    plant_pwm_cmd_t pwm;
+    int64_t pwm_arrival_ns;
+} inbox_t;
+
+static int known_id(uint32_t id)
+{
+    switch (id) {
+    case HIL_VIO_VIO_PWM_FRAME_ID:
+    case HIL_VIO_VIO_ADC_0_FRAME_ID:
+    case HIL_VIO_VIO_ADC_1_FRAME_ID:
+    case HIL_VIO_VIO_ADC_2_FRAME_ID:
+    case HIL_VIO_FW_TRACE_FRAME_ID:
+    case HIL_BENCH_BENCH_TRUTH_FRAME_ID:
+    case HIL_BENCH_BENCH_TRUTH_MAG_FRAME_ID:
+    case HIL_BENCH_BENCH_COUNTERS_FRAME_ID:
+    case HIL_BENCH_BENCH_REJECTS_FRAME_ID:
+    case HIL_BENCH_BENCH_STEP_FRAME_ID:
+    case HIL_BENCH_BENCH_PROGRESS_FRAME_ID:
+    case HIL_BENCH_LOAD_CMD_FRAME_ID:
+        return 1;
+    default:
+        return 0;
+    }
+}
+
+/* Period that a PWM frame has to carry now, and the lateness bookkeeping of real time. */
+static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t *in,
+                         int64_t period_start_ns)
+{
+    const uint32_t id = f->can_id & CAN_SFF_MASK;
+    if (f->can_id & (CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG)) {
+        return; /* not from this protocol's 11-bit data frame space */
+    }
+    if (id == HIL_VIO_VIO_PWM_FRAME_ID) {
+        plant_pwm_cmd_t cmd;
+        const uint32_t expected = plant_next_period(a->plant);
+        const uint32_t raw_period = f->len >= 4 ? ((uint32_t)f->data[0] | ((uint32_t)f->data[1] << 8) |
+                                                   ((uint32_t)f->data[2] << 16) |
+                                                   ((uint32_t)f->data[3] << 24))
+                                                : 0u;
+        const int r = plant_decode_pwm(id, fd, f->data, f->len, expected, &cmd);
+        if (a->opt.trace_vio) {
+            trace_frame(a, f->can_id, f->data, f->len);
+        }
+        if (r == PLANT_REJ_NONE) {
+            in->have_pwm = 1;
+            in->pwm = cmd;
+            in->pwm_arrival_ns = now_ns();
+            return;
+        }
+        if (r == PLANT_REJ_STALE_PERIOD && a->opt.realtime) {
+            /* A frame for a period that already ran on the old values: it was due before
+             * that period started, (expected - p) periods before the current one. */
+            const int64_t due = period_start_ns - (int64_t)(expected - raw_period) *
+                                                      (int64_t)(PLANT_TS_S * 1e9 + 0.5);
+            const int64_t late_ns = now_ns() - due;
+            if (late_ns > 0 && (uint64_t)(late_ns / 1000) > a->cnt.max_late_us) {
+                a->cnt.max_late_us = (uint64_t)(late_ns / 1000);
+            }
+        }
+        reject(a, r, id, raw_period);
+        return;
+    }
+    if (id == HIL_BENCH_LOAD_CMD_FRAME_ID) {
+        struct hil_bench_load_cmd_t m;
+        if (f->len != HIL_BENCH_LOAD_CMD_LENGTH) {
+            reject(a, PLANT_REJ_BAD_LENGTH, id, 0);
+            return;
+        }
+        hil_bench_load_cmd_unpack(&m, f->data, f->len);
+        if (m.mode > 2 || !(fabsf(m.torque) <= 10.0f) || !(fabsf(m.speed) <= 4000.0f) ||
+            !(m.k_speed >= 0.0f && m.k_speed <= 1.0f)) {
+            reject(a, PLANT_REJ_OUT_OF_RANGE, id, 0);
+            return;
+        }
+        plant_set_load(a->plant, m.mode, m.torque, m.speed, m.k_speed);
+        a->cnt.load_cmds++;
+        return;
+    }
+    if (id == HIL_BENCH_BENCH_STEP_FRAME_ID) {
+        struct hil_bench_bench_step_t m;
+        if (f->len != HIL_BENCH_BENCH_STEP_LENGTH) {
+            reject(a, PLANT_REJ_BAD_LENGTH, id, 0);
+            return;
+        }
+        hil_bench_bench_step_unpack(&m, f->data, f->len);
+        a->run_until = m.run_until;
+        a->step_seq = m.seq;
+        a->cnt.steps++;
+        return;
+    }
+    if (!known_id(id) && ((id >= VIO_RANGE_LO && id <= VIO_RANGE_HI) ||
+                          (id >= BENCH_RANGE_LO && id <= BENCH_RANGE_HI))) {
+        reject(a, PLANT_REJ_UNKNOWN_ID, id, 0);
+    }
+    /* anything else (drive protocol, firmware trace, our own kind of frames) is not ours */
+}
+
+/* ------------------------------------------------------------------ one period */
+
+static void run_period(app_t *a, const plant_pwm_cmd_t *cmd)
+{
+    plant_samples_t s;
+    plant_truth_t t;
+    plant_pwm_cmd_t c = *cmd;
+    c.period = plant_next_period(a->plant);
+    plant_step(a->plant, &c, &s, &t);
+    a->cnt.periods++;
+    a->cnt.adc_clipped += s.clipped;
+    send_adc(a, &s);
+    send_truth(a, &t);
+}
+
+static void startup_command(plant_pwm_cmd_t *c)
+{
+    memset(c, 0, sizeof(*c));
+    c->gate_enable = 0;
+    c->n_soc = 1;
+    c->soc[0] = 0;
+}
+
+static int lockstep(app_t *a)
+{
+    inbox_t in;
+    int64_t next_housekeeping = now_ns() + HOUSEKEEPING_NS, adc_sent_ns = 0;
+    int waiting_pwm = 0;
+    memset(&in, 0, sizeof(in));
+    startup_command(&in.pwm);
+    in.have_pwm = 1; /* period 0 runs on the start-up command */
+
+    while (!g_stop) {
+        const uint32_t k = plant_next_period(a->plant);
+        int64_t t = now_ns(), timeout_ns;
+        struct canfd_frame f;
+        int fd, r;
+
+        if (a->opt.max_periods && a->cnt.periods >= a->opt.max_periods) {
+            break;
+        }
+        if (t >= next_housekeeping) {
+            send_housekeeping(a, k < a->run_until ? 1 : 0);
+            next_housekeeping = t + HOUSEKEEPING_NS;
+        }
+        if (in.have_pwm && (int32_t)(k - a->run_until) < 0) {
+            run_period(a, &in.pwm);
+            in.have_pwm = 0;
+            waiting_pwm = 1;
+            adc_sent_ns = now_ns();
+            if (plant_next_period(a->plant) == a->run_until) {
+                send_progress(a, 0); /* grant used up */
+            }
+            /* take whatever has already arrived before deciding to wait */
+            while ((r = hilbus_recv(a->bus, &f, &fd, 0)) == 1) {
+                handle_frame(a, &f, fd, &in, 0);
+            }
+            continue;
+        }
+        timeout_ns = next_housekeeping - t;
+        if (waiting_pwm && !in.have_pwm && adc_sent_ns + RESEND_NS - t < timeout_ns) {
+            timeout_ns = adc_sent_ns + RESEND_NS - t;
+        }
+        if (timeout_ns < 0) {
+            timeout_ns = 0;
+        }
+        r = hilbus_recv(a->bus, &f, &fd, timeout_ns / 1000);
+        if (r == 1) {
+            handle_frame(a, &f, fd, &in, 0);
+        } else if (r < 0 && errno != EINTR) {
+            fprintf(stderr, "plant_rt: receive error: %s\n", strerror(errno));
+            return 1;
+        }
+        if (in.have_pwm) {
+            waiting_pwm = 0;
+        }
+        t = now_ns();
+        if (waiting_pwm && !in.have_pwm && t - adc_sent_ns >= RESEND_NS) {
+            resend_adc(a); /* the firmware answers a repeated ADC(k) with the same PWM(k+1) */
+            adc_sent_ns = t;
+        }
+    }
+    return 0;
+}
+
+static void setup_realtime(app_t *a)
+{
+    struct sched_param sp;
+    int ok_lock = mlockall(MCL_CURRENT | MCL_FUTURE) == 0;
+    int ok_sched = 0;
+    if (a->opt.rt_priority > 0) {
+        memset(&sp, 0, sizeof(sp));
+        sp.sched_priority = a->opt.rt_priority;
+        ok_sched = sched_setscheduler(0, SCHED_FIFO, &sp) == 0;
+    }
+    if (ok_sched && ok_lock) {
+        a->cnt.rt_note = "SCHED_FIFO+mlockall";
+    } else if (ok_sched) {
+        a->cnt.rt_note = "SCHED_FIFO; mlockall not permitted";
+    } else if (ok_lock) {
+        a->cnt.rt_note = a->opt.rt_priority > 0 ? "SCHED_OTHER (SCHED_FIFO not permitted)+mlockall"
+                                                : "SCHED_OTHER (--rt-priority 0)+mlockall";
+    } else {
+        a->cnt.rt_note = "SCHED_OTHER; SCHED_FIFO and mlockall not permitted";
+    }
+}
+
+static int realtime(app_t *a)
+{
+    const int64_t ts_ns = (int64_t)(PLANT_TS_S * 1e9 + 0.5);
+    int64_t start, next_housekeeping;
+    plant_pwm_cmd_t current;
+    inbox_t in;
+    setup_realtime(a);
+    memset(&in, 0, sizeof(in));
+    startup_command(&current);
+    start = now_ns() + 2 * ts_ns;
+    next_housekeeping = start + HOUSEKEEPING_NS;
+
+    while (!g_stop) {
+        const uint32_t k = plant_next_period(a->plant);
+        const int64_t deadline = start + (int64_t)k * ts_ns;
+        struct timespec ts;
+        struct canfd_frame f;
+        int fd;
+        int64_t t;
+
+        if (a->opt.max_periods && a->cnt.periods >= a->opt.max_periods) {
+            break;
+        }
+        ts.tv_sec = (time_t)(deadline / NS_PER_S);
+        ts.tv_nsec = (long)(deadline % NS_PER_S);
+        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR && !g_stop) {
+        }
+        if (g_stop) {
+            break;
+        }
+        in.have_pwm = 0;
+        while (hilbus_recv(a->bus, &f, &fd, 0) == 1) {
+            handle_frame(a, &f, fd, &in, deadline);
+        }
+        if (in.have_pwm) {
+            current = in.pwm;
+        } else if (k > 0) {
+            a->cnt.late_cmds++; /* the old compare values stay loaded */
+        }
+        run_period(a, &current);
+        t = now_ns();
+        if (t > deadline + ts_ns) {
+            a->cnt.overruns++; /* the next period starts late */
+        }
+        if (t >= next_housekeeping) {
+            send_housekeeping(a, 1);
+            next_housekeeping += HOUSEKEEPING_NS;
+            if (next_housekeeping < t) {
+                next_housekeeping = t + HOUSEKEEPING_NS;
+            }
+        }
+    }
+    return 0;
+}
+
+/* ------------------------------------------------------------------ start-up */
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: plant_rt [options]\n"
+            "Emulates the IPMSM bench (machine, inverter, sensors, ADC, shaft, load) on the bus.\n"
+            "\n"
+            "  --bus socketcan|unixcan|auto   transport (default $HIL_BUS, else unixcan)\n"
+            "  --channel NAME                 channel (default $HIL_CHANNEL, else vcan0)\n"
+            "  --lockstep | --realtime        pacing (default lockstep)\n"
+            "  --profile NAME|FILE            fidelity profile (default paper); a NAME is looked\n"
+            "                                 up as NAME.toml in the profiles folder\n"
+            "  --config FILE                  same as --profile FILE\n"
+            "  --profiles-dir DIR             profiles folder (default: ../_data/profiles next\n"
+            "                                 to the binary when installed, else the source tree)\n"
+            "  --set section.key=value        override a profile field (repeatable)\n"
+            "  --seed N                       noise seed (= --set sensors.seed=N)\n"
+            "  --theta0 RAD                   initial electrical angle\n"
+            "  --speed0 RPM                   initial speed\n"
+            "  --load-mode torque|speed|off   load machine default (or 0, 1, 2)\n"
+            "  --load-torque NM  --load-speed RPM  --load-k NMS   load machine defaults\n"
+            "  --trace FILE                   per-period binary trace (BENCH_TRUTH, _MAG)\n"
+            "  --trace-vio                    also trace VIO_PWM received and VIO_ADC sent\n"
+            "  --ready-file FILE              written once on the bus and ready\n"
+            "  --max-periods N                exit after N periods (0: until SIGTERM/SIGINT)\n"
+            "  --run-until N                  initial lockstep grant (periods < N)\n"
+            "  --truth-every N                BENCH_TRUTH on the bus every N periods (default 10;\n"
+            "                                 the trace has every period)\n"
+            "  --rt-priority N                SCHED_FIFO priority in real time (default 80; 0 off)\n"
+            "  --help                         this text\n"
+            "\n"
+            "Profile keys:");
+    {
+        int k;
+        for (k = 0; k < plant_config_key_count(); ++k) {
+            fprintf(out, "%s%s", (k % 4) ? "  " : "\n  ", plant_config_key_name(k));
+        }
+    }
+    fprintf(out, "\n\nExit: 0 on a clean stop, 2 on a bad configuration, 1 on other faults.\n");
+}
+
+static int profile_file(const options_t *o, char *out, size_t outlen)
+{
+    const char *p = o->profile ? o->profile : "paper";
+    size_t len = strlen(p);
+    if (strchr(p, '/') || (len > 5 && strcmp(p + len - 5, ".toml") == 0)) {
+        snprintf(out, outlen, "%s", p);
+        return 0;
+    }
+    if (o->profiles_dir) {
+        snprintf(out, outlen, "%s/%s.toml", o->profiles_dir, p);
+        return 0;
+    }
+    {
+        char exe[PATH_MAX];
+        ssize_t n = readlink("/proc/self/exe", exe, sizeof(exe) - 1);
+        if (n > 0) {
+            char *slash;
+            exe[n] = '\0';
+            slash = strrchr(exe, '/');
+            if (slash) {
+                *slash = '\0';
+                snprintf(out, outlen, "%s/../_data/profiles/%s.toml", exe, p);
+                if (access(out, R_OK) == 0) {
+                    return 0;
+                }
+            }
+        }
+    }
+    snprintf(out, outlen, "%s/%s.toml", PLANT_SOURCE_PROFILES_DIR, p);
+    return 0;
+}
+
+static int write_ready(const char *path)
+{
+    char tmp[PATH_MAX];
+    FILE *f;
+    snprintf(tmp, sizeof(tmp), "%s.tmp.%ld", path, (long)getpid());
+    f = fopen(tmp, "w");
+    if (!f) {
+        return -1;
+    }
+    fprintf(f, "%ld\n", (long)getpid());
+    if (fclose(f) != 0 || rename(tmp, path) != 0) {
+        unlink(tmp);
+        return -1;
+    }
+    return 0;
+}
+
+static void print_counters(app_t *a)
+{
+    hilbus_stats_t bs;
+    plant_stats_t ps;
+    int k;
+    memset(&bs, 0, sizeof(bs));
+    if (a->bus) {
+        hilbus_get_stats(a->bus, &bs);
+    }
+    plant_get_stats(a->plant, &ps);
+    fprintf(stderr,
+            "{\"program\": \"plant_rt\", \"mode\": \"%s\", \"transport\": \"%s\", "
+            "\"periods\": %llu, \"next_period\": %u, \"late_cmds\": %llu, \"overruns\": %llu, "
+            "\"max_late_us\": %llu, \"rejected\": %llu, \"rejects\": {",
+            a->opt.realtime ? "realtime" : "lockstep", a->bus ? hilbus_transport(a->bus) : "none",
+            (unsigned long long)a->cnt.periods, (unsigned)plant_next_period(a->plant),
+            (unsigned long long)a->cnt.late_cmds, (unsigned long long)a->cnt.overruns,
+            (unsigned long long)a->cnt.max_late_us, (unsigned long long)total_rejects(&a->cnt));
+    for (k = 1; k < PLANT_REJ_COUNT; ++k) {
+        fprintf(stderr, "%s\"%s\": %llu", k > 1 ? ", " : "", plant_reject_name(k),
+                (unsigned long long)a->cnt.rejects[k]);
+    }
+    fprintf(stderr,
+            "}, \"adc_clipped\": %llu, \"resends\": %llu, \"tx_frames\": %llu, "
+            "\"tx_drops\": %llu, \"tx_errors\": %llu, \"rx_frames\": %llu, "
+            "\"rx_overflows\": %llu, \"load_cmds\": %llu, \"steps\": %llu, "
+            "\"conduction_events\": %llu, \"newton_failures\": %llu, \"mode_loops_cut\": %llu, "
+            "\"rt\": \"%s\"}\n",
+            (unsigned long long)a->cnt.adc_clipped, (unsigned long long)a->cnt.resends,
+            (unsigned long long)bs.tx_frames, (unsigned long long)bs.tx_drops,
+            (unsigned long long)bs.tx_errors, (unsigned long long)bs.rx_frames,
+            (unsigned long long)bs.rx_overflows, (unsigned long long)a->cnt.load_cmds,
+            (unsigned long long)a->cnt.steps, (unsigned long long)ps.conduction_events,
+            (unsigned long long)ps.newton_failures, (unsigned long long)ps.mode_loops_cut,
+            a->cnt.rt_note ? a->cnt.rt_note : "not requested (lockstep)");
+}
+
+static int parse_u64(const char *s, uint64_t *v)
+{
+    char *end;
+    unsigned long long x;
+    errno = 0;
+    x = strtoull(s, &end, 10);
+    if (errno || end == s || *end || s[0] == '-') {
+        return -1;
+    }
+    *v = x;
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    enum {
+        O_BUS = 256, O_CHANNEL, O_LOCKSTEP, O_REALTIME, O_PROFILE, O_CONFIG, O_PROFILES_DIR,
+        O_SET, O_SEED, O_THETA0, O_SPEED0, O_LOAD_MODE, O_LOAD_TORQUE, O_LOAD_SPEED, O_LOAD_K,
+        O_TRACE, O_TRACE_VIO, O_READY, O_MAX_PERIODS, O_RUN_UNTIL, O_TRUTH_EVERY, O_RT_PRIO,
+        O_HELP
+    };
+    static const struct option longopts[] = {
+        {"bus", required_argument, 0, O_BUS},
+        {"channel", required_argument, 0, O_CHANNEL},
+        {"lockstep", no_argument, 0, O_LOCKSTEP},
+        {"realtime", no_argument, 0, O_REALTIME},
+        {"profile", required_argument, 0, O_PROFILE},
+        {"config", required_argument, 0, O_CONFIG},
+        {"profiles-dir", required_argument, 0, O_PROFILES_DIR},
+        {"set", required_argument, 0, O_SET},
+        {"seed", required_argument, 0, O_SEED},
+        {"theta0", required_argument, 0, O_THETA0},
+        {"speed0", required_argument, 0, O_SPEED0},
+        {"load-mode", required_argument, 0, O_LOAD_MODE},
+        {"load-torque", required_argument, 0, O_LOAD_TORQUE},
+        {"load-speed", required_argument, 0, O_LOAD_SPEED},
+        {"load-k", required_argument, 0, O_LOAD_K},
+        {"trace", required_argument, 0, O_TRACE},
+        {"trace-vio", no_argument, 0, O_TRACE_VIO},
+        {"ready-file", required_argument, 0, O_READY},
+        {"max-periods", required_argument, 0, O_MAX_PERIODS},
+        {"run-until", required_argument, 0, O_RUN_UNTIL},
+        {"truth-every", required_argument, 0, O_TRUTH_EVERY},
+        {"rt-priority", required_argument, 0, O_RT_PRIO},
+        {"help", no_argument, 0, O_HELP},
+        {0, 0, 0, 0},
+    };
+    /* "section.key=value" assignments in command-line order, applied after the profile */
+    char **sets = (char **)calloc((size_t)argc + 1, sizeof(char *));
+    int n_sets = 0, c, rc = 0, k;
+    app_t a;
+    char path[PATH_MAX + 64], err[1024];
+    plant_config_t cfg;
+    struct sigaction sa;
+
+    memset(&a, 0, sizeof(a));
+    a.opt.bus = getenv("HIL_BUS") ? getenv("HIL_BUS") : "unixcan";
+    a.opt.channel = getenv("HIL_CHANNEL") ? getenv("HIL_CHANNEL") : "vcan0";
+    a.opt.truth_every = 10;
+    a.opt.rt_priority = 80;
+    if (!sets) {
+        return 1;
+    }
+    while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+        uint64_t v;
+        char buf[256];
+        switch (c) {
+        case O_BUS: a.opt.bus = optarg; break;
+        case O_CHANNEL: a.opt.channel = optarg; break;
+        case O_LOCKSTEP: a.opt.realtime = 0; break;
+        case O_REALTIME: a.opt.realtime = 1; break;
+        case O_PROFILE:
+        case O_CONFIG: a.opt.profile = optarg; break;
+        case O_PROFILES_DIR: a.opt.profiles_dir = optarg; break;
+        case O_SET: sets[n_sets++] = strdup(optarg); break;
+        case O_SEED:
+        case O_THETA0:
+        case O_SPEED0:
+        case O_LOAD_TORQUE:
+        case O_LOAD_SPEED:
+        case O_LOAD_K: {
+            static const char *const keys[] = {"sensors.seed", "initial.theta_e_deg",
+                                               "initial.speed_rpm", "load.torque_nm",
+                                               "load.speed_rpm", "load.k_speed_nms"};
+            const int idx = c == O_SEED ? 0 : c == O_THETA0 ? 1 : c == O_SPEED0 ? 2
+                          : c == O_LOAD_TORQUE ? 3 : c == O_LOAD_SPEED ? 4 : 5;
+            if (c == O_THETA0) {
+                char *end;
+                const double rad = strtod(optarg, &end);
+                if (end == optarg || *end) {
+                    fprintf(stderr, "plant_rt: --theta0 %s: not a number\n", optarg);
+                    return 2;
+                }
+                snprintf(buf, sizeof(buf), "%s=%.17g", keys[idx], rad * 180.0 / 3.14159265358979323846);
+            } else {
+                snprintf(buf, sizeof(buf), "%s=%s", keys[idx], optarg);
+            }
+            sets[n_sets++] = strdup(buf);
+            break;
+        }
+        case O_LOAD_MODE: {
+            const char *m = optarg;
+            const char *num = strcmp(m, "torque") == 0 ? "0" : strcmp(m, "speed") == 0 ? "1"
+                            : strcmp(m, "off") == 0 ? "2" : m;
+            snprintf(buf, sizeof(buf), "load.mode=%s", num);
+            sets[n_sets++] = strdup(buf);
+            break;
+        }
+        case O_TRACE: a.opt.trace = optarg; break;
+        case O_TRACE_VIO: a.opt.trace_vio = 1; break;
+        case O_READY: a.opt.ready_file = optarg; break;
+        case O_MAX_PERIODS:
+        case O_RUN_UNTIL:
+        case O_TRUTH_EVERY:
+        case O_RT_PRIO:
+            if (parse_u64(optarg, &v) != 0 || (c != O_MAX_PERIODS && v > UINT32_MAX)) {
+                fprintf(stderr, "plant_rt: %s %s: not a non-negative integer\n", argv[optind - 2],
+                        optarg);
+                return 2;
+            }
+            if (c == O_MAX_PERIODS) {
+                a.opt.max_periods = v;
+            } else if (c == O_RUN_UNTIL) {
+                a.opt.run_until = (uint32_t)v;
+            } else if (c == O_TRUTH_EVERY) {
+                a.opt.truth_every = (uint32_t)v;
+            } else {
+                a.opt.rt_priority = v > 99 ? 99 : (int)v;
+            }
+            break;
+        case O_HELP:
+        case 'h':
+            usage(stdout);
+            return 0;
+        default:
+            usage(stderr);
+            return 2;
+        }
+    }
+    if (optind < argc) {
+        fprintf(stderr, "plant_rt: unexpected argument '%s'\n", argv[optind]);
+        return 2;
+    }
+
+    /* configuration: defaults, profile file, overrides in order */
+    plant_config_defaults(&cfg);
+    profile_file(&a.opt, path, sizeof(path));
+    if (plant_config_load(&cfg, path, err, sizeof(err)) != 0) {
+        fprintf(stderr, "plant_rt: bad configuration: %s\n", err);
+        return 2;
+    }
+    for (k = 0; k < n_sets; ++k) {
+        if (!sets[k] || plant_config_set(&cfg, sets[k], err, sizeof(err)) != 0) {
+            fprintf(stderr, "plant_rt: bad configuration: %s\n", sets[k] ? err : "out of memory");
+            return 2;
+        }
+        free(sets[k]);
+    }
+    free(sets);
+    a.plant = plant_new(&cfg, err, sizeof(err));
+    if (!a.plant) {
+        fprintf(stderr, "plant_rt: bad configuration: %s (after --set)\n", err);
+        return 2;
+    }
+    a.cfg = plant_config(a.plant);
+    a.run_until = a.opt.run_until;
+
+    memset(&sa, 0, sizeof(sa));
+    sa.sa_handler = on_signal;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGTERM, &sa, NULL);
+    sigaction(SIGINT, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    a.bus = hilbus_open(a.opt.bus, a.opt.channel, err, sizeof(err));
+    if (!a.bus) {
+        fprintf(stderr, "plant_rt: cannot open bus %s/%s: %s\n", a.opt.bus, a.opt.channel, err);
+        plant_free(a.plant);
+        return 1;
+    }
+    if (a.opt.trace) {
+        a.trace = hiltrace_open(a.opt.trace);
+        if (!a.trace) {
+            fprintf(stderr, "plant_rt: cannot create trace %s: %s\n", a.opt.trace, strerror(errno));
+            hilbus_close(a.bus);
+            plant_free(a.plant);
+            return 1;
+        }
+    }
+    if (a.opt.ready_file && write_ready(a.opt.ready_file) != 0) {
+        fprintf(stderr, "plant_rt: cannot write ready file %s: %s\n", a.opt.ready_file,
+                strerror(errno));
+        rc = 1;
+    }
+    if (rc == 0) {
+        rc = a.opt.realtime ? realtime(&a) : lockstep(&a);
+    }
+    send_housekeeping(&a, 2);
+    if (a.trace && hiltrace_close(a.trace) != 0) {
+        fprintf(stderr, "plant_rt: trace %s: write error\n", a.opt.trace);
+        rc = 1;
+    }
+    print_counters(&a);
+    hilbus_close(a.bus);
+    plant_free(a.plant);
+    return rc;
+}
