@@ -28,8 +28,10 @@ struct hilbus {
     int n_peers;
     struct sockaddr_un peers[HILBUS_MAX_PEERS];
     unsigned char congested[HILBUS_MAX_PEERS]; /* peer was still full after the grace wait */
+    int peer_fd[HILBUS_MAX_PEERS];             /* a socket connected to each peer: no path lookup per frame */
     struct timespec dir_mtime;
     struct timespec last_scan;
+    int64_t last_check_ns; /* monotonic time of the last directory stat */
 };
 
 int hilbus_socketcan_open(struct hilbus *bus, const char *channel, char *err, size_t errlen);

@@ -25,6 +25,7 @@
  * costs no further waiting until it accepts a frame again (a stopped node never slows
  * the bus down). */
 #define FULL_PEER_GRACE_NS 2000000LL
+#define CHECK_INTERVAL_NS 2000000LL /* look for joined or left nodes every 2 ms */
 
 static int serial_counter;
 
@@ -50,6 +51,19 @@ static int mkdir_p(const char *path)
     return 0;
 }
 
+static int connect_peer(const struct sockaddr_un *addr)
+{
+    int s = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+    if (s < 0) return -1;
+    int buf = 4 << 20;
+    (void)setsockopt(s, SOL_SOCKET, SO_SNDBUF, &buf, sizeof buf);
+    if (connect(s, (const struct sockaddr *)addr, sizeof *addr) != 0) {
+        close(s);
+        return -1;
+    }
+    return s;
+}
+
 static void scan_peers(struct hilbus *bus)
 {
     struct stat st;
@@ -57,26 +71,70 @@ static void scan_peers(struct hilbus *bus)
     if (stat(bus->dir, &st) == 0) bus->dir_mtime = st.st_mtim;
     DIR *d = opendir(bus->dir);
     if (d == NULL) return;
+    struct sockaddr_un found[HILBUS_MAX_PEERS];
     int n = 0;
     struct dirent *e;
     while ((e = readdir(d)) != NULL && n < HILBUS_MAX_PEERS) {
         size_t len = strlen(e->d_name);
         if (len < 6 || strcmp(e->d_name + len - 5, ".sock") != 0) continue;
-        struct sockaddr_un *peer = &bus->peers[n];
+        struct sockaddr_un *peer = &found[n];
         memset(peer, 0, sizeof *peer);
         peer->sun_family = AF_UNIX;
         int w = snprintf(peer->sun_path, sizeof peer->sun_path, "%s/%s", bus->dir, e->d_name);
         if (w < 0 || (size_t)w >= sizeof peer->sun_path) continue;
         if (strcmp(peer->sun_path, bus->self.sun_path) == 0) continue;
-        bus->congested[n] = 0;
         n++;
     }
     closedir(d);
-    bus->n_peers = n;
+    /* Keep the connected sockets of peers still present; connect to new ones. */
+    int fds[HILBUS_MAX_PEERS];
+    unsigned char congested[HILBUS_MAX_PEERS];
+    int m = 0;
+    for (int i = 0; i < n; i++) {
+        int fd = -1;
+        unsigned char cong = 0;
+        for (int j = 0; j < bus->n_peers; j++) {
+            if (bus->peer_fd[j] >= 0 && strcmp(bus->peers[j].sun_path, found[i].sun_path) == 0) {
+                fd = bus->peer_fd[j];
+                cong = bus->congested[j];
+                bus->peer_fd[j] = -1;
+                break;
+            }
+        }
+        if (fd < 0) fd = connect_peer(&found[i]);
+        if (fd < 0) {
+            /* Nobody reads that socket (a killed node): remove the stale file. */
+            if (errno == ECONNREFUSED) {
+                unlink(found[i].sun_path);
+                bus->stats.peers_removed++;
+            }
+            continue;
+        }
+        found[m] = found[i];
+        fds[m] = fd;
+        congested[m] = cong;
+        m++;
+    }
+    for (int j = 0; j < bus->n_peers; j++)
+        if (bus->peer_fd[j] >= 0) close(bus->peer_fd[j]);
+    memcpy(bus->peers, found, (size_t)m * sizeof found[0]);
+    memcpy(bus->peer_fd, fds, (size_t)m * sizeof fds[0]);
+    memcpy(bus->congested, congested, (size_t)m);
+    bus->n_peers = m;
+}
+
+static int64_t mono_ns(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return ts_ns(t);
 }
 
 static void refresh_peers(struct hilbus *bus)
 {
+    /* clock_gettime is a vDSO call; stat() is a system call with a path lookup, so the
+     * directory is looked at no more than every CHECK_INTERVAL_NS unless it changed lately. */
+    int64_t mono = mono_ns();
     struct timespec now;
     clock_gettime(CLOCK_REALTIME, &now);
     int64_t since_scan = ts_ns(now) - ts_ns(bus->last_scan);
@@ -84,8 +142,11 @@ static void refresh_peers(struct hilbus *bus)
      * that joined within the same timestamp tick as our last scan is not missed. */
     if (since_scan > RESCAN_INTERVAL_NS || ts_ns(now) - ts_ns(bus->dir_mtime) < RECENT_CHANGE_NS) {
         scan_peers(bus);
+        bus->last_check_ns = mono;
         return;
     }
+    if (mono - bus->last_check_ns < CHECK_INTERVAL_NS) return;
+    bus->last_check_ns = mono;
     struct stat st;
     if (stat(bus->dir, &st) == 0 && ts_ns(st.st_mtim) != ts_ns(bus->dir_mtime)) scan_peers(bus);
 }
@@ -137,34 +198,34 @@ int hilbus_unixcan_open(struct hilbus *bus, const char *channel, char *err, size
     return 0;
 }
 
-void hilbus_unixcan_close(struct hilbus *bus) { unlink(bus->self.sun_path); }
+void hilbus_unixcan_close(struct hilbus *bus)
+{
+    for (int i = 0; i < bus->n_peers; i++)
+        if (bus->peer_fd[i] >= 0) close(bus->peer_fd[i]);
+    bus->n_peers = 0;
+    unlink(bus->self.sun_path);
+}
 
 static void remove_peer(struct hilbus *bus, int i)
 {
     /* Nobody reads this socket any more: its node died without cleaning up. */
     unlink(bus->peers[i].sun_path);
+    close(bus->peer_fd[i]);
     bus->peers[i] = bus->peers[bus->n_peers - 1];
+    bus->peer_fd[i] = bus->peer_fd[bus->n_peers - 1];
     bus->congested[i] = bus->congested[bus->n_peers - 1];
     bus->n_peers--;
     bus->stats.peers_removed++;
 }
 
-static int64_t mono_ns(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return ts_ns(t);
-}
-
 static ssize_t send_to_peer(struct hilbus *bus, int i, const struct canfd_frame *out, size_t size)
 {
-    const struct sockaddr *to = (const struct sockaddr *)&bus->peers[i];
-    ssize_t n = sendto(bus->sock, out, size, MSG_DONTWAIT | MSG_NOSIGNAL, to, sizeof bus->peers[i]);
+    ssize_t n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
     if (n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK) || bus->congested[i]) return n;
     const int64_t give_up = mono_ns() + FULL_PEER_GRACE_NS;
     do {
         sched_yield();
-        n = sendto(bus->sock, out, size, MSG_DONTWAIT | MSG_NOSIGNAL, to, sizeof bus->peers[i]);
+        n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
     } while (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK) && mono_ns() < give_up);
     return n;
 }
@@ -184,7 +245,7 @@ int hilbus_unixcan_send(struct hilbus *bus, const struct canfd_frame *frame, int
             bus->stats.tx_drops++;
             bus->congested[i] = 1;
             i++;
-        } else if (n < 0 && (errno == ECONNREFUSED || errno == ENOENT)) {
+        } else if (n < 0 && (errno == ECONNREFUSED || errno == ENOENT || errno == ENOTCONN)) {
             remove_peer(bus, i); /* the slot now holds another peer: do not advance */
         } else {
             bus->stats.tx_errors++;
