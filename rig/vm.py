@@ -82,4 +82,13 @@ def run_in_vm(command: list[str], workdir: Path | None = None, rwdirs: list[Path
     args = vm_command(command, work, dirs, channels or ["vcan0"], memory, cpus, kvm, kernel)
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '')}"  # vng calls virtme-run
-    return subprocess.run(args, env=env, stdin=subprocess.DEVNULL, check=False).returncode
+    # The VM's console is relayed through a pipe: given our stdout directly, qemu truncates
+    # it when it is a file, and a caller's log would lose everything written before.
+    proc = subprocess.Popen(args, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
+    assert proc.stdout is not None
+    out = sys.stdout.buffer
+    while chunk := proc.stdout.read1(65536):
+        out.write(chunk)
+        out.flush()
+    return proc.wait()
