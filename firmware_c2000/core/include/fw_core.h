@@ -1,0 +1,160 @@
+/* fw_core.h - public API of the portable sensorless IPMSM control core.
+ *
+ * The core is pure computation: the HAL hands it the raw ADC codes of PWM period k and gets
+ * back the compare values, ADC start-of-conversion instants and gate enable for period k+1
+ * (docs/interfaces.md: PWM(k+1) is computed from ADC(k)). It never touches a register, a frame
+ * or a socket, allocates nothing and calls no library except the math in fw_math.h.
+ *
+ * Threading: fw_core_isr() is the 10 kHz interrupt. fw_core_command(), fw_core_set_limits()
+ * and fw_param_set() are meant for the background loop; on a single-core target the HAL calls
+ * them with the ISR masked (or from the ISR itself) - the core has no locks.
+ */
+#ifndef FW_CORE_H
+#define FW_CORE_H
+
+#include "fw_types.h" /* real_t, fixed-width ints, no uint8_t */
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- PWM time base (docs/interfaces.md) -------------------------------------------------- */
+#define FW_TBPRD 5000u                  /* up-down count half period, ticks */
+#define FW_PERIOD_TICKS 10000u          /* one PWM period = 2*TBPRD ticks = 100 us */
+#define FW_TBCLK_HZ 100000000.0f        /* ticks per second */
+#define FW_TS 1.0e-4f                   /* PWM / current-loop period, s */
+#define FW_SPEED_DIVIDER 10             /* speed loop, MTPA/FW every 10th ISR (1 kHz) */
+
+#define FW_MAX_SOC 16
+
+/* Raw ADC codes of period k, in the order of the SOCs the core asked for (pwm.soc[]). */
+typedef struct {
+    uint32_t period;
+    int16_t n_soc;
+    int32_t ia[FW_MAX_SOC];
+    int32_t ib[FW_MAX_SOC];
+    int32_t vdc;
+} fw_adc_t;
+
+/* Command for period k+1: upper gate of phase x on for period ticks
+ * [cmp_up[x], 2*TBPRD - cmp_dn[x]); soc[] are period ticks 0..9999 (any order). */
+typedef struct {
+    uint32_t period;
+    uint16_t cmp_up[3];
+    uint16_t cmp_dn[3];
+    int16_t n_soc;
+    uint16_t soc[FW_MAX_SOC];
+    int16_t gate_enable;
+} fw_pwm_t;
+
+/* Drive command (DRIVE_CMD). ctrl_mode: FW_CTRL_*; fw_mode: FW_FWMODE_*. */
+typedef struct {
+    int16_t enable;
+    int16_t fault_reset;
+    int16_t ctrl_mode;
+    int16_t fw_mode;
+    real_t speed_ref_rpm;
+    real_t iq_ref;
+} fw_cmd_t;
+
+/* ---- Status codes of the API (same numbers as PARAM_RESP.status in drive.dbc) ------------ */
+#define FW_STATUS_OK 0
+#define FW_STATUS_UNKNOWN_ID 1
+#define FW_STATUS_OUT_OF_RANGE 2
+#define FW_STATUS_READ_ONLY 3
+#define FW_STATUS_BUSY 4
+#define FW_STATUS_BAD_OP 5
+#define FW_STATUS_STORE_ERROR 6 /* parameter store (HAL side) */
+#define FW_STATUS_BAD_ARG 7     /* NULL pointer (a programming error of the caller) */
+
+/* ---- Drive states (DRIVE_STATUS.state, FW_TRACE.state) ---------------------------------- */
+#define FW_STATE_INIT 0
+#define FW_STATE_IDLE 1
+#define FW_STATE_POLARITY 2
+#define FW_STATE_RUN 3
+#define FW_STATE_FAULT 4
+
+/* ---- Modes (DRIVE_CMD) -------------------------------------------------------------------- */
+#define FW_CTRL_SPEED 0
+#define FW_CTRL_CURRENT 1
+#define FW_FWMODE_REALTIME 0     /* MTPA/FW from the online parameter estimates */
+#define FW_FWMODE_CONVENTIONAL 1 /* MTPA/FW from the nominal parameters */
+#define FW_FWMODE_ID_ZERO 2      /* id = 0, no flux weakening */
+
+/* ---- Fault codes (DRIVE_STATUS.fault_code: the first fault since the last reset) ---------- */
+#define FW_FAULT_NONE 0
+#define FW_FAULT_OVERCURRENT 1
+#define FW_FAULT_DC_OVERVOLTAGE 2
+#define FW_FAULT_DC_UNDERVOLTAGE 3
+#define FW_FAULT_ESTIMATOR 4       /* implausible slopes / residual / PLL error for too long */
+#define FW_FAULT_CMD_TIMEOUT 5     /* no valid command for cmd_timeout_ms (ISR ticks) */
+#define FW_FAULT_ADC_LOSS 6        /* ADC data of a period missing, stale or incomplete */
+#define FW_FAULT_POLARITY 7        /* start-up polarity detection inconclusive */
+#define FW_FAULT_POLARITY_LOST 8   /* polarity flip detected while running, not recoverable */
+#define FW_FAULT_OVERSPEED 9
+/* 10.. reserved */
+
+/* Everything FW_TRACE and the TLM_* / DRIVE_STATUS frames carry. */
+typedef struct {
+    int16_t state;            /* FW_STATE_* */
+    uint16_t fault_code;      /* FW_FAULT_* */
+    int16_t ctrl_mode;
+    int16_t fw_mode;
+    int16_t cmd_status;       /* FW_STATUS_* of the last fw_core_command() */
+    uint32_t period;          /* period index the estimates below belong to (ADC period k) */
+    int16_t stamp;            /* ticks relative to the start of 'period' where theta_hat is valid */
+    real_t theta_hat;         /* electrical rad, [0, 2pi) */
+    real_t omega_hat;         /* electrical rad/s */
+    real_t speed_hat_rpm;     /* mechanical r/min */
+    real_t id, iq;            /* A, measured, in the estimated frame */
+    real_t id_ref, iq_ref;    /* A */
+    real_t vd, vq;            /* V, voltage references for the next period */
+    real_t ld_hat, lq_hat;    /* H, online estimates (incremental) */
+    real_t lambda_hat;        /* Wb, online PM flux estimate */
+    real_t te_hat;            /* N*m, estimated torque */
+    real_t theta_raw;         /* rad, raw estimate of this period after branch selection */
+    real_t residual;          /* 1/H, least-squares consistency residual */
+    int16_t sector;           /* SVPWM sector 1..6 of the period (0 when off) */
+    int16_t slopes_ok;        /* active vectors measured this period: 0, 1 or 2 */
+    int16_t fw_active;        /* flux weakening active (voltage limit reached) */
+    real_t speed_ref_ramped_rpm;
+    int16_t polarity_ok;
+    int16_t est_valid;
+    uint16_t isr_overruns;
+} fw_status_t;
+
+/* Full definition of the core object: the HAL allocates it statically. */
+#include "fw_core_state.h"
+typedef struct fw_core fw_core_t;
+
+void fw_core_init(fw_core_t *c); /* defaults from the parameter table */
+int16_t fw_core_command(fw_core_t *c, const fw_cmd_t *cmd); /* validates; FW_STATUS_* */
+int16_t fw_core_set_limits(fw_core_t *c, real_t i_max, real_t speed_max_rpm, real_t accel_rpm_s);
+/* 10 kHz ISR, runs the 1 kHz tasks every 10th call. adc_k == NULL means "no ADC data for this
+ * period" (counted as ADC loss). pwm_next->period = adc_k->period + 1. A repeated adc_k (same
+ * period as the previous call) returns the same pwm_next without running the control again. */
+void fw_core_isr(fw_core_t *c, const fw_adc_t *adc_k, fw_pwm_t *pwm_next);
+int16_t fw_param_get(const fw_core_t *c, uint16_t id, real_t *value);
+int16_t fw_param_set(fw_core_t *c, uint16_t id, real_t value);
+void fw_core_status(const fw_core_t *c, fw_status_t *s);
+
+/* ---- Additions for the HAL (console, parameter listing, timing) -------------------------- */
+/* Parameter metadata from protocols/parameters.csv (generated table). */
+typedef struct {
+    uint16_t id;
+    const char *name; /* string for the console only: the core never does arithmetic on char */
+    const char *unit;
+    real_t min, max, def;
+    int16_t read_only;
+} fw_param_info_t;
+uint16_t fw_param_count(void);
+const fw_param_info_t *fw_param_info_at(uint16_t index); /* NULL past the end */
+const fw_param_info_t *fw_param_info(uint16_t id);       /* NULL for an unknown id */
+/* The HAL counts a missed ISR deadline (real-time mode) so it appears in the status. */
+void fw_core_note_overrun(fw_core_t *c);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* FW_CORE_H */

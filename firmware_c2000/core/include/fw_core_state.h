@@ -1,0 +1,209 @@
+/* fw_core_state.h - complete definition of the core object (so a HAL can allocate it
+ * statically) and of the module states it is made of. Only the core's own sources look
+ * inside; the HAL treats fw_core_t as opaque storage.
+ */
+#ifndef FW_CORE_STATE_H
+#define FW_CORE_STATE_H
+
+#include "fw_types.h"
+#include "fw_math.h"
+
+#define FW_PARAM_MAX 128 /* capacity of the value array; gen_params.py enforces it */
+#define FW_MAX_SEG 8     /* switching states per period (7 at most) + sentinel */
+#define FW_LQ_BINS 16    /* incremental-Lq curve bins over 0..i_max */
+
+/* measured windows of a period */
+#define FW_WIN_ZERO 0 /* V7 across the period centre */
+#define FW_WIN_ODD 1  /* the sector's one-phase-on vector (V1, V3, V5) */
+#define FW_WIN_EVEN 2 /* the sector's two-phase-on vector (V2, V4, V6) */
+
+#define FW_LAYOUT_OFF 0
+#define FW_LAYOUT_DIRECT 1  /* Vo | V7 | Ve, long vectors split around the centre */
+#define FW_LAYOUT_STRETCH 2 /* compensation (opposite vectors) | V7 | stretched Ve, Vo */
+
+typedef struct {
+    int16_t measured;   /* 1 when this state is measured in the period */
+    int16_t vec;        /* vector number 1..6 (active) or 7 (zero) */
+    uint16_t start;     /* state interval [start, end) in period ticks */
+    uint16_t end;
+    int16_t soc_first;  /* index of its first SOC in soc[] */
+    int16_t soc_count;
+} fw_window_t;
+
+/* One period's switching pattern and sampling plan. */
+typedef struct {
+    int16_t layout;                 /* FW_LAYOUT_* */
+    int16_t sector;                 /* 1..6, 0 when the gates are off */
+    int16_t vec_odd, vec_even;      /* vector numbers of the sector */
+    int32_t t_odd, t_even;          /* net on-time of each active vector, ticks */
+    int32_t c_odd, c_even;          /* compensation time (opposite vectors), ticks */
+    uint16_t on[3], off[3];         /* phase a, b, c upper gate on during [on, off) */
+    uint16_t cmp_up[3], cmp_dn[3];
+    int16_t n_seg;                  /* switching states in time order */
+    uint16_t seg_t[FW_MAX_SEG + 1]; /* segment i: [seg_t[i], seg_t[i+1]) */
+    int16_t seg_state[FW_MAX_SEG];  /* bit0 = a, bit1 = b, bit2 = c */
+    fw_window_t win[3];
+    int16_t n_soc;
+    uint16_t soc[16];
+    fw_cplx_t v_applied;            /* average alpha-beta voltage of the pattern (ideal inverter), V */
+    real_t vdc;                     /* DC-link voltage the pattern was computed for */
+    int16_t clipped;                /* the reference was outside the measurable hexagon */
+} fw_plan_t;
+
+typedef struct {
+    uint16_t tmin;      /* ticks */
+    uint16_t soc_on;    /* ticks */
+    uint16_t soc_off;   /* ticks */
+    int16_t n_per_state;
+    int16_t stretch;
+} fw_pwm_cfg_t;
+
+/* Least-squares position estimate of one period (estimator-math.md section 3). */
+typedef struct {
+    int16_t n_active;   /* active vectors used: 0, 1 or 2 */
+    int16_t ok;         /* plausible (residual, saliency) */
+    real_t theta_raw;   /* 2*theta/2 in (-pi/2, pi/2], theta modulo pi */
+    real_t gamma0;      /* 1/H */
+    real_t gamma1;      /* |g|, 1/H */
+    fw_cplx_t g;        /* Gamma1 * exp(j*2*theta) at t_ref */
+    real_t residual;    /* 1/H, signed 4th equation */
+    real_t t_ref;       /* s, time the estimate is valid at (same origin as the inputs) */
+} fw_est_out_t;
+
+/* Type-2 PLL on theta with branch selection (note section 7). */
+typedef struct {
+    int16_t init;
+    real_t theta;       /* rad at the reference instant */
+    real_t omega;       /* electrical rad/s */
+    real_t theta_unwrapped;
+    int32_t age_ticks;  /* ticks from the reference instant to the start of the current period */
+    real_t k1, k2;      /* gains per update */
+    real_t last_err;    /* rad */
+    uint16_t stamp;     /* tick of the reference instant within the period of the last update */
+} fw_pll_t;
+
+typedef struct {
+    real_t kp, ki, x;   /* gains and integrator (output units) */
+} fw_pi_t;
+
+typedef struct {
+    real_t gamma0_f, gamma1_f; /* filtered inverse inductances, 1/H */
+    real_t gamma0_fast;        /* fast-filtered Gamma0 for the single-vector fallback, 1/H */
+    real_t iq_fast;            /* q current at the gamma0_fast updates, A */
+    real_t ld_inc, lq_inc;     /* H */
+    real_t lq_bin[FW_LQ_BINS]; /* 1/Lq_inc vs |iq|, 1/H */
+    real_t lq_bin_x[FW_LQ_BINS]; /* mean |iq| of the samples in the bin, A */
+    int16_t lq_bin_seen[FW_LQ_BINS]; /* updates in the bin, saturating at 30000 */
+    real_t bin_width;          /* A */
+    real_t lq_app, ld_app;     /* H, apparent values at the present operating point */
+    int32_t n_updates;
+} fw_param_est_t;
+
+typedef struct {
+    fw_cplx_t psi_f;     /* low-passed stator flux, V*s */
+    fw_cplx_t psi;       /* compensated stator flux at the end of the period, V*s */
+    real_t lambda_f;     /* filtered PM flux estimate, Wb */
+    real_t lambda_inst;
+    real_t lq_app_flux;  /* psi_q / iq when measurable, H */
+    int16_t active;
+    int16_t neg_count;   /* consecutive updates with lambda_d < 0 (polarity lost) */
+    int32_t n_valid;     /* plausible lambda updates since the reset */
+} fw_flux_t;
+
+typedef struct {
+    int16_t phase;       /* polarity sub-state */
+    int32_t count;       /* periods in the sub-state */
+    real_t peak_pos, peak_neg;  /* current rise of the +d and -d pulse, A */
+    real_t l_pos, l_neg;        /* chord inductance of each pulse, H */
+    real_t psi_acc;             /* flux change along d_hat during the pulse, V*s */
+    real_t theta_d;      /* frozen d-axis direction of the test, rad */
+    real_t vpulse;       /* V */
+    real_t base;         /* current projection on d_hat at the start of a pulse, A */
+    real_t theta_start;  /* unwrapped angle at the start of the motion check */
+    real_t moved;        /* rad */
+    int16_t method_used; /* 1 saturation, 2 motion */
+    int16_t flipped;
+    int16_t result;      /* 0 running, 1 done, -1 failed */
+} fw_polarity_t;
+
+struct fw_core {
+    /* parameters (values; metadata in the generated table) */
+    real_t p[FW_PARAM_MAX];
+    /* derived from parameters */
+    fw_pwm_cfg_t pwm_cfg;
+    real_t adc_i_lsb, adc_v_lsb; /* A and V per code */
+    int32_t adc_half;            /* 2^(N-1) */
+    uint32_t cmd_timeout_ticks;
+    real_t speed_alpha;          /* first-order speed filter coefficient per ISR */
+
+    /* state machine */
+    int16_t state;
+    uint16_t fault_code;
+    fw_cmd_t cmd;
+    int16_t cmd_status;
+    int16_t start_request;       /* enable rising edge seen */
+    int16_t reset_request;       /* fault_reset rising edge seen */
+    uint32_t ticks_since_cmd;
+    int16_t have_cmd;
+
+    /* period bookkeeping */
+    int16_t have_period;
+    uint32_t period;             /* ADC period processed last */
+    uint32_t isr_count;
+    int16_t adc_loss_run;
+    uint32_t adc_loss_count;
+    uint16_t isr_overruns;
+    fw_plan_t plan_cur;          /* pattern applied in the period of the ADC data being processed */
+    fw_plan_t plan_next;         /* pattern computed for the next period */
+    uint16_t prev_on[3], prev_off[3]; /* edges of the period before plan_cur (dead-time count) */
+    int16_t pwm_valid;
+    fw_pwm_t pwm_last;
+    fw_cplx_t vs_carry;          /* volt-tick quantisation error carried to the next period */
+
+    /* measurement of the last period */
+    real_t vdc;
+    real_t vdc_f;
+    fw_cplx_t i_avg, i_end;      /* alpha-beta currents: period mean and at the period end */
+    fw_cplx_t v_meas;            /* period-mean voltage: pattern minus inverter error, V */
+    real_t i_peak;               /* largest phase-current magnitude of the period */
+    fw_cplx_t slope[3];          /* A/s per window */
+    real_t slope_t[3];           /* s, mean sample time per window from the period start */
+    fw_cplx_t i_win[3];          /* A, current at slope_t */
+    int16_t slope_ok[3];
+
+    /* estimation */
+    fw_est_out_t est;
+    fw_pll_t pll;
+    fw_param_est_t pe;
+    fw_flux_t flux;
+    int16_t est_valid;
+    int16_t est_fail_run;
+    uint32_t est_reject_count;
+    real_t theta_raw_branch;
+    int16_t slopes_ok;
+    int16_t stamp;
+    real_t theta_hat;            /* at stamp */
+    real_t speed_f_rpm;          /* filtered mechanical speed */
+    uint16_t polarity_flips;
+    int32_t flip_window_ticks;
+    int16_t flips_in_window;
+    int16_t polarity_ok;
+    fw_polarity_t pol;
+
+    /* control */
+    real_t id, iq;               /* measured, estimated frame */
+    real_t id_ref, iq_ref;
+    real_t vd, vq;               /* references for the next period */
+    real_t v_lim;                /* V, voltage available to the current controller */
+    real_t v_mag_f;              /* filtered |v| for the flux-weakening feedback */
+    fw_pi_t pi_d, pi_q, pi_spd;
+    real_t speed_ref_ramped;
+    real_t iq_demand;
+    real_t iq_sal_lim;           /* A, q-current limit from current, voltage and saliency */
+    real_t fw_did;               /* A, voltage-feedback d-current */
+    int16_t fw_active;
+    real_t te_hat;
+    real_t ld_use, lq_use, lambda_use; /* parameter set of the selected mode */
+};
+
+#endif /* FW_CORE_STATE_H */

@@ -1,0 +1,122 @@
+/* fw_internal.h - module interfaces inside the control core (not for the HAL). */
+#ifndef FW_INTERNAL_H
+#define FW_INTERNAL_H
+
+#include "fw_core.h"
+#include "fw_params_gen.h"
+
+#define FW_TICK_S (FW_REAL(1.0) / FW_TBCLK_HZ)
+#define FW_P_TICKS ((int32_t)FW_PERIOD_TICKS)
+#define FW_H_TICKS ((int32_t)FW_TBPRD)
+#define FW_RPM_PER_RADS ((real_t)9.54929658551372014613) /* 60 / (2 pi) */
+
+/* ---- svpwm.c: pattern, stretching, sampling plan ------------------------------------------ */
+/* Unit vector of active vector k (1..6) at phi_k = (k-1)*pi/3 and of 2*phi_k. */
+fw_cplx_t fw_vec_unit(int16_t k);
+fw_cplx_t fw_vec_unit2(int16_t k);
+int16_t fw_vec_state(int16_t k); /* switching state bits (a = 1, b = 2, c = 4) */
+/* alpha-beta voltage of a switching state with an isolated neutral */
+fw_cplx_t fw_state_voltage(int16_t state_bits, real_t vdc);
+/* Largest voltage magnitude that still leaves a V7 window of tmin in every direction. */
+real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks);
+/* Plan period pattern for average voltage v_ref (alpha-beta, V). carry: volt-tick error fed
+ * forward (in/out, may be NULL). parity alternates single-vector measurements when needed. */
+void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_cplx_t *carry,
+                   uint32_t parity, fw_plan_t *plan);
+void fw_svpwm_plan_off(fw_plan_t *plan, real_t vdc);
+/* volt-seconds (V*s, ideal inverter) of the pattern between period ticks t0 and t1 */
+fw_cplx_t fw_plan_volt_seconds(const fw_plan_t *plan, real_t t0, real_t t1);
+void fw_plan_to_pwm(const fw_plan_t *plan, uint32_t period, int16_t gate, fw_pwm_t *pwm);
+
+/* ---- slope_estimator.c: slopes and the least-squares position estimate --------------------- */
+/* LS slope of window w: A/s alpha-beta, mean sample time (ticks), current at that time (A). */
+int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, int32_t adc_half,
+                        real_t lsb, fw_cplx_t *slope, real_t *t_mean_ticks, fw_cplx_t *i_mean);
+/* Section 4.5: rotate the zero-state slope to the active window's time before differencing. */
+fw_cplx_t fw_slope_diff(fw_cplx_t s_active, real_t t_active, fw_cplx_t s_zero, real_t t_zero,
+                        real_t omega);
+/* Section 3 with the rotation of g between windows; n_active 1 uses gamma0_prior. */
+void fw_est_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
+                  const real_t t[2], real_t kv, real_t omega, real_t gamma0_prior,
+                  fw_est_out_t *out);
+
+/* ---- position_tracker.c: type-2 PLL, branch selection ------------------------------------ */
+void fw_pll_config(fw_pll_t *pll, real_t bw_hz, real_t zeta);
+void fw_pll_reset(fw_pll_t *pll, real_t theta, real_t omega, uint16_t stamp);
+void fw_pll_advance(fw_pll_t *pll, int32_t ticks);
+real_t fw_pll_predict(const fw_pll_t *pll, int32_t tick_in_period);
+/* Branch nearest the prediction (note section 7); returns the error epsilon (rad) and the
+ * selected measurement in *theta_meas. */
+real_t fw_pll_update(fw_pll_t *pll, real_t theta_raw_mod_pi, uint16_t stamp, real_t *theta_meas);
+void fw_pll_flip(fw_pll_t *pll);
+
+/* ---- param_estimator.c: Ld, Lq (incremental) and the apparent values -------------------- */
+void fw_pe_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max);
+void fw_pe_update(fw_param_est_t *pe, const fw_est_out_t *est, real_t theta_ref, real_t iq,
+                  real_t alpha, real_t l_lo, real_t l_hi);
+void fw_pe_apparent(fw_param_est_t *pe, real_t iq);
+/* Gamma0 for the single-vector fallback at q current iq (section 3): the fast-filtered value
+ * moved along the learnt Gamma0(iq) curve from the current it was measured at */
+real_t fw_pe_gamma0_prior(const fw_param_est_t *pe, real_t iq);
+/* Largest |iq| at which the learnt incremental saliency Gamma1 stays above gamma1_min (linear
+ * extrapolation of the measured bins); i_max when no measured bin approaches it. */
+real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max);
+
+/* ---- flux_estimator.c -------------------------------------------------------------------- */
+void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);
+/* One period: u = (v - rs*i)*Ts integral of the period (V*s). Returns 1 when lambda updated. */
+/* omega: PLL speed (filter corner, compensation); omega_gate: filtered speed that decides
+ * whether the voltage model is usable (|omega_gate| >= omega_min); lambda_nom bounds the
+ * plausible lambda (0.5..1.5 x). */
+int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gate, real_t ratio,
+                       real_t omega_min, real_t theta_end, fw_cplx_t i_end, real_t ld_app,
+                       real_t lambda_nom, real_t alpha);
+
+/* ---- mtpa_fw.c (paper eqs. 10, 50, 53) ----------------------------------------------------- */
+real_t fw_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda);
+real_t fw_mtpa_id_on_circle(real_t i_max, real_t ld, real_t lq, real_t lambda);
+real_t fw_fw_id(real_t iq, real_t omega, real_t vmax, real_t ld, real_t lq, real_t lambda);
+int16_t fw_circle_ellipse_id(real_t i_max, real_t omega, real_t vmax, real_t ld, real_t lq,
+                             real_t lambda, real_t *id);
+real_t fw_torque(real_t id, real_t iq, real_t ld, real_t lq, real_t lambda, real_t pole_pairs);
+/* Current references from a q-current demand (mode FW_FWMODE_*). Returns 1 when the voltage
+ * limit (flux weakening) is active. did_fb: extra d-current from the voltage feedback (<= 0). */
+int16_t fw_current_refs(int16_t mode, real_t iq_demand, real_t omega, real_t vmax, real_t i_max,
+                        real_t ld, real_t lq, real_t lambda, real_t did_fb, real_t *id_ref,
+                        real_t *iq_ref);
+
+/* ---- current_ctrl.c / speed_ctrl.c --------------------------------------------------------- */
+void fw_pi_reset(fw_pi_t *pi);
+/* dq current PI with decoupling, vector voltage limit and back-calculation anti-windup. */
+void fw_current_ctrl(fw_pi_t *pid, fw_pi_t *piq, real_t id_ref, real_t iq_ref, real_t id,
+                     real_t iq, real_t omega, real_t ld, real_t lq, real_t lambda, real_t rs,
+                     real_t v_lim, real_t ts, real_t *vd, real_t *vq);
+real_t fw_ramp(real_t y, real_t target, real_t step);
+real_t fw_speed_ctrl(fw_pi_t *pi, real_t ref_rpm, real_t speed_rpm, real_t iq_lim, real_t ts);
+
+/* ---- protection.c ------------------------------------------------------------------------- */
+uint16_t fw_protect_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb, real_t oc_trip,
+                            real_t *i_peak);
+uint16_t fw_protect_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);
+
+/* ---- polarity_detect.c -------------------------------------------------------------------- */
+#define FW_POL_OUT_VOLTAGE 0
+#define FW_POL_OUT_CURRENT 1
+typedef struct {
+    int16_t kind;      /* FW_POL_OUT_* */
+    fw_cplx_t v;       /* alpha-beta voltage for FW_POL_OUT_VOLTAGE */
+    real_t id, iq;     /* references for FW_POL_OUT_CURRENT */
+    int16_t pll_freeze;
+} fw_pol_out_t;
+void fw_pol_start(fw_polarity_t *pol);
+/* One period; returns pol->result (0 running, 1 done, -1 failed). */
+int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
+                    fw_pol_out_t *out);
+
+/* ---- params.c ----------------------------------------------------------------------------- */
+extern const fw_param_info_t fw_param_table[FW_PARAM_COUNT];
+void fw_params_defaults(fw_core_t *c);
+void fw_params_apply(fw_core_t *c); /* recompute derived values */
+int16_t fw_param_index(uint16_t id);
+
+#endif /* FW_INTERNAL_H */

@@ -1,0 +1,74 @@
+/* fw_math.h - the few math functions the core needs, behind one interface.
+ *
+ * Float build: the C library's single-precision functions (TI's RTS on the C28x, newlib or
+ * glibc elsewhere). A fixed-point build maps these to IQmath (_IQsin, _IQatan2, _IQsqrt ...)
+ * together with the real_t typedef in fw_types.h. Nothing else in the core includes math.h.
+ */
+#ifndef FW_MATH_H
+#define FW_MATH_H
+
+#include <float.h>
+#include <math.h>
+#include "fw_types.h"
+
+#define FW_PI_R ((real_t)3.14159265358979323846)
+#define FW_2PI_R ((real_t)6.28318530717958647692)
+#define FW_SQRT3_R ((real_t)1.73205080756887729353)
+#define FW_INV_SQRT3_R ((real_t)0.57735026918962576451)
+#define FW_REAL_MAX FLT_MAX
+
+/* alpha-beta (or d-q) vector; also used as a complex number re + j*im */
+typedef struct {
+    real_t re;
+    real_t im;
+} fw_cplx_t;
+
+static inline real_t fw_sqrt(real_t x) { return (x > FW_REAL(0.0)) ? sqrtf(x) : FW_REAL(0.0); }
+static inline real_t fw_sin(real_t x) { return sinf(x); }
+static inline real_t fw_cos(real_t x) { return cosf(x); }
+static inline real_t fw_atan2(real_t y, real_t x) { return atan2f(y, x); }
+static inline real_t fw_fabs(real_t x) { return (x < FW_REAL(0.0)) ? -x : x; }
+static inline real_t fw_floor(real_t x) { return floorf(x); }
+static inline real_t fw_min(real_t a, real_t b) { return (a < b) ? a : b; }
+static inline real_t fw_max(real_t a, real_t b) { return (a > b) ? a : b; }
+static inline real_t fw_clamp(real_t x, real_t lo, real_t hi)
+{
+    return (x < lo) ? lo : ((x > hi) ? hi : x);
+}
+/* finite check without isfinite(): NaN fails the equality, +-inf fails the bounds */
+static inline int16_t fw_is_finite(real_t x)
+{
+    return (int16_t)((x == x) && (x <= FW_REAL_MAX) && (x >= -FW_REAL_MAX));
+}
+/* angle to (-pi, pi] */
+static inline real_t fw_wrap_pi(real_t x)
+{
+    return x + FW_2PI_R * fw_floor((FW_PI_R - x) / FW_2PI_R);
+}
+/* angle to [0, 2pi) */
+static inline real_t fw_wrap_2pi(real_t x)
+{
+    real_t y = x - FW_2PI_R * fw_floor(x / FW_2PI_R);
+    return (y >= FW_2PI_R) ? FW_REAL(0.0) : y;
+}
+
+static inline fw_cplx_t fw_c(real_t re, real_t im)
+{
+    fw_cplx_t z;
+    z.re = re;
+    z.im = im;
+    return z;
+}
+static inline fw_cplx_t fw_cadd(fw_cplx_t a, fw_cplx_t b) { return fw_c(a.re + b.re, a.im + b.im); }
+static inline fw_cplx_t fw_csub(fw_cplx_t a, fw_cplx_t b) { return fw_c(a.re - b.re, a.im - b.im); }
+static inline fw_cplx_t fw_cscale(fw_cplx_t a, real_t k) { return fw_c(a.re * k, a.im * k); }
+static inline fw_cplx_t fw_cmul(fw_cplx_t a, fw_cplx_t b)
+{
+    return fw_c(a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re);
+}
+static inline fw_cplx_t fw_cconj(fw_cplx_t a) { return fw_c(a.re, -a.im); }
+static inline real_t fw_cabs2(fw_cplx_t a) { return a.re * a.re + a.im * a.im; }
+static inline real_t fw_cabs(fw_cplx_t a) { return fw_sqrt(fw_cabs2(a)); }
+static inline fw_cplx_t fw_cexpj(real_t angle) { return fw_c(fw_cos(angle), fw_sin(angle)); }
+
+#endif /* FW_MATH_H */

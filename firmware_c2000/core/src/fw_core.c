@@ -1,0 +1,727 @@
+/* fw_core.c - states, ISR orchestration, commands and status of the control core.
+ *
+ * ISR k (after the last conversion of PWM period k):
+ *   1. bookkeeping: is this the ADC frame of the period the core planned (else: ADC loss)?
+ *   2. protection on every sample (over-current) and on the DC link;
+ *   3. slopes of the measured states, least-squares estimate, PLL (theta_hat with its stamp);
+ *   4. period-mean current from the samples and the slopes, dq currents, online Ld/Lq and
+ *      the flux estimator;
+ *   5. state machine: idle / polarity / run / fault; 1 kHz tasks on every 10th call;
+ *   6. current PI -> voltage for period k+1 -> SVPWM pattern and sampling plan.
+ */
+#include "fw_internal.h"
+
+#define FW_RPM(omega_e, pp) ((omega_e) / (pp) * FW_RPM_PER_RADS)
+#define FW_FLUX_NEG_PERIODS 50   /* 5 ms of negative lambda_d: polarity lost */
+#define FW_EST_VALID_MAX_RUN 50  /* est_valid drops after 5 ms without a good estimate */
+#define FW_FLUX_VALID_UPDATES 2000 /* 0.2 s of plausible flux before MTPA/FW use it */
+
+static const fw_core_t fw_core_zero;
+
+static void enter_fault(fw_core_t *c, uint16_t code)
+{
+    if (c->state != FW_STATE_FAULT) {
+        c->fault_code = code;
+    }
+    c->state = FW_STATE_FAULT;
+}
+
+static void reset_estimation(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    c->pll.init = 0;
+    c->pll.omega = FW_REAL(0.0);
+    c->pll.theta = FW_REAL(0.0);
+    c->pll.theta_unwrapped = FW_REAL(0.0);
+    c->pll.age_ticks = 0;
+    fw_pe_reset(&c->pe, p[FW_PI_LD_H], p[FW_PI_LQ_H], p[FW_PI_I_MAX_A]);
+    fw_flux_reset(&c->flux, p[FW_PI_LAMBDA_M_WB]);
+    c->est_valid = 0;
+    c->est_fail_run = 0;
+    c->polarity_ok = 0;
+    c->flips_in_window = 0;
+    c->flip_window_ticks = 0;
+}
+
+static void reset_control(fw_core_t *c)
+{
+    fw_pi_reset(&c->pi_d);
+    fw_pi_reset(&c->pi_q);
+    fw_pi_reset(&c->pi_spd);
+    c->id_ref = c->iq_ref = FW_REAL(0.0);
+    c->vd = c->vq = FW_REAL(0.0);
+    c->iq_demand = FW_REAL(0.0);
+    c->fw_did = FW_REAL(0.0);
+    c->fw_active = 0;
+    c->v_mag_f = FW_REAL(0.0);
+    c->vs_carry = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+}
+
+void fw_core_init(fw_core_t *c)
+{
+    if (c == 0) {
+        return;
+    }
+    *c = fw_core_zero;
+    fw_params_defaults(c);
+    fw_params_apply(c);
+    c->state = FW_STATE_INIT;
+    c->fault_code = FW_FAULT_NONE;
+    c->cmd.ctrl_mode = FW_CTRL_SPEED;
+    c->cmd.fw_mode = FW_FWMODE_REALTIME;
+    c->vdc = c->p[FW_PI_VDC_NOM_V];
+    c->vdc_f = c->vdc;
+    fw_svpwm_plan_off(&c->plan_cur, c->vdc);
+    fw_svpwm_plan_off(&c->plan_next, c->vdc);
+    reset_estimation(c);
+    reset_control(c);
+    c->ld_use = c->p[FW_PI_LD_H];
+    c->lq_use = c->p[FW_PI_LQ_H];
+    c->lambda_use = c->p[FW_PI_LAMBDA_M_WB];
+}
+
+void fw_core_note_overrun(fw_core_t *c)
+{
+    if (c != 0 && c->isr_overruns < 65535u) {
+        c->isr_overruns++;
+    }
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* API: command and limits                                                                   */
+
+int16_t fw_core_command(fw_core_t *c, const fw_cmd_t *cmd)
+{
+    int16_t st = FW_STATUS_OK;
+    if (c == 0 || cmd == 0) {
+        return FW_STATUS_BAD_ARG;
+    }
+    if ((cmd->enable != 0 && cmd->enable != 1) || (cmd->fault_reset != 0 && cmd->fault_reset != 1) ||
+        (cmd->ctrl_mode != FW_CTRL_SPEED && cmd->ctrl_mode != FW_CTRL_CURRENT) ||
+        (cmd->fw_mode < FW_FWMODE_REALTIME || cmd->fw_mode > FW_FWMODE_ID_ZERO)) {
+        st = FW_STATUS_OUT_OF_RANGE;
+    } else if (!fw_is_finite(cmd->speed_ref_rpm) || !fw_is_finite(cmd->iq_ref)) {
+        st = FW_STATUS_OUT_OF_RANGE;
+    } else if (fw_fabs(cmd->speed_ref_rpm) > c->p[FW_PI_SPEED_MAX_RPM] ||
+               fw_fabs(cmd->iq_ref) > c->p[FW_PI_I_MAX_A]) {
+        st = FW_STATUS_OUT_OF_RANGE;
+    }
+    c->cmd_status = st;
+    if (st != FW_STATUS_OK) {
+        return st; /* nothing else changes, the time-out keeps counting */
+    }
+    if (cmd->enable && !c->cmd.enable) {
+        c->start_request = 1;
+    }
+    if (!cmd->enable) {
+        c->start_request = 0;
+    }
+    if (cmd->fault_reset && !c->cmd.fault_reset) {
+        c->reset_request = 1;
+    }
+    c->cmd = *cmd;
+    c->ticks_since_cmd = 0;
+    c->have_cmd = 1;
+    return FW_STATUS_OK;
+}
+
+int16_t fw_core_set_limits(fw_core_t *c, real_t i_max, real_t speed_max_rpm, real_t accel_rpm_s)
+{
+    const fw_param_info_t *pi_i = &fw_param_table[FW_PI_I_MAX_A];
+    const fw_param_info_t *pi_s = &fw_param_table[FW_PI_SPEED_MAX_RPM];
+    const fw_param_info_t *pi_a = &fw_param_table[FW_PI_ACCEL_RPM_S];
+    if (c == 0) {
+        return FW_STATUS_BAD_ARG;
+    }
+    if (!fw_is_finite(i_max) || !fw_is_finite(speed_max_rpm) || !fw_is_finite(accel_rpm_s) ||
+        i_max < pi_i->min || i_max > pi_i->max || !(i_max < c->p[FW_PI_OC_TRIP_A]) ||
+        speed_max_rpm < pi_s->min || speed_max_rpm > pi_s->max || accel_rpm_s < pi_a->min ||
+        accel_rpm_s > pi_a->max) {
+        return FW_STATUS_OUT_OF_RANGE;
+    }
+    c->p[FW_PI_I_MAX_A] = i_max;
+    c->p[FW_PI_SPEED_MAX_RPM] = speed_max_rpm;
+    c->p[FW_PI_ACCEL_RPM_S] = accel_rpm_s;
+    return FW_STATUS_OK;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* measurement and estimation of period k                                                    */
+
+/* Period-mean and period-end current from the zero-window anchor and the slope of every
+ * segment: measured slopes where measured, else s0 + Gamma*v (Gamma from the estimate). With
+ * w(tau) = P - tau after the anchor and -tau before it, mean = i(t_a) + (1/P) sum s_seg *
+ * integral_seg w. */
+static void reconstruct_current(fw_core_t *c, const fw_adc_t *adc)
+{
+    const fw_plan_t *pl = &c->plan_cur;
+    const real_t P = (real_t)FW_P_TICKS;
+    real_t ta = c->slope_t[FW_WIN_ZERO];
+    fw_cplx_t acc_mean = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    fw_cplx_t acc_end = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    fw_cplx_t g;
+    real_t gamma0;
+    int16_t s;
+
+    if (!c->slope_ok[FW_WIN_ZERO]) {
+        /* no zero window (gates off): plain mean of the samples */
+        fw_cplx_t sum = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+        int16_t k;
+        for (k = 0; k < adc->n_soc && k < FW_MAX_SOC; k++) {
+            real_t ia = (real_t)(adc->ia[k] - c->adc_half) * c->adc_i_lsb;
+            real_t ib = (real_t)(adc->ib[k] - c->adc_half) * c->adc_i_lsb;
+            sum = fw_cadd(sum, fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_INV_SQRT3_R));
+        }
+        c->i_avg = (adc->n_soc > 0) ? fw_cscale(sum, FW_REAL(1.0) / (real_t)adc->n_soc) : sum;
+        c->i_end = c->i_avg;
+        return;
+    }
+    if (c->est.n_active == 2 && c->est.ok) {
+        gamma0 = c->est.gamma0;
+        g = c->est.g;
+    } else {
+        gamma0 = c->pe.gamma0_f;
+        g = fw_cscale(fw_cexpj(FW_REAL(2.0) * c->theta_hat), c->pe.gamma1_f);
+    }
+    for (s = 0; s < pl->n_seg; s++) {
+        real_t u = (real_t)pl->seg_t[s];
+        real_t v = (real_t)pl->seg_t[s + 1];
+        int16_t bits = pl->seg_state[s];
+        fw_cplx_t slope;
+        int16_t w;
+        int16_t found = -1;
+        for (w = 0; w < 3; w++) {
+            if (c->slope_ok[w] && pl->win[w].start <= pl->seg_t[s] &&
+                pl->win[w].end >= pl->seg_t[s + 1]) {
+                found = w;
+            }
+        }
+        if (found >= 0) {
+            slope = c->slope[found];
+        } else if (bits == 0 || bits == 7) {
+            slope = c->slope[FW_WIN_ZERO];
+        } else {
+            /* Gamma(theta) v = Gamma0 v + g conj(v) */
+            fw_cplx_t vs = fw_state_voltage(bits, pl->vdc);
+            slope = fw_cadd(c->slope[FW_WIN_ZERO],
+                            fw_cadd(fw_cscale(vs, gamma0), fw_cmul(g, fw_cconj(vs))));
+        }
+        slope = fw_cscale(slope, FW_TICK_S); /* A per tick */
+        /* split at the anchor */
+        if (v <= ta) {
+            acc_mean = fw_cadd(acc_mean, fw_cscale(slope, -(v - u) * FW_REAL(0.5) * (u + v)));
+        } else if (u >= ta) {
+            acc_mean = fw_cadd(acc_mean, fw_cscale(slope, (v - u) * (P - FW_REAL(0.5) * (u + v))));
+            acc_end = fw_cadd(acc_end, fw_cscale(slope, v - u));
+        } else {
+            acc_mean = fw_cadd(acc_mean, fw_cscale(slope, -(ta - u) * FW_REAL(0.5) * (u + ta)));
+            acc_mean = fw_cadd(acc_mean, fw_cscale(slope, (v - ta) * (P - FW_REAL(0.5) * (ta + v))));
+            acc_end = fw_cadd(acc_end, fw_cscale(slope, v - ta));
+        }
+    }
+    c->i_avg = fw_cadd(c->i_win[FW_WIN_ZERO], fw_cscale(acc_mean, FW_REAL(1.0) / P));
+    c->i_end = fw_cadd(c->i_win[FW_WIN_ZERO], acc_end);
+}
+
+/* Average voltage error of the inverter in period k (dead time on every rising edge of a
+ * switching leg, device drop), alpha-beta; subtracted from the ideal volt-seconds. */
+static fw_cplx_t inverter_error(const fw_core_t *c)
+{
+    const fw_plan_t *pl = &c->plan_cur;
+    real_t td = c->p[FW_PI_DEADTIME_US] * FW_REAL(1e-6);
+    real_t vdrop = c->p[FW_PI_VDROP_V];
+    real_t iph[3];
+    real_t dv[3];
+    int16_t x;
+    if (td <= FW_REAL(0.0) && vdrop <= FW_REAL(0.0)) {
+        return fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    }
+    iph[0] = c->i_avg.re;
+    iph[1] = FW_REAL(-0.5) * c->i_avg.re + FW_REAL(0.5) * FW_SQRT3_R * c->i_avg.im;
+    iph[2] = FW_REAL(-0.5) * c->i_avg.re - FW_REAL(0.5) * FW_SQRT3_R * c->i_avg.im;
+    for (x = 0; x < 3; x++) {
+        int16_t nonempty = (int16_t)(pl->on[x] < pl->off[x]);
+        int16_t prev_on_at_end = (int16_t)(c->prev_on[x] < c->prev_off[x] &&
+                                           c->prev_off[x] >= (uint16_t)FW_P_TICKS);
+        int16_t rising = (int16_t)(nonempty && (pl->on[x] > 0u || !prev_on_at_end));
+        real_t sgn = fw_clamp(iph[x] / FW_REAL(0.05), FW_REAL(-1.0), FW_REAL(1.0));
+        dv[x] = -sgn * (td * pl->vdc * (real_t)rising / FW_TS + vdrop);
+    }
+    return fw_c((FW_REAL(2.0) / FW_REAL(3.0)) * (dv[0] - FW_REAL(0.5) * (dv[1] + dv[2])),
+                (dv[1] - dv[2]) * FW_INV_SQRT3_R);
+}
+
+/* Slopes, least-squares estimate and PLL for the period just measured. Returns 1 when the
+ * period counted as implausible. */
+static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_freeze)
+{
+    const real_t *p = c->p;
+    fw_plan_t *pl = &c->plan_cur;
+    int16_t w;
+    int16_t n_act = 0;
+    int16_t vec[2];
+    fw_cplx_t di[2];
+    real_t t[2];
+    real_t omega = c->pll.init ? c->pll.omega : FW_REAL(0.0);
+    int16_t bad = 0;
+    int16_t updated = 0;
+
+    for (w = 0; w < 3; w++) {
+        c->slope_ok[w] = fw_slope_window(pl, w, adc, c->adc_half, c->adc_i_lsb, &c->slope[w],
+                                         &c->slope_t[w], &c->i_win[w]);
+    }
+    c->est.n_active = 0;
+    c->est.ok = 0;
+    if (c->slope_ok[FW_WIN_ZERO]) {
+        for (w = FW_WIN_ODD; w <= FW_WIN_EVEN; w++) {
+            if (c->slope_ok[w]) {
+                vec[n_act] = pl->win[w].vec;
+                t[n_act] = c->slope_t[w] * FW_TICK_S;
+                di[n_act] = fw_slope_diff(c->slope[w], t[n_act], c->slope[FW_WIN_ZERO],
+                                          c->slope_t[FW_WIN_ZERO] * FW_TICK_S, omega);
+                n_act++;
+            }
+        }
+    }
+    c->slopes_ok = n_act;
+    if (n_act > 0) {
+        fw_est_solve(n_act, vec, di, t, FW_REAL(2.0) / FW_REAL(3.0) * pl->vdc, omega,
+                     fw_pe_gamma0_prior(&c->pe, c->iq), &c->est);
+        if (c->est.ok) {
+            /* plausibility: residual of the 4th equation and enough saliency left */
+            real_t g1_nom = c->pe.gamma1_f;
+            if (fw_fabs(c->est.residual) > p[FW_PI_RESIDUAL_MAX] * c->est.gamma0 ||
+                c->est.gamma1 < FW_REAL(0.25) * g1_nom) {
+                c->est.ok = 0;
+            }
+        }
+        if (!c->est.ok) {
+            bad = 1;
+        }
+    }
+    if (c->est.ok) {
+        real_t t_ref_ticks = c->est.t_ref / FW_TICK_S;
+        uint16_t stamp = (uint16_t)fw_clamp(t_ref_ticks + FW_REAL(0.5), FW_REAL(0.0),
+                                            (real_t)(FW_P_TICKS - 1));
+        real_t theta_meas;
+        if (!c->pll.init) {
+            fw_pll_reset(&c->pll, c->est.theta_raw, FW_REAL(0.0), stamp);
+            c->theta_raw_branch = fw_wrap_2pi(c->est.theta_raw);
+            updated = 1;
+        } else if (!pll_freeze) {
+            real_t eps = fw_pll_update(&c->pll, c->est.theta_raw, stamp, &theta_meas);
+            c->theta_raw_branch = theta_meas;
+            updated = 1;
+            if (fw_fabs(eps) > p[FW_PI_PLL_ERR_MAX_DEG] * (FW_PI_R / FW_REAL(180.0))) {
+                bad = 1;
+            }
+        } else {
+            real_t pred = fw_pll_predict(&c->pll, (int32_t)stamp);
+            c->theta_raw_branch =
+                fw_wrap_2pi(pred + FW_REAL(0.5) * fw_wrap_pi(FW_REAL(2.0) * (c->est.theta_raw - pred)));
+        }
+        if (updated) {
+            c->stamp = (int16_t)stamp;
+            c->theta_hat = c->pll.theta;
+        }
+    }
+    if (!updated) {
+        c->stamp = (int16_t)FW_H_TICKS;
+        c->theta_hat = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
+    }
+    if (bad) {
+        c->est_reject_count++;
+    }
+    return (int16_t)(bad || (n_act == 0 && pl->layout != FW_LAYOUT_OFF));
+}
+
+static void update_parameters_and_flux(fw_core_t *c, int16_t run_flux)
+{
+    const real_t *p = c->p;
+    real_t alpha = FW_TS / (p[FW_PI_PARAM_TAU_MS] * FW_REAL(1e-3));
+    real_t ld_nom = p[FW_PI_LD_H];
+    real_t lq_nom = p[FW_PI_LQ_H];
+    if (c->est.ok && c->est.n_active == 2 && c->pll.init) {
+        fw_pe_update(&c->pe, &c->est, c->theta_hat, c->iq, alpha, FW_REAL(0.2) * ld_nom,
+                     FW_REAL(5.0) * lq_nom);
+    }
+    c->v_meas = fw_csub(c->plan_cur.v_applied, inverter_error(c));
+    if (run_flux && c->pll.init) {
+        fw_cplx_t u = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_PI_RS_OHM])), FW_TS);
+        real_t omega_min = p[FW_PI_FLUX_MIN_RPM] / FW_RPM_PER_RADS * p[FW_PI_POLE_PAIRS];
+        real_t theta_end = fw_pll_predict(&c->pll, FW_P_TICKS);
+        real_t omega_gate = c->speed_f_rpm / FW_RPM_PER_RADS * p[FW_PI_POLE_PAIRS];
+        (void)fw_flux_update(&c->flux, u, c->pll.omega, omega_gate, p[FW_PI_FLUX_LPF_RATIO],
+                             omega_min, theta_end, c->i_end, c->pe.ld_app, p[FW_PI_LAMBDA_M_WB],
+                             alpha);
+    }
+}
+
+/* parameter set of the selected MTPA/FW mode */
+static void select_parameters(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    if (c->cmd.fw_mode == FW_FWMODE_REALTIME) {
+        c->ld_use = c->pe.ld_app;
+        c->lq_use = c->pe.lq_app;
+        /* the online flux only once the voltage model has settled (FW_FLUX_VALID_UPDATES) */
+        c->lambda_use = (p[FW_PI_LAMBDA_MODE] > FW_REAL(0.5) &&
+                         c->flux.n_valid >= FW_FLUX_VALID_UPDATES)
+                            ? c->flux.lambda_f
+                            : p[FW_PI_LAMBDA_M_WB];
+    } else {
+        c->ld_use = p[FW_PI_LD_H];
+        c->lq_use = p[FW_PI_LQ_H];
+        c->lambda_use = p[FW_PI_LAMBDA_M_WB];
+    }
+}
+
+/* 1 kHz: speed ramp, speed PI, MTPA/FW references, voltage feedback */
+static void slow_tasks(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    const real_t ts = FW_TS * (real_t)FW_SPEED_DIVIDER;
+    real_t i_max = p[FW_PI_I_MAX_A];
+    real_t vmax_fw = p[FW_PI_FW_VMARGIN] * c->v_lim;
+    real_t target = fw_clamp(c->cmd.speed_ref_rpm, -p[FW_PI_SPEED_MAX_RPM], p[FW_PI_SPEED_MAX_RPM]);
+    real_t iq_lim;
+
+    fw_pe_apparent(&c->pe, c->iq);
+    select_parameters(c);
+    c->speed_ref_ramped = fw_ramp(c->speed_ref_ramped, target, p[FW_PI_ACCEL_RPM_S] * ts);
+    /* voltage feedback: integrate the excess of |v| over the flux-weakening voltage */
+    if (c->cmd.fw_mode != FW_FWMODE_ID_ZERO) {
+        c->fw_did += p[FW_PI_FW_FB_KI] * ts * (vmax_fw - c->v_mag_f);
+        c->fw_did = fw_clamp(c->fw_did, -i_max, FW_REAL(0.0));
+    } else {
+        c->fw_did = FW_REAL(0.0);
+    }
+    iq_lim = fw_sqrt(fw_max(i_max * i_max - c->id_ref * c->id_ref, FW_REAL(0.0)));
+    if (p[FW_PI_SALIENCY_MIN] > FW_REAL(0.0)) {
+        /* keep the q current where the saliency the estimator lives on is still there */
+        real_t g1_nom = FW_REAL(0.5) * (FW_REAL(1.0) / p[FW_PI_LD_H] - FW_REAL(1.0) / p[FW_PI_LQ_H]);
+        iq_lim = fw_min(iq_lim, fw_pe_saliency_iq_limit(&c->pe, p[FW_PI_SALIENCY_MIN] * g1_nom,
+                                                        i_max));
+    }
+    c->iq_sal_lim = iq_lim;
+    if (c->cmd.ctrl_mode == FW_CTRL_SPEED) {
+        c->iq_demand = fw_speed_ctrl(&c->pi_spd, c->speed_ref_ramped, c->speed_f_rpm, iq_lim, ts);
+    } else {
+        c->iq_demand = fw_clamp(c->cmd.iq_ref, -i_max, i_max);
+        c->pi_spd.x = c->iq_demand; /* bumpless change to speed mode */
+    }
+    c->fw_active = fw_current_refs(c->cmd.fw_mode, fw_clamp(c->iq_demand, -iq_lim, iq_lim),
+                                   c->pll.omega, vmax_fw, i_max, c->ld_use, c->lq_use,
+                                   c->lambda_use, c->fw_did, &c->id_ref, &c->iq_ref);
+}
+
+static void polarity_lost_check(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    c->flip_window_ticks++;
+    if (c->flip_window_ticks >= 10000) { /* one second */
+        c->flip_window_ticks = 0;
+        c->flips_in_window = 0;
+    }
+    if (c->flux.active && fw_fabs(c->speed_f_rpm) > p[FW_PI_POL_LOSS_MIN_RPM] &&
+        c->flux.neg_count >= FW_FLUX_NEG_PERIODS) {
+        /* the tracked frame points to the south pole: turn it round; the PI integrators hold
+         * dq voltages of the old frame, which are the negatives in the new one */
+        fw_pll_flip(&c->pll);
+        c->theta_hat = fw_wrap_2pi(c->theta_hat + FW_PI_R);
+        c->pi_d.x = -c->pi_d.x;
+        c->pi_q.x = -c->pi_q.x;
+        c->flux.neg_count = 0;
+        if (c->polarity_flips < 65535u) {
+            c->polarity_flips++;
+        }
+        c->flips_in_window++;
+        if ((real_t)c->flips_in_window > p[FW_PI_POL_LOSS_FLIPS_MAX]) {
+            enter_fault(c, FW_FAULT_POLARITY_LOST);
+        }
+    }
+}
+
+static void output_off(fw_core_t *c, uint32_t next_period, fw_pwm_t *pwm)
+{
+    fw_svpwm_plan_off(&c->plan_next, c->vdc);
+    fw_plan_to_pwm(&c->plan_next, next_period, 0, pwm);
+    c->vs_carry = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+}
+
+static void output_voltage(fw_core_t *c, fw_cplx_t v_ab, uint32_t next_period, fw_pwm_t *pwm)
+{
+    fw_svpwm_plan(&c->pwm_cfg, c->vdc, v_ab, &c->vs_carry, next_period, &c->plan_next);
+    fw_plan_to_pwm(&c->plan_next, next_period, 1, pwm);
+}
+
+/* current control in the estimated frame -> alpha-beta voltage for the next period */
+static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data)
+{
+    const real_t *p = c->p;
+    real_t theta_apply;
+    real_t vd = c->vd;
+    real_t vq = c->vq;
+    if (have_data) {
+        fw_current_ctrl(&c->pi_d, &c->pi_q, c->id_ref, c->iq_ref, c->id, c->iq, c->pll.omega,
+                        c->ld_use, c->lq_use, c->lambda_use, p[FW_PI_RS_OHM], c->v_lim, FW_TS,
+                        &vd, &vq);
+    }
+    c->vd = vd;
+    c->vq = vq;
+    c->v_mag_f += FW_REAL(0.05) * (fw_sqrt(vd * vd + vq * vq) - c->v_mag_f);
+    /* the voltage acts during period k+1: rotate with the angle at its middle */
+    theta_apply = c->pll.init ? fw_pll_predict(&c->pll, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
+    return fw_cmul(fw_c(vd, vq), fw_cexpj(theta_apply));
+}
+
+void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
+{
+    const real_t *p;
+    int16_t data_ok = 0;
+    uint32_t k;
+    int16_t bad_est = 0;
+    int16_t pll_freeze = 0;
+    fw_pol_out_t pol_out;
+    int16_t slow;
+
+    if (c == 0 || pwm == 0) {
+        return;
+    }
+    p = c->p;
+    /* a repeated ADC(k) gets the same PWM(k+1) (docs/interfaces.md, lockstep re-send) */
+    if (adc != 0 && c->have_period && c->pwm_valid && adc->period == c->period) {
+        *pwm = c->pwm_last;
+        return;
+    }
+    c->isr_count++;
+    slow = (int16_t)((c->isr_count % (uint32_t)FW_SPEED_DIVIDER) == 0u);
+    if (c->ticks_since_cmd < 0xFFFFFFF0u) {
+        c->ticks_since_cmd++;
+    }
+
+    /* 1. which period is this, and is its data complete? */
+    if (adc == 0) {
+        k = c->have_period ? c->period + 1u : 0u;
+    } else if (!c->have_period) {
+        k = adc->period; /* first frame: nothing was planned for it */
+        c->have_period = 1;
+        c->adc_loss_run = 0;
+    } else {
+        k = adc->period;
+        data_ok = (int16_t)(adc->period == c->period + 1u && adc->n_soc == c->plan_next.n_soc &&
+                            adc->n_soc >= 0 && adc->n_soc <= FW_MAX_SOC);
+    }
+    if (c->have_period && c->pll.init) {
+        uint32_t gap = k - c->period;
+        fw_pll_advance(&c->pll, (gap >= 1u && gap < 100u) ? (int32_t)gap * FW_P_TICKS : FW_P_TICKS);
+    }
+    c->prev_on[0] = c->plan_cur.on[0];
+    c->prev_on[1] = c->plan_cur.on[1];
+    c->prev_on[2] = c->plan_cur.on[2];
+    c->prev_off[0] = c->plan_cur.off[0];
+    c->prev_off[1] = c->plan_cur.off[1];
+    c->prev_off[2] = c->plan_cur.off[2];
+    if (data_ok) {
+        c->plan_cur = c->plan_next;
+        c->adc_loss_run = 0;
+    } else {
+        fw_svpwm_plan_off(&c->plan_cur, c->vdc);
+        if (c->have_period && !(adc != 0 && c->state == FW_STATE_INIT)) {
+            c->adc_loss_count++;
+            c->adc_loss_run++;
+            if (c->adc_loss_run >= (int16_t)p[FW_PI_ADC_LOSS_MAX] && c->state != FW_STATE_INIT) {
+                enter_fault(c, FW_FAULT_ADC_LOSS);
+            }
+        }
+    }
+    c->period = k;
+    if (c->state == FW_STATE_INIT) {
+        c->state = FW_STATE_IDLE;
+    }
+
+    /* 2. protection */
+    if (data_ok) {
+        uint16_t f;
+        real_t vdc = (real_t)adc->vdc * c->adc_v_lsb;
+        int16_t enabled = (int16_t)(c->state == FW_STATE_POLARITY || c->state == FW_STATE_RUN);
+        f = fw_protect_vdc(vdc, p[FW_PI_OV_TRIP_V], p[FW_PI_UV_TRIP_V], enabled);
+        if (f != FW_FAULT_NONE) {
+            enter_fault(c, f);
+        }
+        if (vdc > FW_REAL(1.0)) {
+            c->vdc = vdc;
+            c->vdc_f += FW_REAL(0.01) * (vdc - c->vdc_f);
+        }
+        f = fw_protect_samples(adc, c->adc_half, c->adc_i_lsb, p[FW_PI_OC_TRIP_A], &c->i_peak);
+        if (f != FW_FAULT_NONE) {
+            enter_fault(c, f);
+        }
+    }
+    if ((c->state == FW_STATE_POLARITY || c->state == FW_STATE_RUN) &&
+        c->ticks_since_cmd > c->cmd_timeout_ticks) {
+        enter_fault(c, FW_FAULT_CMD_TIMEOUT);
+    }
+    c->v_lim = fw_svpwm_vmax(c->vdc, c->pwm_cfg.tmin) * p[FW_PI_VLIM_FRACTION];
+
+    /* 3.-4. estimation */
+    if (c->state == FW_STATE_POLARITY && c->pol.phase >= 1 && c->pol.phase <= 5) {
+        pll_freeze = 1; /* saturation pulses: hold the angle the test is made along */
+    }
+    if (data_ok) {
+        bad_est = estimate_position(c, adc, pll_freeze);
+        reconstruct_current(c, adc);
+        {
+            real_t th_mid = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
+            fw_cplx_t idq = fw_cmul(c->i_avg, fw_cexpj(-th_mid));
+            c->id = idq.re;
+            c->iq = idq.im;
+        }
+        update_parameters_and_flux(c, (int16_t)(c->plan_cur.layout != FW_LAYOUT_OFF));
+    } else {
+        c->slopes_ok = 0;
+        c->slope_ok[0] = c->slope_ok[1] = c->slope_ok[2] = 0;
+        c->stamp = (int16_t)FW_H_TICKS;
+        c->theta_hat = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
+    }
+    if (c->state == FW_STATE_POLARITY || c->state == FW_STATE_RUN) {
+        if (bad_est) {
+            c->est_fail_run++;
+        } else if (data_ok && c->est.ok) {
+            c->est_fail_run = 0;
+        }
+        if ((real_t)c->est_fail_run >= p[FW_PI_EST_FAIL_MAX]) {
+            enter_fault(c, FW_FAULT_ESTIMATOR);
+        }
+    }
+    c->est_valid = (int16_t)(c->pll.init && c->est_fail_run < FW_EST_VALID_MAX_RUN);
+    if (c->pll.init) {
+        real_t rpm = FW_RPM(c->pll.omega, p[FW_PI_POLE_PAIRS]);
+        c->speed_f_rpm += c->speed_alpha * (rpm - c->speed_f_rpm);
+        if (fw_fabs(c->speed_f_rpm) > p[FW_PI_OVERSPEED_RPM] && c->state == FW_STATE_RUN) {
+            enter_fault(c, FW_FAULT_OVERSPEED);
+        }
+    } else {
+        c->speed_f_rpm = FW_REAL(0.0);
+    }
+
+    /* 5. states */
+    if (!c->cmd.enable && (c->state == FW_STATE_POLARITY || c->state == FW_STATE_RUN)) {
+        c->state = FW_STATE_IDLE;
+    }
+    if (c->state == FW_STATE_FAULT && c->reset_request) {
+        c->reset_request = 0;
+        c->start_request = 0;
+        c->adc_loss_run = 0;
+        c->fault_code = FW_FAULT_NONE;
+        c->state = FW_STATE_IDLE;
+    }
+    c->reset_request = 0;
+    if (c->state == FW_STATE_IDLE && c->start_request && c->cmd.enable && data_ok) {
+        c->start_request = 0;
+        if (c->vdc < p[FW_PI_UV_TRIP_V]) {
+            enter_fault(c, FW_FAULT_DC_UNDERVOLTAGE);
+        } else {
+            c->state = FW_STATE_POLARITY;
+            reset_estimation(c);
+            reset_control(c);
+            fw_pol_start(&c->pol);
+        }
+    }
+
+    /* 6. outputs for period k+1 */
+    switch (c->state) {
+    case FW_STATE_POLARITY: {
+        int16_t r = fw_pol_step(&c->pol, c, data_ok ? adc : 0, &pol_out);
+        if (r < 0) {
+            enter_fault(c, FW_FAULT_POLARITY);
+            output_off(c, k + 1u, pwm);
+            break;
+        }
+        if (r > 0) {
+            if (c->pol.flipped) {
+                fw_pll_flip(&c->pll);
+                c->theta_hat = fw_wrap_2pi(c->theta_hat + FW_PI_R);
+            }
+            c->polarity_ok = 1;
+            c->state = FW_STATE_RUN;
+            reset_control(c);
+            c->speed_ref_ramped = c->speed_f_rpm;
+            select_parameters(c);
+            output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+            break;
+        }
+        if (pol_out.kind == FW_POL_OUT_CURRENT) {
+            select_parameters(c);
+            c->id_ref = pol_out.id;
+            c->iq_ref = pol_out.iq;
+            output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+        } else {
+            c->vd = c->vq = FW_REAL(0.0);
+            output_voltage(c, pol_out.v, k + 1u, pwm);
+        }
+        break;
+    }
+    case FW_STATE_RUN:
+        polarity_lost_check(c);
+        if (c->state != FW_STATE_RUN) {
+            output_off(c, k + 1u, pwm);
+            break;
+        }
+        if (slow) {
+            slow_tasks(c);
+        }
+        output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+        break;
+    default:
+        reset_control(c);
+        output_off(c, k + 1u, pwm);
+        break;
+    }
+    if (c->state == FW_STATE_RUN || c->state == FW_STATE_POLARITY) {
+        c->te_hat = fw_torque(c->id, c->iq, c->ld_use, c->lq_use, c->lambda_use,
+                              p[FW_PI_POLE_PAIRS]);
+    } else {
+        c->te_hat = FW_REAL(0.0);
+    }
+    c->pwm_last = *pwm;
+    c->pwm_valid = 1;
+}
+
+void fw_core_status(const fw_core_t *c, fw_status_t *s)
+{
+    const real_t *p;
+    if (c == 0 || s == 0) {
+        return;
+    }
+    p = c->p;
+    s->state = c->state;
+    s->fault_code = c->fault_code;
+    s->ctrl_mode = c->cmd.ctrl_mode;
+    s->fw_mode = c->cmd.fw_mode;
+    s->cmd_status = c->cmd_status;
+    s->period = c->period;
+    s->stamp = c->stamp;
+    s->theta_hat = fw_wrap_2pi(c->theta_hat);
+    s->omega_hat = c->pll.init ? c->pll.omega : FW_REAL(0.0);
+    s->speed_hat_rpm = FW_RPM(s->omega_hat, p[FW_PI_POLE_PAIRS]);
+    s->id = c->id;
+    s->iq = c->iq;
+    s->id_ref = c->id_ref;
+    s->iq_ref = c->iq_ref;
+    s->vd = c->vd;
+    s->vq = c->vq;
+    s->ld_hat = c->pe.ld_inc;
+    s->lq_hat = c->pe.lq_inc;
+    s->lambda_hat = c->flux.lambda_f;
+    s->te_hat = c->te_hat;
+    s->theta_raw = c->theta_raw_branch;
+    s->residual = c->est.residual;
+    s->sector = c->plan_cur.sector;
+    s->slopes_ok = c->slopes_ok;
+    s->fw_active = c->fw_active;
+    s->speed_ref_ramped_rpm = c->speed_ref_ramped;
+    s->polarity_ok = c->polarity_ok;
+    s->est_valid = c->est_valid;
+    s->isr_overruns = c->isr_overruns;
+}

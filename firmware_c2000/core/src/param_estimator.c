@@ -1,0 +1,199 @@
+/* param_estimator.c - online Ld, Lq from the slope estimates, and the apparent inductances
+ * MTPA/FW need (estimator-math.md sections 3 and 4.7).
+ *
+ * The slopes measure the INCREMENTAL inductance matrix at the operating point
+ * (Ld = 1/(Gamma0 + Gamma1), Lq = 1/(Gamma0 - Gamma1)). MTPA (eq. 50) and FW (eq. 53) are
+ * derived from psi = L * i and need APPARENT inductances psi/i. Without cross-saturation the
+ * q flux is psi_q(iq) = integral_0^iq Lq_inc(x) dx, so the core learns Lq_inc(|iq|) in bins and
+ * integrates the curve: Lq_app(iq) = psi_q(iq)/iq. The d axis saturates only mildly on the
+ * magnet side (incremental Ld >= 14 mH against 15 mH over +-3 A in the plant profiles) and MTPA
+ * keeps |id| small, so the apparent Ld is taken equal to the filtered incremental one.
+ * Filtering works on Gamma0 and Gamma1 = Re(g exp(-j2 theta_hat)) (linear in the slopes, so
+ * unbiased by noise, unlike |g| or 1/x of a noisy value).
+ */
+#include "fw_internal.h"
+
+#define FW_LQ_BIN_MIN 50 /* updates before a bin counts as measured */
+#define FW_GAMMA0_FAST FW_REAL(0.1) /* per two-vector estimate: about 1 ms */
+
+void fw_pe_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max)
+{
+    int16_t b;
+    pe->gamma0_f = FW_REAL(0.5) * (FW_REAL(1.0) / ld + FW_REAL(1.0) / lq);
+    pe->gamma1_f = FW_REAL(0.5) * (FW_REAL(1.0) / ld - FW_REAL(1.0) / lq);
+    pe->gamma0_fast = pe->gamma0_f;
+    pe->iq_fast = FW_REAL(0.0);
+    pe->ld_inc = ld;
+    pe->lq_inc = lq;
+    for (b = 0; b < FW_LQ_BINS; b++) {
+        pe->lq_bin[b] = FW_REAL(1.0) / lq; /* stored as 1/Lq (filtered linearly) */
+        pe->lq_bin_x[b] = ((real_t)b + FW_REAL(0.5)) * fw_max(i_max, FW_REAL(0.5)) /
+                          (real_t)FW_LQ_BINS;
+        pe->lq_bin_seen[b] = 0;
+    }
+    pe->bin_width = fw_max(i_max, FW_REAL(0.5)) / (real_t)FW_LQ_BINS;
+    pe->lq_app = lq;
+    pe->ld_app = ld;
+    pe->n_updates = 0;
+}
+
+void fw_pe_update(fw_param_est_t *pe, const fw_est_out_t *est, real_t theta_ref, real_t iq,
+                  real_t alpha, real_t l_lo, real_t l_hi)
+{
+    fw_cplx_t rot;
+    real_t g1, ld_i, lq_i, inv_lq;
+    int16_t b;
+    if (est->n_active != 2 || !est->ok) {
+        return;
+    }
+    rot = fw_cexpj(FW_REAL(-2.0) * theta_ref);
+    g1 = fw_cmul(est->g, rot).re;
+    if (!(est->gamma0 - g1 > FW_REAL(0.0)) || !(est->gamma0 + g1 > FW_REAL(0.0))) {
+        return;
+    }
+    ld_i = FW_REAL(1.0) / (est->gamma0 + g1);
+    lq_i = FW_REAL(1.0) / (est->gamma0 - g1);
+    if (ld_i < l_lo || ld_i > l_hi || lq_i < l_lo || lq_i > l_hi) {
+        return; /* range check: an outlier never enters the filters */
+    }
+    pe->gamma0_f += alpha * (est->gamma0 - pe->gamma0_f);
+    pe->gamma0_fast += FW_GAMMA0_FAST * (est->gamma0 - pe->gamma0_fast);
+    pe->iq_fast += FW_GAMMA0_FAST * (iq - pe->iq_fast);
+    pe->gamma1_f += alpha * (g1 - pe->gamma1_f);
+    if (pe->gamma0_f > pe->gamma1_f && pe->gamma1_f > FW_REAL(0.0)) {
+        pe->ld_inc = FW_REAL(1.0) / (pe->gamma0_f + pe->gamma1_f);
+        pe->lq_inc = FW_REAL(1.0) / (pe->gamma0_f - pe->gamma1_f);
+    }
+    inv_lq = est->gamma0 - g1;
+    b = (int16_t)(fw_fabs(iq) / pe->bin_width);
+    if (b >= FW_LQ_BINS) {
+        b = FW_LQ_BINS - 1;
+    }
+    /* running mean over the first visits, then the exponential filter: a bin crossed only
+     * briefly is an average of what was seen there, not a partial step from the nominal */
+    if (pe->lq_bin_seen[b] < 30000) {
+        pe->lq_bin_seen[b]++;
+    }
+    {
+        real_t a_b = fw_max(alpha, FW_REAL(1.0) / (real_t)pe->lq_bin_seen[b]);
+        pe->lq_bin[b] += a_b * (inv_lq - pe->lq_bin[b]);
+        pe->lq_bin_x[b] += a_b * (fw_fabs(iq) - pe->lq_bin_x[b]); /* where the value belongs */
+    }
+    pe->ld_app = pe->ld_inc;
+    pe->n_updates++;
+}
+
+/* 1/Lq of bin b; a bin never visited borrows its nearest visited neighbour (flat
+ * extrapolation of the measured curve), the nominal value only when none was visited */
+static real_t bin_value(const fw_param_est_t *pe, int16_t b)
+{
+    int16_t d;
+    for (d = 0; d < FW_LQ_BINS; d++) {
+        if (b - d >= 0 && pe->lq_bin_seen[b - d] >= FW_LQ_BIN_MIN) {
+            return pe->lq_bin[b - d];
+        }
+        if (b + d < FW_LQ_BINS && pe->lq_bin_seen[b + d] >= FW_LQ_BIN_MIN) {
+            return pe->lq_bin[b + d];
+        }
+    }
+    return pe->lq_bin[b];
+}
+
+void fw_pe_apparent(fw_param_est_t *pe, real_t iq)
+{
+    /* Lq_app(iq) = psi_q(iq)/iq with psi_q = integral_0^|iq| Lq_inc(x) dx; Lq_inc is linear
+     * between the measured points (mean current of a bin, its incremental Lq), flat before
+     * the first and after the last one */
+    real_t a = fw_fabs(iq);
+    real_t psi = FW_REAL(0.0);
+    real_t x0 = FW_REAL(0.0);
+    real_t l0 = FW_REAL(0.0);
+    int16_t first = 1;
+    int16_t b;
+    if (a < FW_REAL(1e-3)) {
+        pe->lq_app = FW_REAL(1.0) / bin_value(pe, 0);
+        return;
+    }
+    for (b = 0; b < FW_LQ_BINS && x0 < a; b++) {
+        real_t x1, l1, xe, le;
+        if (pe->lq_bin_seen[b] < FW_LQ_BIN_MIN) {
+            continue;
+        }
+        x1 = pe->lq_bin_x[b];
+        l1 = FW_REAL(1.0) / pe->lq_bin[b];
+        if (first) {
+            l0 = l1; /* flat from zero current to the first point */
+            first = 0;
+        }
+        if (x1 <= x0) {
+            l0 = l1;
+            continue;
+        }
+        xe = fw_min(x1, a);
+        le = l0 + (l1 - l0) * (xe - x0) / (x1 - x0);
+        psi += FW_REAL(0.5) * (l0 + le) * (xe - x0);
+        x0 = xe;
+        l0 = le;
+    }
+    if (first) {
+        pe->lq_app = FW_REAL(1.0) / bin_value(pe, 0); /* nothing measured yet: nominal */
+        return;
+    }
+    if (x0 < a) {
+        psi += l0 * (a - x0);
+    }
+    pe->lq_app = psi / a;
+}
+
+/* 1/Lq_inc at |iq| from the bins, linear between bin centres */
+static real_t inv_lq_at(const fw_param_est_t *pe, real_t iq)
+{
+    real_t x = fw_fabs(iq) / pe->bin_width - FW_REAL(0.5);
+    int16_t b;
+    real_t f;
+    if (x <= FW_REAL(0.0)) {
+        return bin_value(pe, 0);
+    }
+    if (x >= (real_t)(FW_LQ_BINS - 1)) {
+        return bin_value(pe, FW_LQ_BINS - 1);
+    }
+    b = (int16_t)x;
+    f = x - (real_t)b;
+    return (FW_REAL(1.0) - f) * bin_value(pe, b) + f * bin_value(pe, (int16_t)(b + 1));
+}
+
+real_t fw_pe_gamma0_prior(const fw_param_est_t *pe, real_t iq)
+{
+    /* Gamma0 = (1/Ld + 1/Lq_inc(iq))/2 changes with the load under q saturation */
+    return pe->gamma0_fast + FW_REAL(0.5) * (inv_lq_at(pe, iq) - inv_lq_at(pe, pe->iq_fast));
+}
+
+real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max)
+{
+    /* Gamma1(bin) = (1/Ld - 1/Lq_inc(bin))/2 falls with |iq| under q saturation; sensorless
+     * operation needs it (note section 7: the noise grows as 1/Gamma1, and at Lq_inc = Ld the
+     * position is unobservable). */
+    real_t inv_ld = FW_REAL(1.0) / pe->ld_inc;
+    real_t prev_g1 = FW_REAL(0.0);
+    real_t prev_x = FW_REAL(0.0);
+    int16_t have_prev = 0;
+    int16_t b;
+    for (b = 0; b < FW_LQ_BINS; b++) {
+        real_t x = ((real_t)b + FW_REAL(0.5)) * pe->bin_width; /* bin centre */
+        real_t g1;
+        if (pe->lq_bin_seen[b] < FW_LQ_BIN_MIN) {
+            continue;
+        }
+        g1 = FW_REAL(0.5) * (inv_ld - pe->lq_bin[b]);
+        if (g1 < gamma1_min) {
+            if (have_prev && prev_g1 > g1) { /* crossing between the two bin centres */
+                return prev_x + (x - prev_x) * (prev_g1 - gamma1_min) / (prev_g1 - g1);
+            }
+            return fw_max(x - pe->bin_width, FW_REAL(0.0));
+        }
+        prev_g1 = g1;
+        prev_x = x;
+        have_prev = 1;
+    }
+    return i_max;
+}

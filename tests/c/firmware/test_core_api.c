@@ -1,0 +1,267 @@
+/* Core API on bad input: rejected with a status code and nothing changed; loss of ADC data
+ * and of commands turns the outputs off and reports the fault; repeated ADC frames are
+ * idempotent; protection trips. */
+#include <stdlib.h>
+
+#include "fw_test.h"
+#include "sim.h"
+
+static sim_t S;
+static fw_core_t snap;
+
+/* the whole object must be byte-identical except the reported command status */
+static int unchanged_except_cmd_status(const fw_core_t *c)
+{
+    fw_core_t tmp = *c;
+    tmp.cmd_status = snap.cmd_status;
+    return memcmp(&tmp, &snap, sizeof tmp) == 0;
+}
+
+static void bad_commands(void)
+{
+    fw_core_t *c = &S.core;
+    fw_cmd_t good = {0, 0, FW_CTRL_SPEED, FW_FWMODE_REALTIME, 100.0f, 0.5f};
+    fw_cmd_t bad;
+    real_t nan = (real_t)NAN;
+    int k;
+    sim_init(&S, 0.0);
+    CHECK(fw_core_command(c, &good) == FW_STATUS_OK, "good command rejected");
+    for (k = 0; k < 9; k++) {
+        int16_t st;
+        bad = good;
+        switch (k) {
+        case 0: bad.enable = 2; break;
+        case 1: bad.fault_reset = -1; break;
+        case 2: bad.ctrl_mode = 2; break;
+        case 3: bad.fw_mode = 3; break;
+        case 4: bad.speed_ref_rpm = c->p[FW_PI_SPEED_MAX_RPM] + 1.0f; break;
+        case 5: bad.speed_ref_rpm = nan; break;
+        case 6: bad.iq_ref = c->p[FW_PI_I_MAX_A] * 1.01f; break;
+        case 7: bad.iq_ref = (real_t)INFINITY; break;
+        default: bad.fw_mode = -1; break;
+        }
+        snap = *c;
+        st = fw_core_command(c, &bad);
+        CHECK(st == FW_STATUS_OUT_OF_RANGE, "bad command %d accepted (%d)", k, st);
+        CHECK(c->cmd_status == FW_STATUS_OUT_OF_RANGE, "cmd_status not reported");
+        CHECK(unchanged_except_cmd_status(c), "bad command %d changed the core", k);
+    }
+    CHECK(fw_core_command(NULL, &good) == FW_STATUS_BAD_ARG, "NULL core");
+    CHECK(fw_core_command(c, NULL) == FW_STATUS_BAD_ARG, "NULL command");
+}
+
+static void bad_params(void)
+{
+    fw_core_t *c = &S.core;
+    real_t v = 0.0f;
+    struct {
+        uint16_t id;
+        real_t value;
+        int16_t status;
+    } cases[] = {
+        {9999u, 1.0f, FW_STATUS_UNKNOWN_ID},
+        {0u, 1.0f, FW_STATUS_UNKNOWN_ID},
+        {FW_PID_FW_VERSION, 2.0f, FW_STATUS_READ_ONLY},
+        {FW_PID_LD_HAT_H, 0.01f, FW_STATUS_READ_ONLY},
+        {FW_PID_RS_OHM, -1.0f, FW_STATUS_OUT_OF_RANGE},
+        {FW_PID_RS_OHM, 1000.0f, FW_STATUS_OUT_OF_RANGE},
+        {FW_PID_RS_OHM, (real_t)NAN, FW_STATUS_OUT_OF_RANGE},
+        {FW_PID_RS_OHM, (real_t)INFINITY, FW_STATUS_OUT_OF_RANGE},
+        {FW_PID_POLE_PAIRS, 2.5f, FW_STATUS_OUT_OF_RANGE},        /* integral */
+        {FW_PID_ADC_BITS, 25.0f, FW_STATUS_OUT_OF_RANGE},
+        {FW_PID_LD_H, 0.040f, FW_STATUS_OUT_OF_RANGE},            /* Ld >= Lq */
+        {FW_PID_TMIN_US, 14.0f, FW_STATUS_OUT_OF_RANGE},          /* < on + off + 1 us */
+        {FW_PID_UV_TRIP_V, 300.0f, FW_STATUS_OUT_OF_RANGE},       /* above OV */
+        {FW_PID_I_MAX_A, 9.9f, FW_STATUS_OUT_OF_RANGE},           /* above the OC trip */
+        {FW_PID_CMD_TIMEOUT_MS, 0.0f, FW_STATUS_OUT_OF_RANGE},
+    };
+    size_t k;
+    CHECK(fw_param_get(c, FW_PID_RS_OHM, &v) == FW_STATUS_OK && fabs(v - 1.93) < 1e-6,
+          "rs default %.4f", (double)v);
+    CHECK(fw_param_get(c, FW_PID_ADC_BITS, &v) == FW_STATUS_OK && v == 16.0f, "adc bits");
+    CHECK(fw_param_get(c, 9999u, &v) == FW_STATUS_UNKNOWN_ID, "get unknown id");
+    CHECK(fw_param_get(c, FW_PID_RS_OHM, NULL) == FW_STATUS_BAD_ARG, "get NULL");
+    for (k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+        int16_t st;
+        snap = *c;
+        st = fw_param_set(c, cases[k].id, cases[k].value);
+        CHECK(st == cases[k].status, "param %u = %g: status %d, expected %d", cases[k].id,
+              (double)cases[k].value, st, cases[k].status);
+        CHECK(memcmp(c, &snap, sizeof snap) == 0, "rejected param %u changed the core",
+              cases[k].id);
+    }
+    /* valid sets take effect and read back */
+    CHECK(fw_param_set(c, FW_PID_PLL_BW_HZ, 80.0f) == FW_STATUS_OK, "pll bw");
+    CHECK(fw_param_get(c, FW_PID_PLL_BW_HZ, &v) == FW_STATUS_OK && v == 80.0f, "pll bw read");
+    CHECK(fw_param_set(c, FW_PID_LQ_H, 0.050f) == FW_STATUS_OK, "lq up");
+    CHECK(fw_param_set(c, FW_PID_LD_H, 0.040f) == FW_STATUS_OK, "ld below the new lq");
+    CHECK(fw_param_set(c, FW_PID_CMD_TIMEOUT_MS, 50.0f) == FW_STATUS_OK &&
+              c->cmd_timeout_ticks == 500u,
+          "timeout ticks %u", (unsigned)c->cmd_timeout_ticks);
+    /* limits */
+    snap = *c;
+    CHECK(fw_core_set_limits(c, 11.0f, 1000.0f, 100.0f) == FW_STATUS_OUT_OF_RANGE, "i_max 11");
+    CHECK(fw_core_set_limits(c, 5.0f, -1.0f, 100.0f) == FW_STATUS_OUT_OF_RANGE, "speed -1");
+    CHECK(fw_core_set_limits(c, 5.0f, 1000.0f, (real_t)NAN) == FW_STATUS_OUT_OF_RANGE, "NaN");
+    CHECK(memcmp(c, &snap, sizeof snap) == 0, "rejected limits changed the core");
+    CHECK(fw_core_set_limits(c, 5.0f, 2500.0f, 500.0f) == FW_STATUS_OK, "valid limits");
+    CHECK(fw_param_get(c, FW_PID_SPEED_MAX_RPM, &v) == FW_STATUS_OK && v == 2500.0f,
+          "limits are the parameters");
+    /* every table entry: default within range and readable */
+    for (k = 0; k < fw_param_count(); k++) {
+        const fw_param_info_t *pi = fw_param_info_at((uint16_t)k);
+        CHECK(pi != NULL && pi->min <= pi->def && pi->def <= pi->max, "entry %u", (unsigned)k);
+        CHECK(fw_param_info(pi->id) == pi, "lookup of id %u", pi->id);
+    }
+    CHECK(fw_param_info_at(fw_param_count()) == NULL, "past the end");
+}
+
+static void reach_run(sim_t *s)
+{
+    long k;
+    sim_init(s, 1.0);
+    s->plant.bits = 24;
+    s->plant.vdc_bits = 23;
+    sim_sync_adc_params(s);
+    s->cmd.enable = 1;
+    for (k = 0; k < 20000 && s->core.state != FW_STATE_RUN; k++) {
+        sim_step(s);
+    }
+    CHECK(s->core.state == FW_STATE_RUN, "did not reach RUN (state %d, fault %u)",
+          s->core.state, s->core.fault_code);
+}
+
+static void busy_while_running(void)
+{
+    sim_t *s = &S;
+    reach_run(s);
+    snap = s->core;
+    CHECK(fw_param_set(&s->core, FW_PID_POLE_PAIRS, 3.0f) == FW_STATUS_BUSY, "config not busy");
+    CHECK(memcmp(&s->core, &snap, sizeof snap) == 0, "busy set changed the core");
+    CHECK(fw_param_set(&s->core, FW_PID_SPD_KP, 0.02f) == FW_STATUS_OK, "tuning while running");
+}
+
+static void adc_loss(void)
+{
+    sim_t *s = &S;
+    int k;
+    int loss_max;
+    fw_pwm_t pwm;
+    reach_run(s);
+    loss_max = (int)s->core.p[FW_PI_ADC_LOSS_MAX];
+    for (k = 0; k < loss_max; k++) {
+        fw_core_isr(&s->core, NULL, &pwm);
+        if (k < loss_max - 1) {
+            CHECK(s->core.state == FW_STATE_RUN, "faulted after %d lost periods", k + 1);
+        }
+    }
+    CHECK(s->core.state == FW_STATE_FAULT && s->core.fault_code == FW_FAULT_ADC_LOSS,
+          "ADC loss: state %d fault %u", s->core.state, s->core.fault_code);
+    CHECK(pwm.gate_enable == 0, "gates still enabled after ADC loss");
+
+    /* a frame with the wrong number of conversions is a loss too */
+    reach_run(s);
+    for (k = 0; k < loss_max; k++) {
+        mp_period(&s->plant, &s->pwm, &s->adc);
+        s->adc.n_soc = (int16_t)(s->adc.n_soc - 1);
+        fw_core_isr(&s->core, &s->adc, &s->pwm);
+    }
+    CHECK(s->core.fault_code == FW_FAULT_ADC_LOSS && s->pwm.gate_enable == 0, "short frame");
+
+    /* fault reset: back to idle, outputs stay off until a new enable edge */
+    s->cmd.fault_reset = 1;
+    s->cmd.enable = 0;
+    for (k = 0; k < 30; k++) {
+        sim_step(s);
+    }
+    CHECK(s->core.state == FW_STATE_IDLE && s->core.fault_code == FW_FAULT_NONE &&
+              s->pwm.gate_enable == 0,
+          "reset: state %d", s->core.state);
+}
+
+static void command_timeout(void)
+{
+    sim_t *s = &S;
+    long k;
+    uint32_t limit;
+    reach_run(s);
+    limit = s->core.cmd_timeout_ticks;
+    s->send_cmd = 0;
+    /* the last command was at most 9 periods ago */
+    for (k = 0; k < (long)limit + 20 && s->core.state == FW_STATE_RUN; k++) {
+        sim_step(s);
+    }
+    CHECK(s->core.state == FW_STATE_FAULT && s->core.fault_code == FW_FAULT_CMD_TIMEOUT,
+          "timeout: state %d fault %u", s->core.state, s->core.fault_code);
+    CHECK(s->core.ticks_since_cmd == limit + 1u, "tripped after %u ticks, limit %u",
+          (unsigned)s->core.ticks_since_cmd, (unsigned)limit);
+    CHECK(s->pwm.gate_enable == 0, "gates on after the time-out");
+}
+
+static void repeated_frame(void)
+{
+    sim_t *s = &S;
+    fw_pwm_t first;
+    fw_pwm_t again;
+    reach_run(s);
+    mp_period(&s->plant, &s->pwm, &s->adc);
+    fw_core_isr(&s->core, &s->adc, &first);
+    snap = s->core;
+    fw_core_isr(&s->core, &s->adc, &again);
+    CHECK(memcmp(&first, &again, sizeof first) == 0, "repeated ADC(k) gives another PWM");
+    CHECK(memcmp(&s->core, &snap, sizeof snap) == 0, "repeated ADC(k) changed the core");
+    CHECK(first.period == s->adc.period + 1u, "pwm period %u for adc %u", (unsigned)first.period,
+          (unsigned)s->adc.period);
+    s->pwm = first;
+}
+
+static void trips(void)
+{
+    sim_t *s = &S;
+    /* over-current on one sample */
+    reach_run(s);
+    mp_period(&s->plant, &s->pwm, &s->adc);
+    s->adc.ia[0] = mp_code(&s->plant, 9.8);
+    fw_core_isr(&s->core, &s->adc, &s->pwm);
+    CHECK(s->core.fault_code == FW_FAULT_OVERCURRENT && s->pwm.gate_enable == 0, "OC: %u",
+          s->core.fault_code);
+    /* DC-link over-voltage */
+    reach_run(s);
+    s->plant.vdc = 270.0;
+    sim_step(s);
+    CHECK(s->core.fault_code == FW_FAULT_DC_OVERVOLTAGE && s->pwm.gate_enable == 0, "OV: %u",
+          s->core.fault_code);
+    /* under-voltage while running */
+    reach_run(s);
+    s->plant.vdc = 100.0;
+    sim_step(s);
+    CHECK(s->core.fault_code == FW_FAULT_DC_UNDERVOLTAGE && s->pwm.gate_enable == 0, "UV: %u",
+          s->core.fault_code);
+}
+
+static void idle_outputs_off(void)
+{
+    sim_t *s = &S;
+    int k;
+    sim_init(s, 0.3);
+    for (k = 0; k < 50; k++) {
+        sim_step(s);
+        CHECK(s->pwm.gate_enable == 0, "gates on in idle");
+    }
+    CHECK(s->core.state == FW_STATE_IDLE, "state %d", s->core.state);
+    fw_core_isr(NULL, &s->adc, &s->pwm); /* no crash */
+    fw_core_status(NULL, NULL);
+}
+
+int main(void)
+{
+    bad_commands();
+    bad_params();
+    busy_while_running();
+    adc_loss();
+    command_timeout();
+    repeated_frame();
+    trips();
+    idle_outputs_off();
+    TEST_DONE();
+}
