@@ -23,6 +23,7 @@ import socket
 import struct
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,7 @@ CANFD_FDF = 0x04
 CAN_MTU = 16
 CANFD_MTU = 72
 _FRAME = struct.Struct("<IBBBB64s")
+_ID = struct.Struct("<I")
 _FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 _RESCAN_INTERVAL_S = 1.0
 _RECENT_CHANGE_S = 0.1
@@ -150,7 +152,8 @@ class UnixCanBus(can.BusABC):
         self._last_scan = 0.0
         self._lock = threading.Lock()
         self.stats = {"tx_frames": 0, "tx_drops": 0, "tx_errors": 0, "rx_frames": 0,
-                      "rx_overflows": 0, "peers_removed": 0}
+                      "rx_overflows": 0, "rx_filtered": 0, "peers_removed": 0}
+        self._accept: Callable[[int], bool] | None = None
         self._rx: collections.deque[can.Message] = collections.deque()
         self._rx_limit = receive_buffer
         self._rx_ready = threading.Condition()
@@ -159,9 +162,9 @@ class UnixCanBus(can.BusABC):
         self._scan_peers()
         self._reader = threading.Thread(target=self._read_loop, name=f"unixcan-{channel}",
                                         daemon=True)
-        self._reader.start()
         self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+        self._reader.start()  # after the filters are in place
 
     # -- membership -------------------------------------------------------------------
     def _scan_peers(self) -> None:
@@ -249,6 +252,7 @@ class UnixCanBus(can.BusABC):
             if not events:
                 continue
             batch: list[can.Message] = []
+            accept = self._accept
             while True:
                 try:
                     datagram = self._sock.recv(CANFD_MTU)
@@ -256,6 +260,14 @@ class UnixCanBus(can.BusABC):
                     break
                 except OSError:
                     return
+                # Filter on the raw id before building a Message: a node that listens to a
+                # few IDs must not pay for every frame of the bus (it has to keep up with
+                # the 10 kHz virtual I/O traffic it ignores).
+                if accept is not None and len(datagram) >= 4:
+                    (raw_id,) = _ID.unpack_from(datagram)
+                    if not accept(raw_id):
+                        self.stats["rx_filtered"] += 1
+                        continue
                 msg = unpack_frame(datagram, time.time(), self.channel)
                 if msg is not None:
                     batch.append(msg)
@@ -268,14 +280,34 @@ class UnixCanBus(can.BusABC):
                     self._rx.extend(batch)
                     self._rx_ready.notify_all()
 
+    def _apply_filters(self, filters: CanFilters | None) -> None:
+        """Filters run in the reader thread on the raw id (SocketCAN semantics)."""
+        if not filters:
+            self._accept = None
+            return
+        rules = []
+        for f in filters:
+            mask = int(f["can_mask"])
+            can_id = int(f["can_id"])
+            ext = f.get("extended")
+            rules.append((can_id & mask, mask, ext))
+
+        def accept(raw_id: int) -> bool:
+            ident = raw_id & CAN_EFF_MASK
+            is_ext = bool(raw_id & CAN_EFF_FLAG)
+            return any((ident & mask) == want and (ext is None or ext == is_ext)
+                       for want, mask, ext in rules)
+
+        self._accept = accept
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         with self._rx_ready:
             if not self._rx:
                 self._rx_ready.wait_for(lambda: bool(self._rx) or self._closing, timeout)
             if not self._rx:
-                return None, False
+                return None, self._accept is not None
             self.stats["rx_frames"] += 1
-            return self._rx.popleft(), False
+            return self._rx.popleft(), self._accept is not None
 
     def fileno(self) -> int:
         # The socket itself is drained by the reader thread; there is no pollable handle

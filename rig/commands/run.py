@@ -1,9 +1,201 @@
-"""Placeholder: `rig run`, `rig list`, `rig view` are being written."""
+"""``rig run``, ``rig list``, ``rig view``: scenarios from the command line."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+EPILOG_RUN = """\
+exit status: 0 every criterion passed; 1 a criterion failed or the run failed (crash,
+stall, time-out, capture loss); 2 usage or scenario schema error; 3 the run could not
+start here (programs not built, bus unavailable); 130 interrupted.
+
+output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
+DIR/recording.rrd (open with `rig view DIR`), DIR/capture/ (merged full-rate columns),
+DIR/*.trace and the programs' logs. A suite writes one sub-folder per scenario plus a
+summary result.json and report.md in DIR.
+"""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    pass
+    p = sub.add_parser(
+        "run", help="run a scenario or a suite and assert on its criteria",
+        description="Start plant_rt and fw_host on the bus, run the scenario's speed and load "
+        "profile (lockstep by default), capture every PWM period losslessly, evaluate the "
+        "pass criteria and write result.json, report.md and recording.rrd.",
+        epilog=EPILOG_RUN, formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("target", metavar="SCENARIO|SUITE",
+                   help="a scenario or suite name (see `rig list`) or a path to its TOML file")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default: $HIL_OUT or ./out, plus name and time)")
+    p.add_argument("--bus", choices=("auto", "socketcan", "unixcan"), default=None,
+                   help="transport (default: $HIL_BUS, else auto: SocketCAN when available)")
+    p.add_argument("--channel", default=None,
+                   help="bus channel (default: $HIL_CHANNEL, else vcan0)")
+    p.add_argument("--realtime", action="store_true",
+                   help="pace the plant on the wall clock instead of lockstep")
+    p.add_argument("--live", action="store_true",
+                   help="stream decimated telemetry to a spawned Rerun viewer while running")
+    p.add_argument("--timeout", type=float, default=None, metavar="S",
+                   help="wall-clock limit per scenario (default: from the scenario)")
+    p.add_argument("--no-record", action="store_true",
+                   help="skip writing recording.rrd (the verdict does not depend on it)")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.set_defaults(func=cmd_run)
+
+    ls = sub.add_parser(
+        "list", help="list scenarios and suites (name, profile, duration, description)",
+        description="List the scenario and suite files shipped in rig/scenarios "
+        "(schema-checked: an invalid file is reported with its file, line and field and the "
+        "command exits 2).",
+    )
+    ls.add_argument("--metrics", action="store_true",
+                    help="list the metrics criteria can use instead")
+    ls.add_argument("--json", action="store_true", help="machine-readable output")
+    ls.set_defaults(func=cmd_list)
+
+    v = sub.add_parser(
+        "view", help="open a run's recording.rrd in the Rerun viewer",
+        description="Open DIR/recording.rrd (or every scenario's recording of a suite "
+        "folder, or an .rrd file) in the Rerun viewer.",
+    )
+    v.add_argument("path", type=Path, metavar="DIR", help="a run folder or an .rrd file")
+    v.set_defaults(func=cmd_view)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from rig import runner, scenario
+    from rig.supervisor import Terminated, terminate_as_exception
+
+    try:
+        target = scenario.load(args.target)
+    except FileNotFoundError as exc:
+        print(f"rig run: {exc}", file=sys.stderr)
+        return runner.EXIT_USAGE
+    except scenario.ScenarioError as exc:
+        print(f"rig run: invalid scenario:\n{exc}", file=sys.stderr)
+        return runner.EXIT_USAGE
+    scenarios = target.scenarios if isinstance(target, scenario.Suite) else (target,)
+    if args.realtime:
+        bad = [s.name for s in scenarios if not s.realtime_ok]
+        if bad:
+            print(f"rig run: --realtime is not allowed for {', '.join(bad)} "
+                  "(run.realtime_ok = false)", file=sys.stderr)
+            return runner.EXIT_USAGE
+    out = args.out or runner.default_out(target.name)
+    opts = runner.RunOptions(
+        out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
+        progress=not args.quiet, timeout_s=args.timeout, record=not args.no_record,
+    )
+    try:
+        with terminate_as_exception():
+            if isinstance(target, scenario.Suite):
+                suite = runner.run_suite(target, opts)
+                for r in suite.results:
+                    _print_verdict(r.data)
+                ok = suite.passed
+                print(f"suite {target.name}: {'PASS' if ok else 'FAIL'} "
+                      f"({sum(r.passed for r in suite.results)}/{len(target.scenarios)} passed)"
+                      f" -> {out}/report.md", file=sys.stderr)
+                worst = max((runner.exit_code(r.passed, r.status) for r in suite.results),
+                            default=runner.EXIT_FAIL)
+                return runner.EXIT_PASS if ok else max(worst, runner.EXIT_FAIL)
+            result = runner.run_scenario(target, opts)
+    except (KeyboardInterrupt, Terminated):
+        print(f"rig run: interrupted; partial results in {out}", file=sys.stderr)
+        return runner.EXIT_INTERRUPTED
+    _print_verdict(result.data)
+    print(f"  -> {out}/report.md", file=sys.stderr)
+    return runner.exit_code(result.passed, result.status)
+
+
+def _print_verdict(data: dict[str, Any]) -> None:
+    verdict = "PASS" if data.get("passed") else "FAIL"
+    print(f"{data.get('scenario')}: {verdict} ({data.get('status')})", file=sys.stderr)
+    failure = data.get("failure")
+    if failure:
+        print(f"  {failure.get('kind')}: {failure.get('message')}", file=sys.stderr)
+        tail = failure.get("log_tail")
+        if tail:
+            for line in str(tail).splitlines()[-15:]:
+                print(f"    | {line}", file=sys.stderr)
+    for c in data.get("criteria", []):
+        mark = "ok  " if c.get("passed") else "FAIL"
+        value = c.get("value")
+        shown = "n/a" if value is None else f"{value:.4g}"
+        print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
+              f"({c['comparison']} {c['limit']:g}) over {c['window']}", file=sys.stderr)
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from rig import metrics, scenario
+
+    if args.metrics:
+        rows: list[dict[str, Any]] = [
+            {"name": m.name, "unit": m.unit, "scope": m.scope, "params": dict(m.params),
+             "description": m.description}
+            for m in metrics.METRICS.values()
+        ]
+        if args.json:
+            print(json.dumps(rows, indent=1))
+        else:
+            for r in rows:
+                params = ", ".join(f"{k}={v:g}" for k, v in r["params"].items())
+                print(f"{r['name']:<26} {r['unit']:<6} {r['description']}"
+                      + (f" [params: {params}]" if params else ""))
+            print("\ncounters: plant.<key>, firmware.<key> (exit JSON), bench.<signal> "
+                  "(BENCH_COUNTERS), rejects.<signal> (BENCH_REJECTS), rig.<key>")
+        return 0
+    rows_out: list[dict[str, Any]] = []
+    errors: list[str] = []
+    for path in scenario.scenario_files():
+        try:
+            s = scenario.load_scenario(path)
+            rows_out.append({"name": s.name, "kind": "scenario", "profile": s.profile,
+                             "duration": s.duration, "description": s.description,
+                             "figure": s.figure})
+        except scenario.ScenarioError as exc:
+            errors.append(str(exc))
+            rows_out.append({"name": path.stem, "kind": "scenario", "profile": "?",
+                             "duration": None, "description": "INVALID (see below)"})
+    for path in scenario.suite_files():
+        try:
+            su = scenario.load_suite(path)
+            total = sum(s.duration for s in su.scenarios)
+            rows_out.append({"name": su.name, "kind": "suite", "profile": "mixed",
+                             "duration": total,
+                             "description": f"{su.description} ({len(su.scenarios)} scenarios)"})
+        except scenario.ScenarioError as exc:
+            errors.append(str(exc))
+            rows_out.append({"name": path.stem, "kind": "suite", "profile": "?",
+                             "duration": None, "description": "INVALID (see below)"})
+    if args.json:
+        print(json.dumps({"entries": rows_out, "errors": errors}, indent=1))
+    else:
+        print(f"{'NAME':<30} {'KIND':<8} {'PROFILE':<7} {'DURATION':>9}  DESCRIPTION")
+        for r in rows_out:
+            dur = "" if r["duration"] is None else f"{r['duration']:.3g} s"
+            print(f"{r['name']:<30} {r['kind']:<8} {r['profile']:<7} {dur:>9}  "
+                  f"{r['description']}")
+        for e in errors:
+            print(e, file=sys.stderr)
+    return 2 if errors else 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    path: Path = args.path
+    if path.is_file():
+        files = [path]
+    elif (path / "recording.rrd").is_file():
+        files = [path / "recording.rrd"]
+    else:
+        files = sorted(path.glob("*/recording.rrd"))
+    if not files:
+        print(f"rig view: no recording.rrd in {path}", file=sys.stderr)
+        return 2
+    return subprocess.call([sys.executable, "-m", "rerun", *map(str, files)])

@@ -191,3 +191,22 @@ def test_full_receiver_is_a_counted_drop(transport: str, channel: str, tmp_path:
     # unixcan counts at the sender, SocketCAN at the receiving socket (SO_RXQ_OVFL)
     dropped = int(sender["tx_drops"]) + int(receiver["rx_overflows"])
     assert received + dropped == n
+
+
+def test_python_filters(transport: str, channel: str) -> None:
+    """Only matching frames come out; on unixcan the rest never become Messages."""
+    a = rigbus.open_bus(transport, channel)
+    b = rigbus.open_bus(transport, channel,
+                        can_filters=[{"can_id": 0x300, "can_mask": 0x7F0, "extended": False}])
+    try:
+        for i in range(32):
+            a.send(can.Message(arbitration_id=0x300 + i, data=bytes([i]), is_extended_id=False))
+        got = []
+        while (g := b.recv(timeout=0.5)) is not None:
+            got.append(g.arbitration_id)
+        assert got == list(range(0x300, 0x310))
+        if transport == "unixcan":
+            assert b.stats["rx_filtered"] == 16  # type: ignore[attr-defined]
+    finally:
+        a.shutdown()
+        b.shutdown()

@@ -1,0 +1,125 @@
+/* adc_assembly.c - see adc_assembly.h for the rules. */
+#include "adc_assembly.h"
+
+#include <string.h>
+
+static const int first_soc[3] = {0, 7, 14};
+static const int socs_in[3] = {7, 7, 2};
+
+int fwh_adc_frames_for(int16_t n_soc)
+{
+    return n_soc > 14 ? 3 : n_soc > 7 ? 2 : 1;
+}
+
+void fwh_adc_init(fwh_adc_asm_t *a)
+{
+    memset(a, 0, sizeof(*a));
+}
+
+static void start(fwh_adc_asm_t *a, uint32_t period, int16_t n_soc, int repeat)
+{
+    a->building = 1;
+    a->repeat = repeat;
+    a->period = period;
+    a->n_soc = n_soc;
+    a->got = 0;
+    memset(&a->adc, 0, sizeof(a->adc));
+    a->adc.period = period;
+    a->adc.n_soc = n_soc;
+}
+
+/* a rejected (stale/future) frame: several consecutive periods of them start a new sequence */
+static int resync_candidate(fwh_adc_asm_t *a, int index, uint32_t period)
+{
+    if (index != 0) {
+        return 0;
+    }
+    if (a->resync_count > 0 && period == a->resync_next) {
+        a->resync_count++;
+    } else if (a->resync_count == 0 || period != a->resync_next - 1u) {
+        a->resync_count = 1; /* (a re-sent copy of the same period does not count twice) */
+    }
+    a->resync_next = period + 1u;
+    return a->resync_count >= FWH_ADC_RESYNC;
+}
+
+void fwh_adc_feed(fwh_adc_asm_t *a, int index, uint32_t period, int16_t n_soc, int32_t vdc,
+                  const int32_t *ia, const int32_t *ib, fwh_adc_result_t *out)
+{
+    int k, need;
+    memset(out, 0, sizeof(*out));
+    if (index < 0 || index > 2 || n_soc < 0 || n_soc > FW_MAX_SOC ||
+        index >= fwh_adc_frames_for(n_soc)) {
+        out->verdict = FWH_ADC_MALFORMED;
+        return;
+    }
+    if (!a->have_last) {
+        /* nothing ran yet: the newest period seen is the one to collect */
+        if (a->building && period != a->period) {
+            if ((int32_t)(period - a->period) < 0) {
+                out->verdict = FWH_ADC_STALE;
+                return;
+            }
+            out->incomplete = 1;
+            a->building = 0;
+        }
+        if (!a->building) {
+            start(a, period, n_soc, 0);
+        }
+    } else {
+        int32_t d = (int32_t)(period - a->last);
+        int32_t ahead = a->building ? (int32_t)(period - a->period) : 0;
+        if (d < 0 || (d == 0 && a->building && !a->repeat) || (a->building && ahead < 0) ||
+            (uint32_t)d > FWH_ADC_MAX_GAP) {
+            out->verdict = (d < 0 || (a->building && ahead < 0) || d == 0) ? FWH_ADC_STALE
+                                                                          : FWH_ADC_FUTURE;
+            if (!resync_candidate(a, index, period)) {
+                return;
+            }
+            /* a consistent new sequence: follow it (the core counts the jump as ADC loss) */
+            out->verdict = FWH_ADC_OK;
+            out->resynced = 1;
+            out->incomplete = a->building && !a->repeat;
+            a->resync_count = 0;
+            a->have_last = 0;
+            start(a, period, n_soc, 0);
+        } else {
+            if (a->building && ahead > 0) {
+                out->incomplete = 1; /* the period being collected never completed */
+                a->building = 0;
+            }
+            if (!a->building) {
+                if (d == 0) {
+                    start(a, period, n_soc, 1);
+                } else {
+                    out->lost_first = a->last + 1u;
+                    out->n_lost = (uint32_t)d - 1u;
+                    a->last = period - 1u; /* the HAL runs the lost periods now */
+                    start(a, period, n_soc, 0);
+                }
+            }
+            a->resync_count = 0;
+        }
+    }
+    if (n_soc != a->n_soc) {
+        out->verdict = FWH_ADC_MALFORMED;
+        return;
+    }
+    for (k = 0; k < socs_in[index]; k++) {
+        a->adc.ia[first_soc[index] + k] = ia[k];
+        a->adc.ib[first_soc[index] + k] = ib[k];
+    }
+    if (index == 0) {
+        a->adc.vdc = vdc;
+    }
+    a->got |= 1u << index;
+    need = (1 << fwh_adc_frames_for(n_soc)) - 1;
+    if ((a->got & (unsigned)need) == (unsigned)need) {
+        out->complete = 1;
+        out->repeat = a->repeat;
+        out->adc = &a->adc;
+        a->building = 0;
+        a->have_last = 1;
+        a->last = period;
+    }
+}

@@ -1,0 +1,139 @@
+/* fw_host.h - the host HAL: the control core as a Linux process on the bus.
+ *
+ * One thread, one poll() over the bus, the console's pseudo-terminal and a 10 ms timer.
+ * The ISR runs when the ADC data of a PWM period is complete (bus_io.c); the drive protocol
+ * (drive_protocol.c) and the SCI console (console.c) act on the core between ISRs, as the
+ * background loop of the DSP does.
+ */
+#ifndef FW_HOST_H
+#define FW_HOST_H
+
+#include <stdint.h>
+
+#include "adc_assembly.h"
+#include "fw_core.h"
+#include "hilbus.h"
+#include "hiltrace.h"
+#include "pty.h"
+
+#define FWH_VERSION "1.0"
+#define FWH_NS_PER_S 1000000000LL
+#define FWH_STATUS_PERIOD_NS (100LL * 1000000LL) /* DRIVE_STATUS, HEARTBEAT */
+#define FWH_TICK_NS (10LL * 1000000LL)           /* housekeeping timer */
+#define FWH_OVERRUN_NS (100LL * 1000LL)          /* ADC received -> PWM sent, real time */
+
+/* Reasons a received frame (or a period's data) is rejected. */
+enum {
+    FWH_REJ_UNKNOWN_ID,       /* no such message in the drive / virtual-I/O id range */
+    FWH_REJ_BAD_LENGTH,       /* length differs from the DBC */
+    FWH_REJ_WRONG_FRAME_TYPE, /* CAN FD where classic is defined or the reverse */
+    FWH_REJ_OUT_OF_RANGE,     /* a signal outside its DBC range */
+    FWH_REJ_MALFORMED,        /* inconsistent n_soc, a frame n_soc does not call for */
+    FWH_REJ_STALE_PERIOD,     /* ADC data of a period older than the last ISR */
+    FWH_REJ_FUTURE_PERIOD,    /* ADC data too far ahead */
+    FWH_REJ_INCOMPLETE,       /* a period's ADC data that never completed */
+    FWH_REJ_REFUSED,          /* DRIVE_LIMITS the control core refused */
+    FWH_REJ_COUNT
+};
+
+enum { FWH_OWNER_NONE, FWH_OWNER_CAN, FWH_OWNER_CONSOLE };
+
+typedef struct {
+    const char *bus;
+    const char *channel;
+    int realtime;
+    const char *trace;
+    int send_trace;
+    const char *ready_file;
+    uint64_t max_periods;
+    const char *params;
+    const char *pty_link;
+    int no_console;
+    int64_t console_timeout_ns; /* 0: a console session lasts until the client hangs up */
+    uint32_t tlm_div;           /* telemetry every 10*tlm_div periods; 0 = off */
+    int32_t spin_us;
+    uint8_t node;
+    int rt_priority;
+} fwh_options_t;
+
+typedef struct {
+    uint64_t rejects[FWH_REJ_COUNT];
+    uint64_t isr, isr_no_data, repeats, pwm_sent, pwm_invalid, overruns, resyncs;
+    int64_t max_latency_ns;
+    uint64_t drive_cmds, cmds_refused, limits, param_reqs, status_frames, heartbeats;
+    uint64_t tlm_frames, trace_records, trace_sent, trace_errors;
+    uint64_t console_lines, console_errors, console_sessions, console_keepalive_lapses;
+    uint64_t fw_trace_tx_errors;
+} fwh_counters_t;
+
+/* what DRIVE_STATUS last carried (sent again on any change) */
+typedef struct {
+    int valid;
+    int16_t state, ctrl_mode, fw_mode, cmd_status, polarity_ok, est_valid;
+    uint16_t fault_code;
+} fwh_status_key_t;
+
+typedef struct fwh {
+    fwh_options_t opt;
+    fw_core_t core;
+    hilbus_t *bus;
+    hiltrace_t *trace;
+    fwh_adc_asm_t adc;
+    fwh_pty_t pty;
+    int pty_open;
+    int console_connected;     /* a session: bytes came since the last hang-up */
+    int console_hup;           /* the line reported a hang-up: probed every 10 ms */
+    int64_t console_retry_ns;
+    int64_t console_last_ns;   /* last line received (keep-alive) */
+    /* the command both sources write (last writer wins) */
+    fw_cmd_t cmd;
+    int owner;
+    /* timing */
+    int64_t t0_ns, next_status_ns, next_heartbeat_ns;
+    uint8_t alive;
+    fwh_status_key_t sent;
+    /* rate-limited rejection log */
+    int64_t log_window_ns;
+    int log_lines;
+    uint64_t log_suppressed;
+    fwh_counters_t cnt;
+    const char *rt_note;
+    volatile int stop;
+} fwh_t;
+
+int64_t fwh_now_ns(void);
+const char *fwh_reject_name(int reason);
+const char *fwh_state_name(int16_t state);
+const char *fwh_fault_name(uint16_t code);
+uint64_t fwh_rejected_total(const fwh_t *app);
+/* Counts a rejection and logs it (at most 10 lines a second, then a summary). */
+void fwh_reject(fwh_t *app, int reason, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+void fwh_log(fwh_t *app, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+/* bus_io.c: virtual I/O (ADC in, PWM out, FW_TRACE, telemetry) */
+int fwh_bus_is_vio(uint32_t id);
+void fwh_bus_vio_frame(fwh_t *app, const struct canfd_frame *f, int fd, int64_t t_rx_ns);
+
+/* drive_protocol.c */
+int fwh_drive_is_drive(uint32_t id);
+void fwh_drive_frame(fwh_t *app, const struct canfd_frame *f, int fd);
+void fwh_drive_send_status(fwh_t *app);
+void fwh_drive_send_heartbeat(fwh_t *app);
+void fwh_drive_status_if_changed(fwh_t *app);
+void fwh_drive_telemetry(fwh_t *app, const fw_status_t *s);
+/* SAVE / LOAD of the parameter file (shared by PARAM_REQ and the console). msg gets a
+ * human-readable reason on failure. Returns FW_STATUS_* or FWH_STORE_ERROR. */
+#define FWH_STORE_ERROR 6 /* PARAM_RESP.status STORE_ERROR (drive.dbc) */
+int fwh_params_save_store(fwh_t *app, int *count, char *msg, size_t msglen);
+int fwh_params_load_store(fwh_t *app, int *count, char *msg, size_t msglen);
+/* Sends a drive command to the core on behalf of a source; updates owner on success. */
+int16_t fwh_command(fwh_t *app, const fw_cmd_t *cmd, int owner);
+/* Called before every ISR: keeps a live console session's command fresh. */
+void fwh_command_refresh(fwh_t *app, int64_t now_ns);
+
+/* console.c */
+void fwh_console_input(fwh_t *app, const char *data, size_t len, int64_t now_ns);
+void fwh_console_hangup(fwh_t *app);
+
+#endif

@@ -1,0 +1,1112 @@
+"""Runs a scenario (or a suite) end to end: plant and firmware up, commands, capture, verdict.
+
+Lockstep (default): before each grant the rig sends DRIVE_LIMITS, DRIVE_CMD, LOAD_CMD and
+then BENCH_STEP; the plant simulates up to ``run_until`` and answers BENCH_PROGRESS. Grants
+last at most ``grant_max_s`` (100 ms) of simulated time and end exactly at every profile
+breakpoint, so commands take effect on an exact period. Speed ramps are the firmware's own
+ramp: at a segment start the rig sets ``speed_ref`` to the segment's target and
+``accel_max`` to the segment's slope (a step uses the DBC maximum of ``accel_max``); the
+expected reference (``speed_ref_rpm`` in the capture) is the same rate limiter evaluated
+here. Torque ramps of the load are sent as 1 ms steps. DRIVE_CMD goes out with every grant,
+which also keeps the firmware's command time-out alive.
+
+Real-time: the same commands on the wall clock against the plant's period counter
+(estimated from BENCH_PROGRESS), DRIVE_CMD every 10 ms.
+
+Afterwards the traces are merged (``rig.capture``), the criteria evaluated
+(``rig.metrics``), and ``result.json``, ``report.md`` and ``recording.rrd`` written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import hashlib
+import json
+import math
+import os
+import platform
+import shutil
+import sys
+import time
+import tomllib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from rig import __version__, _paths, capture, metrics, protocols, recording, report
+from rig.frames import FrameDecoder
+from rig.progress import Progress
+from rig.scenario import Criterion, Scenario, Suite
+from rig.supervisor import ChildFailed, StopReport, Supervisor, Terminated
+
+TS = capture.TS
+PROGRESS_RESEND_S = 1.0  # re-send a grant when the plant has said nothing for this long
+STALL_S = 10.0  # no progress at all for this long: the lockstep is stuck
+CMD_PERIOD_S = 0.01  # real time: DRIVE_CMD cycle (drive.dbc GenMsgCycleTime)
+RECV_SLICE_S = 0.05
+MAX_POST_FAILURE_PERIODS = 50_000  # after a crash, merge/record only short traces (fast)
+
+EXIT_PASS = 0
+EXIT_FAIL = 1
+EXIT_USAGE = 2
+EXIT_ENV = 3
+EXIT_INTERRUPTED = 130
+
+
+class RunError(RuntimeError):
+    """The run could not go on: stall, time-out, bus error. ``kind`` names the reason."""
+
+    def __init__(self, kind: str, message: str, log_tail: str = "") -> None:
+        self.kind = kind
+        self.log_tail = log_tail
+        super().__init__(message)
+
+
+class EnvironmentProblem(RuntimeError):
+    """The run cannot start here (programs not built, bus unavailable)."""
+
+
+# --------------------------------------------------------------------------------------
+# Options and results
+
+
+@dataclass
+class RunOptions:
+    out: Path
+    bus: str | None = None
+    channel: str | None = None
+    realtime: bool = False
+    live: bool = False
+    live_stream: Any = None  # an rr.RecordingStream to use instead of spawning a viewer
+    progress: bool = True
+    timeout_s: float | None = None
+    grace_s: float = 5.0
+    stall_s: float = STALL_S
+    record: bool = True
+    extra_plant_args: Sequence[str] = ()
+    extra_fw_args: Sequence[str] = ()
+    env: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class RunResult:
+    """What a run produced: ``data`` is the content of ``result.json``."""
+
+    out_dir: Path
+    data: dict[str, Any]
+    capture: capture.Capture | None = None
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.data.get("passed"))
+
+    @property
+    def status(self) -> str:
+        return str(self.data.get("status"))
+
+    @property
+    def criteria(self) -> list[dict[str, Any]]:
+        return list(self.data.get("criteria", []))
+
+    def failed_criteria(self) -> list[dict[str, Any]]:
+        return [c for c in self.criteria if not c.get("passed")]
+
+    def criterion(self, name: str) -> dict[str, Any]:
+        for c in self.criteria:
+            if c["name"] == name:
+                return c
+        raise KeyError(name)
+
+    def window(self, t0: float = 0.0, t1: float | None = None) -> metrics.Window:
+        if self.capture is None:
+            raise RuntimeError(f"run in {self.out_dir} has no capture ({self.status})")
+        cap = self.capture
+        end = cap.duration + cap.first_period * cap.ts if t1 is None else t1
+        return metrics.Window(cap, t0, end, ts=cap.ts, first_period=cap.first_period,
+                              counters=self.data.get("counters", {}))
+
+    def metric(self, name: str, window: tuple[float, float] | None = None,
+               **params: float) -> float:
+        """Any metric over any window of the capture (for custom assertions in tests)."""
+        w = self.window(*(window or (0.0, None)))  # type: ignore[arg-type]
+        return metrics.compute(name, w, params)
+
+    def explain(self) -> str:
+        lines = [f"{self.data.get('scenario')}: {self.status} ({self.out_dir})"]
+        failure = self.data.get("failure")
+        if failure:
+            lines.append(f"  {failure.get('kind')}: {failure.get('message')}")
+            if failure.get("log_tail"):
+                lines += ["    " + x for x in str(failure["log_tail"]).splitlines()[-15:]]
+        for c in self.failed_criteria():
+            lines.append(
+                f"  FAIL {c['name']}: {c['metric']} over {c['window']} = {c['value']} "
+                f"(limit {c['comparison']} {c['limit']})"
+            )
+        return "\n".join(lines)
+
+    def assert_passed(self) -> None:
+        if not self.passed:
+            raise AssertionError(self.explain())
+
+    @classmethod
+    def load(cls, out_dir: str | Path) -> RunResult:
+        d = Path(out_dir)
+        data = json.loads((d / "result.json").read_text())
+        cap = capture.Capture(d / "capture") if (d / "capture" / "meta.json").exists() else None
+        return cls(d, data, cap)
+
+
+@dataclass
+class SuiteResult:
+    out_dir: Path
+    data: dict[str, Any]
+    results: list[RunResult]
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.data.get("passed"))
+
+
+# --------------------------------------------------------------------------------------
+# Commands
+
+
+def _msg(db: str, name: str) -> Any:
+    return protocols.database(db).get_message_by_name(name)
+
+
+def accel_step_limit() -> float:
+    """The largest acceleration DRIVE_LIMITS can carry (a speed 'step')."""
+    sig = _msg("drive", "DRIVE_LIMITS").get_signal_by_name("accel_max")
+    return float(sig.maximum)
+
+
+def quantize(db: str, message: str, signal: str, value: float) -> float:
+    sig = _msg(db, message).get_signal_by_name(signal)
+    raw = round((value - float(sig.offset)) / float(sig.scale))
+    return raw * float(sig.scale) + float(sig.offset)
+
+
+@dataclass
+class DriveState:
+    enable: int = 0
+    ctrl_mode: str = "speed"
+    fw_mode: str = "realtime"
+    speed_ref: float = 0.0
+    accel: float = 0.0
+    iq_ref: float = 0.0
+    i_max: float = 3.0
+    speed_max: float = 3300.0
+
+
+@dataclass
+class LoadState:
+    mode: str = "torque"
+    torque: float = 0.0
+    speed: float = 0.0
+    k_speed: float = 0.0
+
+
+@dataclass
+class Plan:
+    """Commands per period and the grant boundaries of a scenario."""
+
+    n_periods: int
+    drive_events: dict[int, list[Callable[[DriveState], None]]]
+    load_events: dict[int, LoadState]
+    boundaries: list[int]
+    grant_max: int
+
+    @classmethod
+    def build(cls, sc: Scenario) -> Plan:
+        n = round(sc.duration / TS)
+        step = accel_step_limit()
+        drive: dict[int, list[Callable[[DriveState], None]]] = {}
+
+        def at(t: float) -> int:
+            return min(max(round(t / TS), 0), n)
+
+        def on(t: float, fn: Callable[[DriveState], None]) -> None:
+            drive.setdefault(at(t), []).append(fn)
+
+        on(sc.enable_at, lambda s: setattr(s, "enable", 1))
+        for cmd in sc.speed_commands(step):
+            acc = quantize("drive", "DRIVE_LIMITS", "accel_max", min(cmd.accel, step))
+            if acc <= 0:
+                acc = quantize("drive", "DRIVE_LIMITS", "accel_max", step)
+
+            def apply(s: DriveState, target: float = cmd.target, a: float = acc) -> None:
+                s.speed_ref, s.accel = target, a
+
+            on(cmd.t, apply)
+        loads: dict[int, LoadState] = {}
+        for lc in sc.load_commands():
+            loads[at(lc.t)] = LoadState(lc.mode, lc.torque, lc.speed, lc.k_speed)
+        bps = {at(t) for t in sc.breakpoints(step)} | set(drive) | set(loads)
+        bounds = [*sorted(p for p in bps if 0 < p < n), n]
+        return cls(n, drive, loads, bounds, max(1, round(sc.grant_max_s / TS)))
+
+    def grants(self) -> list[tuple[int, int]]:
+        """(start, run_until) pairs covering [0, n)."""
+        out: list[tuple[int, int]] = []
+        p = 0
+        for b in self.boundaries:
+            while p < b:
+                q = min(b, p + self.grant_max)
+                out.append((p, q))
+                p = q
+        return out
+
+
+class Commander:
+    """Encodes and sends the rig's frames (cantools; layouts only from the DBC)."""
+
+    def __init__(self, bus: can.BusABC) -> None:
+        self.bus = bus
+        self.alive = 0
+        self.load_seq = 0
+        self.step_seq = 0
+        self.tx = 0
+        self._m = {
+            "DRIVE_CMD": _msg("drive", "DRIVE_CMD"),
+            "DRIVE_LIMITS": _msg("drive", "DRIVE_LIMITS"),
+            "LOAD_CMD": _msg("bench", "LOAD_CMD"),
+            "BENCH_STEP": _msg("bench", "BENCH_STEP"),
+        }
+        self._ctrl = _choices("drive", "DRIVE_CMD", "ctrl_mode")
+        self._fw = _choices("drive", "DRIVE_CMD", "fw_mode")
+        self._load = _choices("bench", "LOAD_CMD", "mode")
+
+    def _send(self, name: str, values: Mapping[str, float | int]) -> None:
+        m = self._m[name]
+        data = m.encode(dict(values), scaling=True, strict=True)
+        self.bus.send(
+            can.Message(arbitration_id=m.frame_id, is_extended_id=m.is_extended_frame,
+                        data=data, is_fd=bool(m.is_fd), bitrate_switch=False)
+        )
+        self.tx += 1
+
+    def drive(self, s: DriveState) -> None:
+        self._send("DRIVE_LIMITS", {"i_max": s.i_max, "speed_max": s.speed_max,
+                                    "accel_max": s.accel})
+        self.alive = (self.alive + 1) % 256
+        self._send("DRIVE_CMD", {
+            "enable": s.enable, "fault_reset": 0, "ctrl_mode": self._ctrl[s.ctrl_mode],
+            "fw_mode": self._fw[s.fw_mode], "alive": self.alive, "speed_ref": s.speed_ref,
+            "iq_ref": s.iq_ref,
+        })
+
+    def drive_cmd_only(self, s: DriveState) -> None:
+        self.alive = (self.alive + 1) % 256
+        self._send("DRIVE_CMD", {
+            "enable": s.enable, "fault_reset": 0, "ctrl_mode": self._ctrl[s.ctrl_mode],
+            "fw_mode": self._fw[s.fw_mode], "alive": self.alive, "speed_ref": s.speed_ref,
+            "iq_ref": s.iq_ref,
+        })
+
+    def load(self, s: LoadState) -> None:
+        self.load_seq = (self.load_seq + 1) % 256
+        self._send("LOAD_CMD", {"mode": self._load[s.mode], "seq": self.load_seq,
+                                "torque": s.torque, "speed": s.speed, "k_speed": s.k_speed})
+
+    def step(self, run_until: int, *, new: bool = True) -> int:
+        if new:
+            self.step_seq = (self.step_seq + 1) % 256
+        self._send("BENCH_STEP", {"run_until": run_until, "seq": self.step_seq})
+        return self.step_seq
+
+
+def _choices(db: str, message: str, signal: str) -> dict[str, int]:
+    sig = _msg(db, message).get_signal_by_name(signal)
+    return {str(n).lower(): int(v) for v, n in (sig.choices or {}).items()}
+
+
+# --------------------------------------------------------------------------------------
+# What the rig hears on the bus
+
+
+LISTEN = (
+    ("bench", "BENCH_PROGRESS"), ("bench", "BENCH_COUNTERS"), ("bench", "BENCH_REJECTS"),
+    ("bench", "BENCH_TRUTH"), ("drive", "DRIVE_STATUS"), ("drive", "HEARTBEAT"),
+    ("drive", "TLM_POS"), ("drive", "TLM_CUR"), ("drive", "TLM_REF"), ("drive", "TLM_PARAM"),
+    ("drive", "TLM_VOLT"),
+)
+
+
+TLM_IDS = {int(_msg("drive", n).frame_id): n for db, n in LISTEN if n.startswith("TLM_")}
+FAULT_STATE = _choices("drive", "DRIVE_STATUS", "state")["fault"]
+
+
+def listen_filters() -> list[dict[str, int]]:
+    return [{"can_id": int(_msg(db, n).frame_id), "can_mask": 0x7FF} for db, n in LISTEN]
+
+
+class Monitor:
+    """Validates and decodes the frames the rig hears (``rig.frames``: unknown IDs, bad
+    lengths and out-of-range values are counted rejections); keeps progress, counters and
+    the latest telemetry, and feeds the live view."""
+
+    def __init__(self, live: recording.LiveView | None = None) -> None:
+        self.decoder = FrameDecoder()
+        self._wanted = {int(_msg(db, n).frame_id) for db, n in LISTEN}
+        self.progress_period: int | None = None
+        self.progress_seq: int | None = None
+        self.progress_wall: float = 0.0
+        self.progress_frames = 0
+        self.latest: dict[str, dict[str, float]] = {}
+        self.counter_log: list[tuple[int, dict[str, float]]] = []
+        self.rx = 0
+        self.faults = 0
+        self.grant_resends = 0
+        self._last_state: int | None = None
+        self.live = live
+        self._truth_by_p16: dict[int, float] = {}
+        self._raw_tlm: dict[str, can.Message] = {}
+
+    def handle(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            return
+        self.rx += 1
+        if msg.arbitration_id not in self._wanted:
+            return
+        # telemetry at the speed-loop rate: without a live view decode only on demand
+        if self.live is None and TLM_IDS.get(msg.arbitration_id):
+            self._raw_tlm[TLM_IDS[msg.arbitration_id]] = msg
+            return
+        decoded = self.decoder.decode(msg)
+        if decoded is None:
+            return
+        name = decoded.name
+        vals = {k: float(v) for k, v in decoded.signals.items()}
+        self.latest[name] = vals
+        if name == "BENCH_PROGRESS":
+            self.progress_period = int(vals["period"])
+            self.progress_seq = int(vals["seq"])
+            self.progress_wall = time.monotonic()
+            self.progress_frames += 1
+        elif name == "BENCH_COUNTERS":
+            self.counter_log.append((int(vals["period"]), vals))
+        elif name == "DRIVE_STATUS":
+            state = int(vals["state"])
+            if state == FAULT_STATE and self._last_state != FAULT_STATE:
+                self.faults += 1
+            self._last_state = state
+        elif name == "BENCH_TRUTH":
+            self._truth_by_p16[int(vals["period"]) & 0xFFFF] = vals["theta_e"]
+            if len(self._truth_by_p16) > 4096:
+                self._truth_by_p16.clear()
+        if self.live is not None:
+            self._to_live(name, vals)
+
+    def _full_period(self, p16: int) -> int:
+        base = self.progress_period or 0
+        cand = (base & ~0xFFFF) | p16
+        if cand > base + 0x8000:
+            cand -= 0x10000
+        elif cand < base - 0x8000:
+            cand += 0x10000
+        return max(cand, 0)
+
+    def _to_live(self, name: str, v: Mapping[str, float]) -> None:
+        live = self.live
+        assert live is not None
+        if name == "TLM_POS":
+            p = self._full_period(int(v["period"]))
+            live.add("speed", p, {"estimated": v["speed_hat"]})
+            values = {"θ̂": v["theta_hat"]}
+            th = self._truth_by_p16.get(int(v["period"]))
+            if th is not None:
+                true_deg = math.degrees(th) % 360.0
+                values["θ"] = true_deg
+                err = (v["theta_hat"] - true_deg + 180.0) % 360.0 - 180.0
+                live.add("error", p, {"θ̂ - θ": err})
+            live.add("position", p, values)
+        elif name == "TLM_CUR":
+            p = self._full_period(int(v["period"]))
+            live.add("current", p, {"id": v["id"], "iq": v["iq"]})
+            live.add("torque", p, {"T̂e": v["te_hat"]})
+        elif name == "TLM_REF":
+            p = self._full_period(int(v["period"]))
+            live.add("speed_ref", p, {"reference": v["speed_ref"]})
+        elif name == "TLM_PARAM":
+            p = self._full_period(int(v["period"]))
+            live.add("params", p, {"Ld̂ (mH)": v["ld_hat"] * 1e3, "Lq̂ (mH)": v["lq_hat"] * 1e3,
+                                   "λ̂m": v["lambda_hat"]})
+        elif name == "BENCH_TRUTH":
+            p = int(v["period"])
+            live.add("speed_true", p, {"true": v["omega_m"] * capture.RPM_PER_RAD_S})
+            live.add("torque_true", p, {"Te": v["te"], "TL": v["tl"]})
+
+    def snapshot(self) -> tuple[float | None, float | None]:
+        """(speed r/min, position error deg) for the progress line, when the bus shows them."""
+        speed = err = None
+        truth = self.latest.get("BENCH_TRUTH")
+        if truth:
+            speed = truth["omega_m"] * capture.RPM_PER_RAD_S
+        pos: Mapping[str, Any] | None = self.latest.get("TLM_POS")
+        raw = self._raw_tlm.get("TLM_POS")
+        if raw is not None:
+            d = self.decoder.decode(raw)
+            pos = d.signals if d is not None else None
+        if pos is not None:
+            if speed is None:
+                speed = float(pos["speed_hat"])
+            th = self._truth_by_p16.get(int(pos["period"]))
+            if th is not None:
+                err = (float(pos["theta_hat"]) - math.degrees(th) + 180.0) % 360.0 - 180.0
+        return speed, err
+
+    def counters(self) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for name, prefix in (("BENCH_COUNTERS", "bench"), ("BENCH_REJECTS", "rejects")):
+            for k, v in self.latest.get(name, {}).items():
+                if k != "period":
+                    out[f"{prefix}.{k}"] = v
+        status = self.latest.get("HEARTBEAT")
+        if status:
+            out["firmware.isr_overruns_heartbeat"] = status["isr_overruns"]
+        drive = self.latest.get("DRIVE_STATUS")
+        if drive:
+            out["firmware.rx_rejected_status"] = drive["rx_rejected"]
+            out["firmware.fault_code_last"] = drive["fault_code"]
+        for reason, count in self.decoder.rejected.items():
+            out[f"rig.rejected.{reason}"] = float(count)
+        return out
+
+
+# --------------------------------------------------------------------------------------
+# The run
+
+
+def _flatten(prefix: str, value: Any, out: dict[str, float]) -> None:
+    if isinstance(value, Mapping):
+        for k, v in value.items():
+            _flatten(f"{prefix}.{k}", v, out)
+    elif isinstance(value, bool):
+        out[prefix] = float(value)
+    elif isinstance(value, int | float):
+        out[prefix] = float(value)
+
+
+def profile_values(sc: Scenario) -> tuple[Path | None, dict[str, Any]]:
+    """The fidelity profile file and its flat ``section.key`` values with the overrides."""
+    try:
+        path = _paths.data_dir("profiles") / f"{sc.profile}.toml"
+    except FileNotFoundError:
+        return None, dict(sc.overrides)
+    values: dict[str, Any] = {}
+    if path.is_file():
+        data = tomllib.loads(path.read_text())
+
+        def walk(prefix: str, d: Mapping[str, Any]) -> None:
+            for k, v in d.items():
+                if isinstance(v, Mapping):
+                    walk(f"{prefix}{k}.", v)
+                else:
+                    values[f"{prefix}{k}"] = v
+
+        walk("", data)
+    values.update(sc.overrides)
+    return (path if path.is_file() else None), values
+
+
+def pole_pairs(values: Mapping[str, Any]) -> int:
+    for key in ("machine.pole_pairs", "motor.pole_pairs", "pole_pairs"):
+        if key in values:
+            return int(values[key])
+    for key in ("machine.poles", "motor.poles", "poles"):
+        if key in values:
+            return int(values[key]) // 2
+    return capture.DEFAULT_POLE_PAIRS
+
+
+# Profile fields the firmware needs as parameters (docs/interfaces.md, "ADC codes").
+FIRMWARE_FROM_PROFILE = {
+    "adc_bits": ("adc.bits",),
+    "adc_range_a": ("adc.range_a",),
+    "adc_vdc_range_v": ("adc.vdc_range_v",),
+    "adc_vdc_bits": ("adc.vdc_bits",),
+}
+# Plant configuration keys of the initial rotor state (set only when not zero).
+PLANT_INITIAL = {"theta_e_deg": "initial.theta_e_deg", "speed_rpm": "initial.speed_rpm"}
+
+
+def _fmt_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    if isinstance(v, float):
+        return format(v, ".17g")
+    return str(v)
+
+
+def build_argv(
+    sc: Scenario, transport: str, channel: str, out: Path, realtime: bool,
+    opts: RunOptions,
+) -> tuple[list[str], list[str], dict[str, Any]]:
+    plant = str(_paths.binary("plant_rt"))
+    fw = str(_paths.binary("fw_host"))
+    pacing = "--realtime" if realtime else "--lockstep"
+    common = ["--bus", transport, "--channel", channel, pacing]
+    profile_path, values = profile_values(sc)
+    plant_argv = [plant, *common, "--trace", str(out / "plant.trace"),
+                  "--ready-file", str(out / "plant.ready")]
+    # the file the rig read (pole pairs, ADC scaling for the firmware) is the one the plant uses
+    plant_argv += ["--config", str(profile_path)] if profile_path else ["--profile", sc.profile]
+    for k, v in sc.overrides.items():
+        plant_argv += ["--set", f"{k}={_fmt_value(v)}"]
+    if sc.initial_theta_deg:
+        plant_argv += ["--set", f"{PLANT_INITIAL['theta_e_deg']}={sc.initial_theta_deg!r}"]
+    if sc.initial_speed_rpm:
+        plant_argv += ["--set", f"{PLANT_INITIAL['speed_rpm']}={sc.initial_speed_rpm!r}"]
+    plant_argv += list(opts.extra_plant_args)
+    fw_argv = [fw, *common, "--trace", str(out / "fw.trace"),
+               "--ready-file", str(out / "fw.ready")]
+    for param, keys in FIRMWARE_FROM_PROFILE.items():
+        for key in keys:
+            if key in values:
+                fw_argv += ["--set", f"{param}={_fmt_value(values[key])}"]
+                break
+    for k, v in sc.firmware.items():
+        fw_argv += ["--set", f"{k}={_fmt_value(v)}"]
+    fw_argv += list(opts.extra_fw_args)
+    return plant_argv, fw_argv, values
+
+
+def _sha(path: str) -> str:
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    except OSError:
+        return "unavailable"
+    return h.hexdigest()[:16]
+
+
+def versions(plant: str | None = None, fw: str | None = None) -> dict[str, str]:
+    out = {"rig": __version__, "python": platform.python_version()}
+    for dist in ("numpy", "cantools", "python-can", "rerun-sdk"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = "not installed"
+    for db in protocols.DATABASES:
+        out[f"dbc.{db}"] = str(protocols.database(db).version)
+    if plant:
+        out["plant_rt.sha256"] = _sha(plant)
+    if fw:
+        out["fw_host.sha256"] = _sha(fw)
+    return out
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t0 = time.monotonic()
+        self.grants: list[tuple[int, float, float]] = []  # (run_until, wall_s, grant wall)
+
+    def wall(self) -> float:
+        return time.monotonic() - self.t0
+
+
+def _recv_until(
+    bus: can.BusABC, mon: Monitor, sup: Supervisor, deadline: float, done: Callable[[], bool],
+    tick: Callable[[], None] | None = None,
+) -> None:
+    """Receives and handles frames (watching the children) until done() or the deadline."""
+    while not done():
+        sup.check()
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return
+        msg = bus.recv(timeout=min(RECV_SLICE_S, left))
+        while msg is not None:
+            mon.handle(msg)
+            if done():
+                break
+            msg = bus.recv(timeout=0)
+        if tick is not None:
+            tick()
+
+
+def execute_lockstep(
+    sc: Scenario, plan: Plan, bus: can.BusABC, sup: Supervisor, mon: Monitor,
+    cmd: Commander, prog: Progress, clock: _Clock, deadline: float, stall_s: float = STALL_S,
+) -> int:
+    """Runs every grant; returns the number of periods simulated."""
+    drive = DriveState(ctrl_mode=sc.ctrl_mode, fw_mode=sc.fw_mode, iq_ref=sc.iq_ref,
+                       i_max=sc.i_max, speed_max=sc.speed_max,
+                       accel=quantize("drive", "DRIVE_LIMITS", "accel_max", accel_step_limit()))
+    load = LoadState()
+    for start, until in plan.grants():
+        for fn in plan.drive_events.get(start, []):
+            fn(drive)
+        if start in plan.load_events:
+            load = plan.load_events[start]
+        t_grant = time.monotonic()
+        cmd.drive(drive)
+        cmd.load(load)
+        cmd.step(until)
+        last_change = time.monotonic()
+        last_period = mon.progress_period
+        last_resend = last_change
+
+        def done(target: int = until) -> bool:
+            return mon.progress_period is not None and mon.progress_period >= target
+
+        def tick() -> None:
+            speed, err = mon.snapshot()
+            sim = (mon.progress_period or 0) * TS
+            prog.update(sim, speed, err)
+            if live := mon.live:
+                live.flush()
+
+        while not done():
+            if time.monotonic() > deadline:
+                raise RunError("timeout", f"run time-out at period {mon.progress_period} "
+                               f"(grant to {until})")
+            _recv_until(bus, mon, sup, min(deadline, time.monotonic() + RECV_SLICE_S * 4),
+                        done, tick)
+            if done():
+                break
+            now = time.monotonic()
+            if mon.progress_period != last_period:
+                last_period = mon.progress_period
+                last_change = now
+            waiting = mon.latest.get("BENCH_PROGRESS", {}).get("state") == 0.0
+            if (now - last_change > PROGRESS_RESEND_S and now - last_resend > PROGRESS_RESEND_S
+                    and (waiting or mon.progress_frames == 0)):
+                # the plant waits for a grant it should have: the frame was lost, send again
+                cmd.drive(drive)
+                cmd.load(load)
+                cmd.step(until, new=False)
+                mon.grant_resends += 1
+                last_resend = now
+            if now - last_change > stall_s:
+                raise RunError(
+                    "stall",
+                    f"lockstep stalled: plant at period {mon.progress_period}, granted {until}, "
+                    f"no progress for {stall_s:g} s",
+                )
+        clock.grants.append((until, clock.wall(), time.monotonic() - t_grant))
+        tick()
+    return plan.n_periods
+
+
+def execute_realtime(
+    sc: Scenario, plan: Plan, bus: can.BusABC, sup: Supervisor, mon: Monitor,
+    cmd: Commander, prog: Progress, clock: _Clock, deadline: float, stall_s: float = STALL_S,
+) -> int:
+    """Sends the plan's commands on the wall clock; returns the last period commanded."""
+    drive = DriveState(ctrl_mode=sc.ctrl_mode, fw_mode=sc.fw_mode, iq_ref=sc.iq_ref,
+                       i_max=sc.i_max, speed_max=sc.speed_max,
+                       accel=quantize("drive", "DRIVE_LIMITS", "accel_max", accel_step_limit()))
+    load = LoadState()
+    events = sorted(set(plan.drive_events) | set(plan.load_events))
+    t_origin = time.monotonic()
+
+    def period_now() -> float:
+        if mon.progress_period is not None:
+            return mon.progress_period + (time.monotonic() - mon.progress_wall) / TS
+        return (time.monotonic() - t_origin) / TS
+
+    cmd.drive(drive)
+    cmd.load(load)
+    next_cmd = time.monotonic() + CMD_PERIOD_S
+    last_period, last_change = mon.progress_period, time.monotonic()
+    i = 0
+    # the plant's own report ends the run (an estimate could run ahead of a lagging plant)
+    while (mon.progress_period or 0) < plan.n_periods:
+        if time.monotonic() > deadline:
+            raise RunError("timeout", "real-time run time-out")
+        now_p = period_now()
+        changed_drive = changed_load = False
+        while i < len(events) and events[i] <= now_p:
+            p = events[i]
+            for fn in plan.drive_events.get(p, []):
+                fn(drive)
+                changed_drive = True
+            if p in plan.load_events:
+                load = plan.load_events[p]
+                changed_load = True
+            i += 1
+        if changed_drive:
+            cmd.drive(drive)
+            next_cmd = time.monotonic() + CMD_PERIOD_S
+        if changed_load:
+            cmd.load(load)
+        if time.monotonic() >= next_cmd:
+            cmd.drive_cmd_only(drive)
+            next_cmd += CMD_PERIOD_S
+        until = time.monotonic() + min(CMD_PERIOD_S, 0.002)
+        _recv_until(bus, mon, sup, until, lambda: False)
+        if mon.progress_period != last_period:
+            last_period, last_change = mon.progress_period, time.monotonic()
+        elif time.monotonic() - last_change > stall_s:
+            raise RunError("stall", f"real-time plant stopped reporting progress at period "
+                           f"{mon.progress_period} for {stall_s:g} s")
+        speed, err = mon.snapshot()
+        prog.update(period_now() * TS, speed, err)
+        if mon.live is not None:
+            mon.live.flush()
+    return plan.n_periods
+
+
+def evaluate(sc: Scenario, cap: capture.Capture, counters: Mapping[str, float]) -> list[
+    dict[str, Any]
+]:
+    out: list[dict[str, Any]] = []
+    for cr in sc.criteria:
+        out.append(evaluate_one(cr, cap, counters))
+    return out
+
+
+def evaluate_one(cr: Criterion, cap: capture.Capture | None,
+                 counters: Mapping[str, float]) -> dict[str, Any]:
+    note = ""
+    value = math.nan
+    if cap is None and not metrics.is_counter(cr.metric):
+        note = "no capture"
+    else:
+        cols: metrics.ColumnSource = cap if cap is not None else {}
+        first = cap.first_period if cap is not None else 0
+        w = metrics.Window(cols, cr.window[0], cr.window[1], ts=TS, first_period=first,
+                           counters=counters)
+        try:
+            value = metrics.compute(cr.metric, w, cr.params)
+        except KeyError as exc:
+            note = f"missing data: {exc}"
+        if math.isnan(value) and not note:
+            note = "no data in the window"
+        elif math.isinf(value):
+            note = "never settled" if cr.metric == "recovery_time_s" else "infinite"
+    passed = metrics.compare(value, cr.comparison, cr.limit)
+    return {
+        "name": cr.name,
+        "metric": cr.metric,
+        "window": [cr.window[0], cr.window[1]],
+        "value": value if math.isfinite(value) else None,
+        "limit": cr.limit,
+        "comparison": cr.comparison,
+        "unit": metrics.unit_of(cr.metric),
+        "params": dict(cr.params),
+        "passed": passed,
+        "note": note,
+    }
+
+
+def _dir_size(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else 0
+
+
+def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
+    """Runs one scenario into ``opts.out``; always writes result.json and report.md."""
+    out = Path(opts.out)
+    if out.exists():
+        for name in ("capture", "recording.rrd", "result.json", "report.md", "plant.trace",
+                     "fw.trace"):
+            target = out / name
+            if target.is_dir():
+                shutil.rmtree(target)
+            else:
+                target.unlink(missing_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    with contextlib.suppress(OSError):
+        shutil.copyfile(sc.file, out / "scenario.toml")
+    realtime = opts.realtime
+    started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+    result: dict[str, Any] = {
+        "schema": "hil-result/1",
+        "scenario": sc.name,
+        "scenario_file": str(sc.file),
+        "description": sc.description,
+        "figure": sc.figure,
+        "profile": sc.profile,
+        "overrides": dict(sc.overrides),
+        "firmware_params": dict(sc.firmware),
+        "ctrl_mode": sc.ctrl_mode,
+        "fw_mode": sc.fw_mode,
+        "mode": "realtime" if realtime else "lockstep",
+        "bus": None,
+        "channel": None,
+        "out_dir": str(out),
+        "started": started,
+        "status": "error",
+        "passed": False,
+        "failure": None,
+        "criteria": [],
+        "counters": {},
+        "capture": None,
+        "recording": None,
+        "timing": {"sim_s": sc.duration},
+        "versions": {},
+    }
+    cap: capture.Capture | None = None
+    clock = _Clock()
+    plan = Plan.build(sc)
+    counters: dict[str, float] = {}
+    interrupted: BaseException | None = None
+    failure: dict[str, Any] | None = None
+    mon: Monitor | None = None
+    stops: dict[str, StopReport] = {}
+    periods_done = 0
+    live: recording.LiveView | None = None
+    try:
+        try:
+            from rig import bus as rigbus
+
+            transport, channel = rigbus.select_transport(opts.bus, opts.channel)
+            plant_argv, fw_argv, _values = build_argv(sc, transport, channel, out, realtime, opts)
+        except FileNotFoundError as exc:
+            raise EnvironmentProblem(str(exc)) from exc
+        result.update(bus=transport, channel=channel)
+        result["versions"] = versions(plant_argv[0], fw_argv[0])
+        result["command_lines"] = {"plant": plant_argv, "firmware": fw_argv}
+        try:
+            bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
+        except (can.CanError, OSError, ValueError) as exc:
+            raise EnvironmentProblem(f"cannot open {transport} bus {channel!r}: {exc}") from exc
+        if opts.live:
+            try:
+                stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)")
+                live = recording.LiveView(stream)
+            except Exception as exc:  # no display, no viewer binary: run without live view
+                print(f"rig: live view unavailable ({exc}); running without it",
+                      file=sys.stderr)
+        mon = Monitor(live)
+        # the bus reader thread (unixcan) must get the GIL within a sender's patience (2 ms)
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(min(switch, 0.0005))
+        env = {"HIL_BUS": transport, "HIL_CHANNEL": channel, **opts.env}
+        prog = Progress(sc.name, sc.duration, enabled=opts.progress)
+        timeout = opts.timeout_s or sc.timeout_s or (
+            sc.duration + 30.0 if realtime else 60.0 + 300.0 * sc.duration
+        )
+        try:
+            with Supervisor(out, grace_s=opts.grace_s) as sup:
+                sup.start("plant_rt", plant_argv, ready_file=out / "plant.ready", env=env)
+                sup.start("fw_host", fw_argv, ready_file=out / "fw.ready", env=env)
+                sup.wait_ready(sc.ready_timeout_s)
+                clock.t0 = time.monotonic()
+                deadline = clock.t0 + timeout
+                cmd = Commander(bus)
+                runner = execute_realtime if realtime else execute_lockstep
+                grace = opts.grace_s
+                try:
+                    periods_done = runner(sc, plan, bus, sup, mon, cmd, prog, clock, deadline,
+                                          opts.stall_s)
+                    if not realtime:
+                        # let the firmware finish the last period before the stop signal
+                        sup.sleep(0.05)
+                except BaseException:
+                    grace = min(grace, 1.0)  # failing: end quickly
+                    raise
+                finally:
+                    prog.finish()
+                    stops = sup.stop(grace_s=grace)
+                counters["rig.tx_frames"] = float(cmd.tx)
+        finally:
+            sys.setswitchinterval(switch)
+            bus.shutdown()
+            stats = getattr(bus, "stats", None)
+            if isinstance(stats, Mapping):
+                _flatten("rig.bus", stats, counters)
+    except ChildFailed as exc:
+        failure = {"kind": "crash", "message": f"{exc.name}: {exc.what}",
+                   "log_tail": exc.log_tail, "child": exc.name}
+    except RunError as exc:
+        failure = {"kind": exc.kind, "message": str(exc), "log_tail": exc.log_tail}
+    except EnvironmentProblem as exc:
+        failure = {"kind": "environment", "message": str(exc), "log_tail": ""}
+    except (KeyboardInterrupt, Terminated) as exc:
+        interrupted = exc
+        failure = {"kind": "interrupted", "message": f"interrupted ({type(exc).__name__})",
+                   "log_tail": ""}
+    wall = clock.wall()
+    if failure is None and not stops:
+        failure = {"kind": "error", "message": "run ended without stopping its programs",
+                   "log_tail": ""}
+    # a program that did not stop cleanly is a failure too (after a good run)
+    for rep in stops.values():
+        if rep.counters:
+            _flatten("plant" if rep.name == "plant_rt" else "firmware", rep.counters, counters)
+        if failure is None and not rep.clean:
+            what = ("did not stop within the grace period (killed)" if rep.killed
+                    else f"stopped with exit status {rep.returncode}")
+            failure = {"kind": "crash", "message": f"{rep.name}: {what}",
+                       "log_tail": rep.log_tail, "child": rep.name}
+    if mon is not None:
+        counters.update(mon.counters())
+        counters["rig.grants"] = float(len(clock.grants))
+        counters["rig.rx_frames"] = float(mon.rx)
+        counters["rig.drive_faults"] = float(mon.faults)
+        counters["rig.grant_resends"] = float(mon.grant_resends)
+    if live is not None:
+        with contextlib.suppress(Exception):
+            live.close()
+
+    # merge the traces
+    plant_trace, fw_trace = out / "plant.trace", out / "fw.trace"
+    traces_exist = plant_trace.exists() and fw_trace.exists()
+    small = traces_exist and (
+        plant_trace.stat().st_size + fw_trace.stat().st_size
+        < MAX_POST_FAILURE_PERIODS * 3 * 72
+    )
+    loss: capture.LossReport | None = None
+    if traces_exist and (failure is None or small) and interrupted is None:
+        try:
+            # lockstep: exactly the granted periods. Real time: the plant runs from its
+            # start, before the firmware is on the bus; the overlap counts, and it must reach
+            # the end of the scenario.
+            expected = (0, periods_done - 1) if failure is None and not realtime else None
+            cap, loss = capture.build(
+                out / "capture", capture.default_specs(plant_trace, fw_trace),
+                expected=expected, pole_pairs=pole_pairs(profile_values(sc)[1]),
+                speed_reference=lambda t: sc.speed_reference(t, accel_step_limit()),
+            )
+        except (ValueError, OSError) as exc:
+            if failure is None:
+                failure = {"kind": "capture", "message": f"cannot read the traces: {exc}",
+                           "log_tail": ""}
+    elif failure is None:
+        failure = {"kind": "capture", "message": "trace files missing "
+                   f"({plant_trace.name}: {plant_trace.exists()}, "
+                   f"{fw_trace.name}: {fw_trace.exists()})", "log_tail": ""}
+    if loss is not None:
+        counters["capture.lost"] = float(loss.lost)
+        counters["capture.duplicates"] = float(loss.duplicates)
+        result["capture"] = {**loss.to_json(), "summary": loss.summary()}
+        if failure is None and not loss.ok:
+            failure = {"kind": "capture_loss", "message": loss.summary(), "log_tail": ""}
+        elif failure is None and realtime and loss.last_period < periods_done - 2:
+            failure = {"kind": "capture_loss", "log_tail": "",
+                       "message": f"the capture ends at period {loss.last_period}, before the "
+                       f"end of the scenario ({periods_done - 1})"}
+
+    result["counters"] = counters
+    crit_results = [evaluate_one(cr, cap, counters) for cr in sc.criteria]
+    result["criteria"] = crit_results
+    all_ok = all(c["passed"] for c in crit_results)
+    if failure is None:
+        result["status"] = "passed" if all_ok else "failed"
+        result["passed"] = all_ok
+    else:
+        result["status"] = "interrupted" if failure["kind"] == "interrupted" else (
+            "error" if failure["kind"] == "environment" else "failed")
+        result["passed"] = False
+    result["failure"] = failure
+    reached = periods_done or (mon.progress_period if mon is not None else 0) or 0
+    sim_s = reached * TS
+    grant_walls = [g[2] for g in clock.grants]
+    result["timing"] = {
+        "sim_s": sim_s,
+        "wall_s": wall,
+        "speed_x": sim_s / wall if wall > 0 and sim_s > 0 else None,
+        "grants": len(clock.grants),
+        "grant_wall_ms_mean": 1e3 * float(np.mean(grant_walls)) if grant_walls else None,
+        "grant_wall_ms_max": 1e3 * float(np.max(grant_walls)) if grant_walls else None,
+    }
+    result["finished"] = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+
+    # recording
+    rrd = out / "recording.rrd"
+    if cap is not None and cap.n and opts.record:
+        try:
+            timing = None
+            if clock.grants:
+                g = np.asarray(clock.grants, dtype=np.float64)
+                walls = np.diff(np.concatenate([[0.0], g[:, 1]]))
+                sims = np.diff(np.concatenate([[0.0], g[:, 0]])) * TS
+                timing = recording.TimedSamples(
+                    [int(x) for x in g[:, 0]],
+                    {"grant_wall_ms": list(g[:, 2] * 1e3),
+                     "speed_x": list(np.where(walls > 0, sims / np.maximum(walls, 1e-12), 0.0))},
+                )
+            cl = mon.counter_log if mon is not None else []
+            counter_samples = None
+            if cl:
+                keys = sorted({k for _, v in cl for k in v if k != "period"})
+                counter_samples = recording.TimedSamples(
+                    [p for p, _ in cl], {k: [v.get(k, math.nan) for _, v in cl] for k in keys})
+            info = recording.write(
+                rrd, cap, title=f"{sc.name} ({result['mode']}, {result['bus']})",
+                report_markdown=report.scenario_report(result), timing=timing,
+                counters=counter_samples,
+            )
+            size = rrd.stat().st_size
+            result["recording"] = {
+                "path": rrd.name, "bytes": size,
+                "bytes_per_sim_s": size / (cap.n * TS) if cap.n else None,
+                "long_run": info["long_run"], "decimation": info["decimation"],
+                "capture_bytes": _dir_size(out / "capture"),
+            }
+        except Exception as exc:  # the verdict stands without the recording
+            result["recording"] = {"path": None, "error": f"{type(exc).__name__}: {exc}"}
+    (out / "result.json").write_text(json.dumps(result, indent=1, default=_json_default))
+    (out / "report.md").write_text(report.scenario_report(result))
+    res = RunResult(out, result, cap)
+    if interrupted is not None:
+        raise interrupted
+    return res
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
+    out = Path(opts.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results: list[RunResult] = []
+    entries: list[dict[str, Any]] = []
+    summary: dict[str, Any] = {
+        "schema": "hil-suite/1", "suite": suite.name, "suite_file": str(suite.file),
+        "description": suite.description, "passed": False, "scenarios": entries,
+    }
+    interrupted: BaseException | None = None
+    try:
+        for sc in suite.scenarios:
+            sub = RunOptions(**{**opts.__dict__, "out": out / sc.name})
+            r = run_scenario(sc, sub)
+            results.append(r)
+            entries.append({
+                "name": sc.name, "dir": sc.name, "passed": r.passed, "status": r.status,
+                "failed_criteria": [c["name"] for c in r.failed_criteria()],
+                "failure": (r.data.get("failure") or {}).get("message"),
+                "wall_s": r.data.get("timing", {}).get("wall_s"),
+            })
+    except (KeyboardInterrupt, Terminated) as exc:
+        interrupted = exc
+    summary["passed"] = (
+        interrupted is None and len(results) == len(suite.scenarios)
+        and all(r.passed for r in results)
+    )
+    summary["complete"] = len(results) == len(suite.scenarios)
+    (out / "result.json").write_text(json.dumps(summary, indent=1, default=_json_default))
+    (out / "report.md").write_text(report.suite_report(summary))
+    if interrupted is not None:
+        raise interrupted
+    return SuiteResult(out, summary, results)
+
+
+def exit_code(passed: bool, status: str) -> int:
+    if passed:
+        return EXIT_PASS
+    if status == "error":
+        return EXIT_ENV
+    return EXIT_FAIL
+
+
+def default_out(name: str) -> Path:
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path(os.environ.get("HIL_OUT", "out")) / f"{name}-{stamp}"

@@ -1,0 +1,183 @@
+/* Unit tests of the host HAL's pure parts: the ADC frame assembly rules (adc_assembly.h) and
+ * the parameter file (param_file.h). Usage: fw_host_test_units SCRATCH_DIR */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "adc_assembly.h"
+#include "param_file.h"
+
+static int failures;
+
+#define CHECK(cond, ...)                                                                    \
+    do {                                                                                    \
+        if (!(cond)) {                                                                      \
+            failures++;                                                                     \
+            printf("FAIL %s:%d: ", __FILE__, __LINE__);                                     \
+            printf(__VA_ARGS__);                                                            \
+            printf("\n");                                                                   \
+        }                                                                                   \
+    } while (0)
+
+static const int32_t codes[7] = {1, 2, 3, 4, 5, 6, 7};
+static fwh_adc_asm_t A;
+
+static fwh_adc_result_t feed(int index, uint32_t period, int16_t n_soc)
+{
+    fwh_adc_result_t r;
+    fwh_adc_feed(&A, index, period, n_soc, 100 + index, codes, codes, &r);
+    return r;
+}
+
+static void test_assembly(void)
+{
+    fwh_adc_result_t r;
+    fwh_adc_init(&A);
+    CHECK(fwh_adc_frames_for(0) == 1 && fwh_adc_frames_for(7) == 1 &&
+              fwh_adc_frames_for(8) == 2 && fwh_adc_frames_for(14) == 2 &&
+              fwh_adc_frames_for(15) == 3 && fwh_adc_frames_for(16) == 3,
+          "frames per n_soc");
+    /* the first period may be any index; one frame is enough for n_soc <= 7 */
+    r = feed(0, 500, 2);
+    CHECK(r.verdict == FWH_ADC_OK && r.complete && !r.repeat && r.n_lost == 0,
+          "first period complete");
+    CHECK(r.adc->period == 500 && r.adc->n_soc == 2 && r.adc->vdc == 100 && r.adc->ia[1] == 2,
+          "first period content");
+    /* 16 SOCs in three frames, any order; samples land at their SOC index */
+    r = feed(2, 501, 16);
+    CHECK(r.verdict == FWH_ADC_OK && !r.complete, "frame 2 alone");
+    r = feed(1, 501, 16);
+    CHECK(!r.complete, "frames 2 and 1");
+    r = feed(0, 501, 16);
+    CHECK(r.complete && r.adc->ia[0] == 1 && r.adc->ia[7] == 1 && r.adc->ia[13] == 7 &&
+              r.adc->ia[14] == 1 && r.adc->ia[15] == 2 && r.adc->vdc == 100,
+          "three frames assembled");
+    /* a lockstep re-send of the same period is a repeat */
+    r = feed(0, 501, 16);
+    CHECK(!r.complete && r.verdict == FWH_ADC_OK, "repeat first frame");
+    feed(1, 501, 16);
+    r = feed(2, 501, 16);
+    CHECK(r.complete && r.repeat, "repeat complete");
+    /* stale, future, malformed */
+    CHECK(feed(0, 400, 2).verdict == FWH_ADC_STALE, "stale");
+    CHECK(feed(0, 501 + FWH_ADC_MAX_GAP + 1, 2).verdict == FWH_ADC_FUTURE, "future");
+    CHECK(feed(1, 502, 3).verdict == FWH_ADC_MALFORMED, "frame 1 with n_soc 3");
+    CHECK(feed(0, 502, 17).verdict == FWH_ADC_MALFORMED, "n_soc 17");
+    r = feed(0, 502, 10);
+    CHECK(r.verdict == FWH_ADC_OK && !r.complete, "502 begins");
+    CHECK(feed(1, 502, 9).verdict == FWH_ADC_MALFORMED, "n_soc disagrees");
+    /* 502 never completes; 505 arrives: 502 incomplete, 502..504 lost */
+    r = feed(0, 505, 1);
+    CHECK(r.incomplete == 1 && r.lost_first == 502 && r.n_lost == 3 && r.complete,
+          "incomplete and lost (%d %lu %lu)", r.incomplete, (unsigned long)r.lost_first,
+          (unsigned long)r.n_lost);
+    /* a period inside the gap window that is older than the one being collected */
+    r = feed(0, 507, 8);
+    CHECK(!r.complete && r.n_lost == 1, "507 begins after lost 506");
+    CHECK(feed(0, 506, 1).verdict == FWH_ADC_STALE, "506 behind 507");
+    /* a restarted sequence: after FWH_ADC_RESYNC consecutive stale periods it is followed */
+    {
+        uint32_t k;
+        int resynced = 0;
+        fwh_adc_init(&A);
+        feed(0, 9000, 1);
+        for (k = 0; k < FWH_ADC_RESYNC; k++) {
+            r = feed(0, k, 1);
+            if (k + 1 < FWH_ADC_RESYNC) {
+                CHECK(r.verdict == FWH_ADC_STALE && !r.resynced, "stale %lu", (unsigned long)k);
+                feed(0, k, 1); /* a re-sent copy does not count twice */
+            } else {
+                resynced = r.resynced && r.complete && r.verdict == FWH_ADC_OK;
+            }
+        }
+        CHECK(resynced, "resync after %d periods", FWH_ADC_RESYNC);
+        r = feed(0, FWH_ADC_RESYNC, 1);
+        CHECK(r.complete && r.n_lost == 0 && !r.repeat, "follows the new sequence");
+    }
+    /* period counter wrap-around */
+    fwh_adc_init(&A);
+    feed(0, 0xFFFFFFFFu, 1);
+    r = feed(0, 0u, 1);
+    CHECK(r.complete && r.n_lost == 0 && r.verdict == FWH_ADC_OK, "wrap");
+}
+
+static void test_numbers(void)
+{
+    double v;
+    char buf[32];
+    const char *good[] = {"0", "-1", "+2.5", ".5", "5.", "1e3", "1.5E-3", "007"};
+    const char *bad[] = {"", "-", ".", "e3", "1e", "1e+", "0x10", "nan", "inf", "1,5", " 1",
+                         "1 ", "--1", "1e400"};
+    size_t i;
+    for (i = 0; i < sizeof(good) / sizeof(good[0]); i++) {
+        CHECK(fwh_parse_number(good[i], &v) == 0, "good number '%s'", good[i]);
+    }
+    for (i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+        CHECK(fwh_parse_number(bad[i], &v) != 0, "bad number '%s'", bad[i]);
+    }
+    fwh_fmt_real(buf, sizeof(buf), 0.015f);
+    CHECK(strcmp(buf, "0.015") == 0, "0.015 -> %s", buf);
+    fwh_fmt_real(buf, sizeof(buf), 1.0f / 3.0f);
+    CHECK((float)strtod(buf, NULL) == 1.0f / 3.0f, "1/3 round trip: %s", buf);
+    fwh_fmt_real(buf, sizeof(buf), 4294967295.0f);
+    CHECK((float)strtod(buf, NULL) == 4294967295.0f, "big round trip: %s", buf);
+}
+
+static fw_core_t core;
+static fwh_param_list_t list;
+
+static void test_param_file(const char *dir)
+{
+    char path[512], err[512];
+    FILE *f;
+    int failed, changed, n;
+    real_t v;
+    snprintf(path, sizeof(path), "%s/fw_host_units_params.txt", dir);
+    fw_core_init(&core);
+    fw_param_set(&core, 100, 77.0f); /* pll_bw_hz */
+    n = fwh_params_save(&core, path, err, sizeof(err));
+    CHECK(n > 50, "saved %d (%s)", n, n < 0 ? err : "");
+    fw_core_init(&core);
+    CHECK(fwh_params_parse_file(path, &list, err, sizeof(err)) == 0, "parse saved: %s", err);
+    CHECK(fwh_params_apply(&core, &list, &failed, &changed) == FW_STATUS_OK && changed == 1,
+          "apply saved (changed %d)", changed);
+    CHECK(fw_param_get(&core, 100, &v) == FW_STATUS_OK && v == 77.0f, "pll_bw_hz back");
+    /* order-independent application, all or nothing */
+    f = fopen(path, "w");
+    fputs("ld_h = 0.04   # raised before lq_h\nlq_h = 0.05\n", f);
+    fclose(f);
+    fw_core_init(&core);
+    CHECK(fwh_params_parse_file(path, &list, err, sizeof(err)) == 0, "parse: %s", err);
+    CHECK(fwh_params_apply(&core, &list, &failed, &changed) == FW_STATUS_OK && changed == 2,
+          "ld before lq");
+    f = fopen(path, "w");
+    fputs("rs_ohm = 3\nld_h = 0.06\n", f);
+    fclose(f);
+    CHECK(fwh_params_parse_file(path, &list, err, sizeof(err)) == 0, "parse: %s", err);
+    CHECK(fwh_params_apply(&core, &list, &failed, &changed) == FW_STATUS_OUT_OF_RANGE &&
+              failed == 1,
+          "inconsistent item found");
+    CHECK(fw_param_get(&core, 1, &v) == FW_STATUS_OK && fabsf(v - 1.93f) < 1e-6f,
+          "nothing applied");
+    f = fopen(path, "w");
+    fputs("rs_ohm = 3\n  # comment\n\nrs_ohm = 4\n", f);
+    fclose(f);
+    CHECK(fwh_params_parse_file(path, &list, err, sizeof(err)) != 0 &&
+              strstr(err, ":4: field 'rs_ohm': set twice (first on line 1)") != NULL,
+          "duplicate: %s", err);
+    remove(path);
+}
+
+int main(int argc, char **argv)
+{
+    test_assembly();
+    test_numbers();
+    test_param_file(argc > 1 ? argv[1] : ".");
+    if (failures) {
+        printf("%d failure(s)\n", failures);
+        return 1;
+    }
+    printf("fw_host units: all passed\n");
+    return 0;
+}

@@ -1,0 +1,125 @@
+"""Virtual I/O: ADC(k) in, PWM(k+1) out; repeats, multi-frame periods, bad and lost data."""
+
+from __future__ import annotations
+
+import pytest
+from fwhost_support import FAULT_ADC_LOSS, STATE, Peer, StartFw
+
+TBPRD = 5000
+PERIOD_TICKS = 10000
+
+
+def check_pwm(pwm: dict[str, int], period: int) -> None:
+    assert pwm["period"] == period
+    for x in "abc":
+        assert 0 <= pwm[f"cmp_{x}_up"] <= TBPRD
+        assert 0 <= pwm[f"cmp_{x}_dn"] <= TBPRD
+    assert 0 <= pwm["n_soc"] <= 16
+    for i in range(pwm["n_soc"]):
+        assert 0 <= pwm[f"soc_{i}"] < PERIOD_TICKS
+    assert pwm["gate_enable"] in (0, 1)
+
+
+@pytest.mark.vcan
+def test_adc_k_gives_pwm_k_plus_1_and_repeats_are_idempotent(
+        start_fw: StartFw, peer: Peer) -> None:
+    fw = start_fw()
+    pwms = peer.run(100, 5)
+    for i, pwm in enumerate(pwms):
+        check_pwm(pwm, 101 + i)
+        assert pwm["gate_enable"] == 0  # never enabled
+    # the plant re-sends ADC(104) (no PWM seen within 100 ms): the same PWM(105) again
+    n_soc = pwms[-2]["n_soc"]
+    again = peer.step(104, n_soc)
+    assert again == pwms[-1]
+    assert fw.stop() == 0
+    c = fw.counters()
+    assert c["isr"] == 5 and c["repeats"] == 1 and c["pwm_sent"] == 6
+    assert c["rx_rejected"] == 0 and c["last_period"] == 104
+
+
+def test_period_in_three_frames_runs_the_isr_once_complete(start_fw: StartFw,
+                                                           peer: Peer) -> None:
+    fw = start_fw()
+    frames = peer.adc_frames(7, 16)
+    assert len(frames) == 3
+    # any order: 2, 0, then 1 completes the period
+    for frame_id, data in (frames[2], frames[0]):
+        peer.send_raw(frame_id, data, fd=True)
+    assert peer.recv_until(lambda m: m.arbitration_id == 0x10, timeout=0.3) is None
+    peer.send_raw(*frames[1], fd=True)
+    check_pwm(peer.pwm(8), 8)
+    assert fw.stop() == 0
+    assert fw.counters()["isr"] == 1
+
+
+def test_stale_future_incomplete_and_malformed_adc_data_are_rejected(
+        start_fw: StartFw, peer: Peer) -> None:
+    fw = start_fw()
+    pwms = peer.run(50, 3)
+    n_soc = pwms[-1]["n_soc"]
+    peer.send_adc(40, n_soc)                       # stale
+    peer.send_adc(53 + 5000, n_soc)                # far in the future
+    frames = peer.adc_frames(53, 12)               # n_soc 12: needs VIO_ADC_0 and _1
+    peer.send_raw(*frames[0], fd=True)             # ... only _0 comes: incomplete
+    bad = peer.adc_frames(54, 3)[0]
+    peer.send_raw(0x12, bad[1], fd=True)           # VIO_ADC_1 although n_soc is 3: malformed
+    peer.send_raw(*bad, fd=True)                   # 54 complete: ISRs for 53 (no data), 54
+    pwm = peer.pwm(55)
+    check_pwm(pwm, 55)
+    assert fw.stop() == 0
+    c = fw.counters()
+    assert c["rejects"]["stale_period"] == 1
+    assert c["rejects"]["future_period"] == 1
+    assert c["rejects"]["incomplete"] == 1
+    assert c["rejects"]["malformed"] == 1
+    assert c["isr"] == 5 and c["isr_no_data"] == 1 and c["last_period"] == 54
+
+
+def test_wrong_length_type_and_range_of_adc_frames(start_fw: StartFw, peer: Peer) -> None:
+    fw = start_fw()
+    peer.run(0, 2)
+    frame_id, data = peer.adc_frames(2, 2)[0]
+    peer.send_raw(frame_id, data[:48], fd=True)      # FD but 48 bytes
+    peer.send_raw(frame_id, data[:8], fd=False)      # classic frame for an FD message
+    m = peer.msg("VIO_ADC_0")
+    peer.send_raw(frame_id, m.encode({"period": 2, "n_soc": 17, "vdc_code": 0,
+                                      **{f"{c}_{i}": 0 for c in "ia ib".split()
+                                         for i in range(7)}}, strict=False), fd=True)
+    peer.send_raw(0x2E, bytes(64), fd=True)          # unknown id in the virtual-I/O range
+    check_pwm(peer.step(2, 2), 3)                    # still working
+    st = peer.status(lambda v: v["rx_rejected"] >= 4)
+    assert st["rx_rejected"] == 4
+    assert fw.stop() == 0
+    rej = fw.counters()["rejects"]
+    assert rej["bad_length"] == 1 and rej["wrong_frame_type"] == 1
+    assert rej["out_of_range"] == 1 and rej["unknown_id"] == 1
+
+
+def test_adc_loss_faults_and_turns_the_gates_off(start_fw: StartFw, peer: Peer) -> None:
+    fw = start_fw()
+    pwms = peer.run(0, 3)
+    # periods 3..6 never come: ADC(7) runs the ISR without data for them first
+    pwm = peer.step(7, pwms[-1]["n_soc"])
+    assert pwm["gate_enable"] == 0
+    st = peer.status(lambda v: v["state"] == STATE["FAULT"])
+    assert st["fault_code"] == FAULT_ADC_LOSS
+    assert fw.stop() == 0
+    c = fw.counters()
+    assert c["isr_no_data"] == 4 and c["fault_name"] == "ADC_LOSS"
+
+
+def test_restarted_plant_is_followed_after_a_few_periods(start_fw: StartFw,
+                                                         peer: Peer) -> None:
+    fw = start_fw()
+    peer.run(1000, 3)
+    # the plant restarts at 0: ten consecutive stale periods, then fw_host follows it
+    n_soc = 1
+    for k in range(10):
+        peer.send_adc(k, n_soc)
+    pwm = peer.pwm(10)
+    check_pwm(pwm, 10)
+    check_pwm(peer.step(10, pwm["n_soc"]), 11)
+    assert fw.stop() == 0
+    c = fw.counters()
+    assert c["resyncs"] == 1 and c["rejects"]["stale_period"] == 9

@@ -1,0 +1,20 @@
+"""End to end with the real programs: the smoke scenario over the best available bus.
+
+Skipped (with the reason) only when plant_rt / fw_host are not built; point HIL_BIN_DIR at a
+build's bin/ folder or install the package to run it."""
+
+from __future__ import annotations
+
+import json
+
+from rig import recording
+
+
+def test_smoke_scenario_passes(hil_run, hil_binaries) -> None:  # type: ignore[no-untyped-def]
+    result = hil_run("smoke")
+    assert result.passed, result.explain()
+    data = json.loads((result.out_dir / "result.json").read_text())
+    assert data["capture"]["lost"] == 0 and data["capture"]["duplicates"] == 0
+    assert data["capture"]["periods"] >= 4999
+    rows = recording.entity_rows(result.out_dir / "recording.rrd")
+    assert rows["position/error"] == data["capture"]["periods"]

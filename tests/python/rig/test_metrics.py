@@ -1,0 +1,152 @@
+"""Metrics against analytic cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.optimize import brentq
+
+from rig import metrics
+
+TS = 100e-6
+
+
+def test_sinusoidal_error_statistics() -> None:
+    # e(t) = a*sin(2*pi*f*t) over whole periods: max a, RMS a/sqrt(2), mean 0,
+    # p99 of |e| = a*sin(0.99*pi/2) (|sin| of a uniform phase has CDF (2/pi)*asin(x)).
+    a, f = 2.5, 50.0
+    t = np.arange(0, 1.0, TS)
+    e = a * np.sin(2 * math.pi * f * t + 0.1)
+    s = metrics.error_stats(e)
+    assert s.max_abs == pytest.approx(a, rel=1e-4)
+    assert s.rms == pytest.approx(a / math.sqrt(2), rel=1e-4)
+    assert abs(s.mean) < 1e-9
+    assert s.p99_abs == pytest.approx(a * math.sin(0.99 * math.pi / 2), rel=2e-3)
+    assert s.count == t.size
+
+
+def test_error_stats_ignore_nan_and_empty() -> None:
+    s = metrics.error_stats([np.nan, 1.0, -3.0, np.nan])
+    assert (s.max_abs, s.mean, s.count) == (3.0, -1.0, 2)
+    assert s.rms == pytest.approx(math.sqrt(5.0))
+    empty = metrics.error_stats([np.nan])
+    assert empty.count == 0 and math.isnan(empty.max_abs)
+
+
+@given(st.floats(min_value=-1e6, max_value=1e6, allow_nan=False))
+def test_wrap_deg_range_and_congruence(x: float) -> None:
+    w = float(metrics.wrap_deg(x))
+    assert -180.0 <= w < 180.0
+    k = (x - w) / 360.0
+    assert abs(k - round(k)) < 1e-6
+
+
+def test_speed_dip_analytic() -> None:
+    # speed = base - A*x*exp(1-x), x = (t - t0)/tau: minimum A below base at t0 + tau;
+    # it re-enters a band b around base when A*x*exp(1-x) = b (x > 1).
+    base, amp, tau, t0, band_pct = 1000.0, 180.0, 0.05, 1.0, 1.0
+    t = np.arange(0.0, 2.0, TS)
+    x = np.clip((t - t0) / tau, 0.0, None)
+    speed = base - amp * x * np.exp(1.0 - x)
+    band = base * band_pct / 100.0
+    x_rec = brentq(lambda u: amp * u * math.exp(1.0 - u) - band, 1.0, 50.0)
+    dip = metrics.speed_dip(t, speed, t0, 2.0, baseline_s=0.1, band_pct=band_pct)
+    assert dip.baseline_rpm == pytest.approx(base)
+    assert dip.drop_rpm == pytest.approx(amp, rel=1e-6)
+    assert dip.drop_pct == pytest.approx(18.0, rel=1e-6)
+    assert dip.t_min == pytest.approx(t0 + tau, abs=TS)
+    assert dip.recovery_s == pytest.approx(x_rec * tau, abs=1.01 * TS)
+
+
+def test_speed_dip_never_recovers_and_no_dip() -> None:
+    t = np.arange(0.0, 1.0, TS)
+    falling = np.where(t < 0.5, 1000.0, 1000.0 - 400.0 * (t - 0.5))
+    assert math.isinf(metrics.speed_dip(t, falling, 0.5, 1.0).recovery_s)
+    flat = np.full_like(t, 500.0)
+    d = metrics.speed_dip(t, flat, 0.5, 1.0)
+    assert d.drop_rpm == 0.0 and d.recovery_s == 0.0
+
+
+def test_polarity_losses_counts_episodes_and_periods() -> None:
+    e = np.zeros(100)
+    e[10:13] = 170.0
+    e[50] = -95.0
+    e[98:] = 120.0
+    assert metrics.polarity_losses(e) == (3, 6)
+    assert metrics.polarity_losses(e, threshold_deg=150.0) == (1, 3)
+    assert metrics.polarity_losses(np.full(5, 179.0)) == (1, 5)
+
+
+def test_relative_error_and_circularity() -> None:
+    assert metrics.relative_error_pct([0.0153, 0.0147], [0.015, 0.015]) == pytest.approx(0.0)
+    assert metrics.relative_error_pct([0.033], [0.030]) == pytest.approx(10.0)
+    phi = np.linspace(0, 2 * math.pi, 10001)[:-1]
+    eps = 0.04
+    r = 0.22 * (1 + eps * np.sin(phi))
+    assert metrics.circularity_pct(r) == pytest.approx(100 * eps / math.sqrt(2), rel=1e-3)
+
+
+def _columns(n: int) -> dict[str, np.ndarray]:
+    t = np.arange(n) * TS
+    return {
+        "period": np.arange(n),
+        "pos_err_deg": np.where(t < 0.05, 150.0, 1.0),
+        "speed_true_rpm": 100.0 + 0 * t,
+        "speed_ref_rpm": 100.0 + 2.0 * (t > 0.08),
+    }
+
+
+def test_window_selects_inclusive_periods() -> None:
+    cols = _columns(1000)
+    w = metrics.Window(cols, 0.01, 0.02, ts=TS)
+    assert (w.i0, w.i1) == (100, 201)
+    assert len(metrics.Window(cols, 0.0, 1.0, ts=TS)) == 1000
+    assert len(metrics.Window(cols, 0.2, 0.3, ts=TS)) == 0
+
+
+def test_compute_registry_and_compare() -> None:
+    cols = _columns(1000)
+    w = metrics.Window(cols, 0.06, 0.0999, ts=TS, counters={"plant.late_cmds": 3.0})
+    assert metrics.compute("pos_err_max_deg", w) == 1.0
+    assert metrics.compute("speed_track_err_max_rpm", w) == pytest.approx(2.0)
+    whole = metrics.Window(cols, 0.0, 0.0999, ts=TS)
+    assert metrics.compute("polarity_loss_count", whole) == 1.0
+    assert metrics.compute("polarity_loss_count", whole, {"threshold_deg": 160}) == 0.0
+    assert metrics.compute("plant.late_cmds", w) == 3.0
+    with pytest.raises(KeyError):
+        metrics.compute("pos_err_max_deg", w, {"nonsense": 1})
+    empty = metrics.Window(cols, 0.5, 0.6, ts=TS)
+    assert math.isnan(metrics.compute("pos_err_max_deg", empty))
+    assert not metrics.compare(float("nan"), "<=", 1.0)
+    assert metrics.compare(1.0, "<=", 1.0) and not metrics.compare(1.0, "<", 1.0)
+    assert metrics.known("firmware.bus.tx_drops") and not metrics.known("nope")
+
+
+def test_progress_line_plain_and_tty() -> None:
+    import io
+
+    from rig.progress import Progress
+
+    plain = io.StringIO()
+    p = Progress("smoke", 0.5, plain, plain_interval_s=3600)
+    p.update(0.1, 120.0, 1.5)
+    p.update(0.2, 150.0, -2.5)  # rate-limited away
+    p.finish()
+    lines = plain.getvalue().splitlines()
+    assert len(lines) == 2
+    assert lines[0].startswith("smoke: t=  0.100/0.5 s") and "120.0 r/min" in lines[0]
+    assert "t=  0.200/0.5 s" in lines[1] and "(max 2.50°)" in lines[1]
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    tty = Tty()
+    q = Progress("x", 1.0, tty, tty_interval_s=0.0)
+    q.update(0.5, None, None)
+    q.finish("done")
+    assert tty.getvalue().startswith("\rx: t=") and tty.getvalue().endswith("\rdone\n")

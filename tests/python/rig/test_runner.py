@@ -1,0 +1,318 @@
+"""The runner end to end over a real bus (unixcan), with stand-in programs for plant and
+firmware (tests/python/rig/standins): pacing, exact event timing, capture, verdict, files,
+and the failure paths (capture loss, crash, kill, Ctrl-C)."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+import rerun as rr
+
+from rig import recording, runner
+from rig import scenario as sc
+
+TINY = """\
+description = "tiny closed loop for the runner's tests"
+profile = "ideal"
+duration = {duration}
+
+[[speed]]
+kind = "ramp"
+to = 200.0
+duration = 0.1
+
+[[load]]
+at = 0.12
+kind = "step"
+torque = 0.2
+
+[run]
+ready_timeout_s = 120.0  # the Python stand-ins start slowly inside the (emulated) VM
+
+[[criteria]]
+name = "position error"
+metric = "pos_err_max_deg"
+window = [0.05, "end"]
+limit = 0.6
+
+[[criteria]]
+name = "error is the stand-in's offset"
+metric = "pos_err_mean_deg"
+window = [0.05, "end"]
+limit = {mean_limit}
+comparison = ">="
+
+[[criteria]]
+name = "no capture loss"
+metric = "capture_lost"
+limit = 0
+comparison = "=="
+"""
+
+
+def _scenario(tmp: Path, name: str = "tiny", duration: float = 0.2,
+              mean_limit: float = 0.49) -> Path:
+    p = tmp / f"{name}.toml"
+    p.write_text(TINY.format(duration=duration, mean_limit=mean_limit))
+    return p
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def _ready_pid(path: Path, timeout: float = 10.0) -> int:
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert time.monotonic() < deadline, f"{path} never appeared"
+        time.sleep(0.02)
+    return int(path.read_text())
+
+
+def test_plan_grants_end_on_breakpoints() -> None:
+    s = sc.parse_scenario(Path("plan.toml"), TINY.format(duration=0.35, mean_limit=0))
+    plan = runner.Plan.build(s)
+    grants = plan.grants()
+    assert grants[0][0] == 0 and grants[-1][1] == 3500
+    assert all(b - a <= 1000 for a, b in grants)
+    assert all(g[1] == h[0] for g, h in itertools.pairwise(grants))
+    starts = {a for a, _ in grants}
+    assert {0, 1000, 1200} <= starts  # ramp end (0.1 s) and load step (0.12 s)
+    assert plan.load_events[1200].torque == 0.2
+
+
+def test_scenario_runs_and_writes_every_output(with_fakes: Path, channel: str,
+                                               tmp_path: Path) -> None:
+    s = sc.load_scenario(_scenario(tmp_path))
+    out = tmp_path / "out"
+    live_rec = rr.RecordingStream("live_test")  # stands in for a spawned viewer
+    live_rec.save(tmp_path / "live.rrd")
+    r = runner.run_scenario(s, runner.RunOptions(out=out, bus="unixcan", channel=channel,
+                                                 progress=False, live=True,
+                                                 live_stream=live_rec))
+    assert r.passed, r.explain()
+    recording._finalize(live_rec)
+    live_rows = recording.entity_rows(tmp_path / "live.rrd")
+    # TLM_POS at 1 kHz of simulated time, decimated to one sample per 100 periods
+    assert 15 <= live_rows["live/position"] <= 21 and 15 <= live_rows["live/speed"] <= 21
+    data = json.loads((out / "result.json").read_text())
+    assert data == json.loads(json.dumps(r.data))
+    for key in ("scenario", "profile", "bus", "channel", "mode", "status", "passed", "criteria",
+                "counters", "capture", "recording", "timing", "versions"):
+        assert key in data, key
+    assert (data["scenario"], data["bus"], data["channel"], data["mode"]) == (
+        "tiny", "unixcan", channel, "lockstep")
+    for c in data["criteria"]:
+        assert set(c) >= {"name", "metric", "window", "value", "limit", "passed"}
+    # the stand-in firmware's estimate is off by exactly 0.5 deg
+    assert r.criterion("position error")["value"] == pytest.approx(0.5, abs=1e-3)
+    # every period captured once; the plant's and the firmware's own counts agree
+    assert data["capture"]["periods"] == 2000 and data["capture"]["lost"] == 0
+    assert data["counters"]["plant.periods"] == 2000
+    assert data["counters"]["firmware.isr"] >= 1999
+    assert data["timing"]["grants"] == len(runner.Plan.build(s).grants())
+    # the load step reached the plant exactly at period 1200 (t = 0.12 s)
+    assert r.capture is not None
+    tl = np.asarray(r.capture["truth.tl"])
+    assert np.all(tl[:1200] == 0.0) and np.all(tl[1200:] == np.float32(0.2))
+    # the speed reference column is the scenario's ramp
+    ref = np.asarray(r.capture["speed_ref_rpm"])
+    assert ref[500] == pytest.approx(100.0) and ref[1500] == pytest.approx(200.0)
+    rows = recording.entity_rows(out / "recording.rrd")
+    assert rows["position/error"] == 2000 and rows["speed/rpm"] == 2000
+    assert data["recording"]["bytes"] == (out / "recording.rrd").stat().st_size
+    assert "# tiny: PASS" in (out / "report.md").read_text()
+    assert "fake plant" not in (out / "plant_rt.stderr.log").read_text()
+    again = runner.RunResult.load(out)
+    assert again.metric("pos_err_max_deg", (0.05, 0.2)) == pytest.approx(0.5, abs=1e-3)
+
+
+def test_capture_loss_fails_the_run(with_fakes: Path, channel: str, tmp_path: Path) -> None:
+    s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
+    r = runner.run_scenario(s, runner.RunOptions(
+        out=tmp_path / "out", bus="unixcan", channel=channel, progress=False, record=False,
+        env={"FAKE_PLANT_DROP": "500,501"}))
+    assert not r.passed and r.status == "failed"
+    assert r.data["failure"]["kind"] == "capture_loss"
+    # two periods, two plant messages each
+    assert "4 missing period records" in r.data["failure"]["message"]
+    assert r.data["counters"]["capture.lost"] == 4
+    assert not r.criterion("no capture loss")["passed"]
+    assert runner.exit_code(r.passed, r.status) == 1
+
+
+def test_failing_criterion_reports_its_value(with_fakes: Path, channel: str,
+                                             tmp_path: Path) -> None:
+    s = sc.load_scenario(_scenario(tmp_path, duration=0.15, mean_limit=0.6))
+    r = runner.run_scenario(s, runner.RunOptions(out=tmp_path / "out", bus="unixcan",
+                                                 channel=channel, progress=False, record=False))
+    assert r.status == "failed" and r.data["failure"] is None
+    bad = r.failed_criteria()
+    assert [c["name"] for c in bad] == ["error is the stand-in's offset"]
+    assert bad[0]["value"] == pytest.approx(0.5, abs=1e-3)
+    assert "FAIL error is the stand-in's offset" in r.explain()
+
+
+def test_lost_grant_is_sent_again(with_fakes: Path, channel: str, tmp_path: Path) -> None:
+    s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
+    r = runner.run_scenario(s, runner.RunOptions(
+        out=tmp_path / "out", bus="unixcan", channel=channel, progress=False, record=False,
+        env={"FAKE_PLANT_LOSE_STEP": "2"}))
+    assert r.passed, r.explain()
+    assert r.data["counters"]["rig.grant_resends"] == 1
+    assert r.data["counters"]["plant.steps"] == r.data["timing"]["grants"] + 1
+
+
+def test_stalled_lockstep_fails_with_the_period(with_fakes: Path, channel: str,
+                                                tmp_path: Path) -> None:
+    s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
+    t0 = time.monotonic()
+    r = runner.run_scenario(s, runner.RunOptions(
+        out=tmp_path / "out", bus="unixcan", channel=channel, progress=False, record=False,
+        stall_s=0.8, env={"FAKE_PLANT_FREEZE_AT": "700"}))
+    assert time.monotonic() - t0 < 10
+    assert r.status == "failed" and r.data["failure"]["kind"] == "stall"
+    assert "plant at period 700, granted 1000" in r.data["failure"]["message"]
+
+
+def test_realtime_mode(with_fakes: Path, channel: str, tmp_path: Path) -> None:
+    s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
+    r = runner.run_scenario(s, runner.RunOptions(out=tmp_path / "out", bus="unixcan",
+                                                 channel=channel, realtime=True,
+                                                 progress=False, record=False,
+                                                 env={"FAKE_RT_SCALE": "0.2"}))
+    assert r.data["mode"] == "realtime"
+    cap = r.data["capture"]
+    assert cap["lost"] == 0 and cap["last_period"] >= 1499, r.explain()
+    assert r.data["counters"]["plant.periods"] >= 1500
+    assert r.criterion("position error")["passed"]
+
+
+def _rig(args: list[str], env_extra: dict[str, str]) -> subprocess.Popen[str]:
+    env = dict(os.environ, **env_extra)
+    return subprocess.Popen([sys.executable, "-m", "rig", "run", *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def test_firmware_crash_ends_the_run_within_2s(with_fakes: Path, channel: str,
+                                               tmp_path: Path) -> None:
+    path = _scenario(tmp_path, duration=1.0)
+    out = tmp_path / "out"
+    proc = _rig([str(path), "--bus", "unixcan", "--channel", channel, "--out", str(out)],
+                {"FAKE_FW_CRASH_AT": "3000"})
+    text, _ = proc.communicate(timeout=60)
+    t_end = time.time()
+    assert proc.returncode == 1, text
+    crash = re.search(r"injected crash at period 3000 \(t=([0-9.]+)\)",
+                      (out / "fw_host.stderr.log").read_text())
+    assert crash is not None
+    assert t_end - float(crash.group(1)) < 2.0
+    assert "fw_host: exited unexpectedly (exit status 3)" in text
+    assert "injected crash at period 3000" in text  # the log tail
+    data = json.loads((out / "result.json").read_text())
+    assert data["failure"]["kind"] == "crash" and data["failure"]["child"] == "fw_host"
+    assert not _alive(int((out / "plant.ready").read_text()))
+
+
+@pytest.mark.parametrize("target", ["plant", "rig"])
+def test_kill_mid_run_ends_within_2s(with_fakes: Path, channel: str, tmp_path: Path,
+                                     target: str) -> None:
+    path = _scenario(tmp_path, duration=5.0)
+    out = tmp_path / "out"
+    proc = _rig([str(path), "--bus", "unixcan", "--channel", channel, "--out", str(out)], {})
+    plant_pid = _ready_pid(out / "plant.ready")
+    fw_pid = _ready_pid(out / "fw.ready")
+    time.sleep(0.7)  # mid-run
+    t0 = time.monotonic()
+    if target == "plant":
+        os.kill(plant_pid, signal.SIGKILL)
+    else:
+        proc.send_signal(signal.SIGINT)  # Ctrl-C
+    text, _ = proc.communicate(timeout=30)
+    elapsed = time.monotonic() - t0
+    print(f"ended {elapsed:.3f} s after the {target} event")
+    assert elapsed < 2.0, text
+    data = json.loads((out / "result.json").read_text())
+    if target == "plant":
+        assert proc.returncode == 1
+        assert "plant_rt: exited unexpectedly (killed by SIGKILL)" in text
+        assert data["failure"]["child"] == "plant_rt"
+    else:
+        assert proc.returncode == 130
+        assert data["status"] == "interrupted"
+    for pid in (plant_pid, fw_pid):
+        deadline = time.monotonic() + 1.0
+        while _alive(pid) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not _alive(pid)
+
+
+def test_missing_programs_are_an_environment_error(tmp_path: Path, channel: str,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("HIL_BIN_DIR", str(tmp_path / "empty"))
+    monkeypatch.setattr("rig._paths._installed_pkg_dir", lambda: None)
+    monkeypatch.setattr("rig._paths._PKG", tmp_path / "nopkg")
+    s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
+    r = runner.run_scenario(s, runner.RunOptions(out=tmp_path / "out", bus="unixcan",
+                                                 channel=channel, progress=False))
+    assert r.status == "error" and r.data["failure"]["kind"] == "environment"
+    assert "plant_rt not found" in r.data["failure"]["message"]
+    assert runner.exit_code(r.passed, r.status) == 3
+
+
+def test_suite_writes_one_folder_per_scenario_and_a_summary(
+    with_fakes: Path, channel: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+) -> None:
+    from rig.cli import main as rig_main
+
+    _scenario(tmp_path, "good", duration=0.15)
+    _scenario(tmp_path, "bad", duration=0.15, mean_limit=0.7)
+    suite = tmp_path / "mini.toml"
+    suite.write_text('description = "two tiny runs"\nscenarios = ["good", "bad"]\n')
+    out = tmp_path / "out"
+    code = rig_main(["run", str(suite), "--bus", "unixcan", "--channel", channel,
+                     "--out", str(out), "--quiet", "--no-record"])
+    assert code == 1
+    summary = json.loads((out / "result.json").read_text())
+    assert summary["suite"] == "mini" and summary["passed"] is False and summary["complete"]
+    by = {s["name"]: s for s in summary["scenarios"]}
+    assert by["good"]["passed"] and not by["bad"]["passed"]
+    assert by["bad"]["failed_criteria"] == ["error is the stand-in's offset"]
+    for name in ("good", "bad"):
+        assert json.loads((out / name / "result.json").read_text())["scenario"] == name
+    assert "[bad](bad/report.md) | **FAIL**" in (out / "report.md").read_text()
+    err = capsys.readouterr().err
+    assert "suite mini: FAIL (1/2 passed)" in err
+
+
+@pytest.mark.vcan
+def test_scenario_over_socketcan(with_fakes: Path, tmp_path: Path) -> None:
+    from rig import bus as rigbus
+
+    if not rigbus.kernel_has_can():
+        pytest.skip("this kernel has no CAN (run inside the VM: rig vm -- pytest -m vcan)")
+    chan = "vcan0"
+    if not rigbus.interface_exists(chan):
+        if os.geteuid() != 0:
+            pytest.skip(f"{chan} does not exist and creating it needs root")
+        rigbus.vcan_up(chan)
+    s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
+    r = runner.run_scenario(s, runner.RunOptions(out=tmp_path / "out", bus="socketcan",
+                                                 channel=chan, progress=False, record=False))
+    assert r.data["bus"] == "socketcan"
+    assert r.passed, r.explain()
+    assert r.data["capture"]["periods"] == 1500

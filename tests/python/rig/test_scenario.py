@@ -1,0 +1,279 @@
+"""Scenario schema: shipped files load; malformed ones name the file, the line and the field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig import scenario as sc
+from rig.cli import main as rig_main
+
+GOOD = """\
+description = "test scenario"
+profile = "paper"
+duration = 2.0
+
+[drive]
+fw_mode = "conventional"
+enable_at = 0.01
+
+[[speed]]
+kind = "ramp"
+to = 1000.0
+duration = 0.5
+
+[[speed]]
+kind = "trapezoid"
+peak = 1500.0
+rise = 0.25
+hold = 0.1
+fall = 0.25
+dwell = 0.1
+repeat = 2
+
+[[load]]
+at = 1.0
+kind = "step"
+torque = 2.0
+
+[[load]]
+at = 1.5
+kind = "ramp"
+torque = 0.5
+duration = 0.01
+
+[[criteria]]
+name = "drop"
+metric = "speed_drop_pct"
+window = [1.0, "end"]
+limit = 20.0
+params = { baseline_s = 0.1 }
+"""
+
+
+def _write(tmp: Path, text: str, name: str = "case") -> Path:
+    p = tmp / f"{name}.toml"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("path", sc.scenario_files(), ids=lambda p: p.stem)
+def test_shipped_scenarios_are_valid(path: Path) -> None:
+    s = sc.load_scenario(path)
+    assert s.name == path.stem and s.description and s.criteria
+    assert s.profile in sc.PROFILES
+
+
+@pytest.mark.parametrize("path", sc.suite_files(), ids=lambda p: p.stem)
+def test_shipped_suites_are_valid(path: Path) -> None:
+    su = sc.load_suite(path)
+    assert su.scenarios
+
+
+def test_paper_suite_covers_the_figures() -> None:
+    su = sc.load("paper")
+    assert isinstance(su, sc.Suite)
+    figures = {s.figure.split("(")[0].strip() for s in su.scenarios}
+    assert {"Table 2", "Fig. 5", "Fig. 6", "Fig. 7", "Fig. 8", "Fig. 9", "Fig. 10", "Fig. 11",
+            "Fig. 12"} <= figures
+
+
+def test_good_scenario_model(tmp_path: Path) -> None:
+    s = sc.load_scenario(_write(tmp_path, GOOD))
+    assert (s.profile, s.fw_mode, s.ctrl_mode, s.duration) == ("paper", "conventional", "speed",
+                                                               2.0)
+    assert s.criteria[0].window == (1.0, 2.0) and s.criteria[0].params == {"baseline_s": 0.1}
+    cmds = s.speed_commands(step_accel=1e5)
+    # ramp 0->1000 in 0.5 s, then 2 x (ramp to 1500 in 0.25, hold, ramp to 1000, dwell)
+    assert [(round(c.t, 6), c.target, round(c.accel, 6)) for c in cmds] == [
+        (0.0, 1000.0, 2000.0),
+        (0.5, 1500.0, 2000.0), (0.85, 1000.0, 2000.0),
+        (1.2, 1500.0, 2000.0), (1.55, 1000.0, 2000.0),
+    ]
+    ref = s.speed_reference(np.array([0.0, 0.25, 0.5, 0.625, 0.75, 0.8, 0.975, 1.1, 1.9]), 1e5)
+    np.testing.assert_allclose(ref, [0, 500, 1000, 1250, 1500, 1500, 1250, 1000, 1000])
+    loads = s.load_commands()
+    assert loads[0].t == 0 and loads[0].torque == 0
+    assert (loads[1].t, loads[1].torque) == (1.0, 2.0)
+    ramp = [c for c in loads if 1.5 <= c.t < 1.51]
+    assert len(ramp) == 10 and ramp[0].torque == pytest.approx(2.0 - 1.5 * 0.05)
+    assert loads[-1].t == pytest.approx(1.51) and loads[-1].torque == 0.5
+    bps = s.breakpoints(1e5)
+    assert {0.0, 0.01, 0.5, 0.85, 1.0, 1.2, 1.5, 1.55} <= {round(b, 6) for b in bps}
+
+
+def test_reference_is_rate_limited_when_the_next_command_comes_early() -> None:
+    s = sc.parse_scenario(Path("x.toml"), GOOD.replace(
+        'kind = "ramp"\nto = 1000.0\nduration = 0.5',
+        'kind = "step"\nto = 1000.0\nduration = 0.005'))
+    # a step with a slow limit (1000 r/min/s) is cut short by the trapezoid at 5 ms
+    ref = s.speed_reference(np.array([0.005, 0.01]), step_accel=1000.0)
+    np.testing.assert_allclose(ref, [5.0, 5.0 + 2000.0 * 0.005])
+
+
+BAD_CASES = [
+    # (text, line, field, message fragment)
+    (GOOD.replace('profile = "paper"', 'profile = "paperr"'), 2, "profile", "not one of"),
+    (GOOD.replace("duration = 2.0", 'duration = "2 s"'), 3, "duration", "finite number"),
+    (GOOD.replace("duration = 2.0", "duration = -1.0"), 3, "duration", "must be > 0"),
+    (GOOD.replace('fw_mode = "conventional"', 'fw_mode = "nominal"'), 6, "drive.fw_mode",
+     "realtime, conventional, id_zero"),
+    (GOOD.replace('kind = "trapezoid"', 'kind = "trapezium"'), 15, "speed[1].kind",
+     "not one of"),
+    (GOOD.replace("peak = 1500.0\n", ""), 14, "speed[1].peak", "missing"),
+    (GOOD.replace("torque = 2.0\n", "torque = 2.0\nspeeed = 3\n"), 27, "load[0].speeed",
+     "unknown field"),
+    (GOOD.replace('window = [1.0, "end"]', "window = [1.0, 2.5]"), 37, "criteria[0].window[1]",
+     "after the end"),
+    (GOOD.replace('metric = "speed_drop_pct"', 'metric = "speed_dorp_pct"'), 36,
+     "criteria[0].metric", "unknown metric"),
+    (GOOD.replace("params = { baseline_s = 0.1 }", "params = { baseline = 0.1 }"), 39,
+     "criteria[0].params.baseline", "unknown field"),
+    (GOOD + "\n[runn]\nx = 1\n", 41, "runn", "unknown field"),
+    (GOOD.replace("[drive]", "[drive]\nenable = 1"), 6, "drive.enable", "unknown field"),
+    (GOOD.replace("repeat = 2", "repeat = 0"), 21, "speed[1].repeat", "integer >= 1"),
+]
+
+
+@pytest.mark.parametrize("text, line, field, fragment", BAD_CASES)
+def test_schema_errors_name_file_line_and_field(tmp_path: Path, text: str, line: int,
+                                                field: str, fragment: str) -> None:
+    path = _write(tmp_path, text)
+    with pytest.raises(sc.ScenarioError) as info:
+        sc.load_scenario(path)
+    msg = str(info.value)
+    assert f"{path}:{line}: {field}: " in msg, msg
+    assert fragment in msg
+    assert len(info.value.issues) == 1, msg
+
+
+def test_all_problems_are_reported_at_once(tmp_path: Path) -> None:
+    text = GOOD.replace('profile = "paper"', "profile = 3").replace("limit = 20.0", "limit = []")
+    with pytest.raises(sc.ScenarioError) as info:
+        sc.load_scenario(_write(tmp_path, text))
+    fields = [i.field for i in info.value.issues]
+    assert fields == ["profile", "criteria[0].limit"]
+    assert [i.line for i in info.value.issues] == [2, 38]
+
+
+def test_inline_arrays_of_tables_are_located(tmp_path: Path) -> None:
+    text = """description = "inline"
+profile = "ideal"
+duration = 1.0
+speed = [
+  { kind = "ramp", to = 100.0, duration = 0.2 },
+  { kind = "hold", duration = "long" },  # a comment with { braces } and [brackets]
+]
+criteria = [{ metric = "pos_err_max_deg", limit = 1 }]
+"""
+    with pytest.raises(sc.ScenarioError) as info:
+        sc.load_scenario(_write(tmp_path, text))
+    assert f"{tmp_path / 'case.toml'}:6: speed[1].duration: must be a finite number" in str(
+        info.value)
+
+
+def test_missing_required_key_points_at_its_table(tmp_path: Path) -> None:
+    text = GOOD.replace('kind = "ramp"\nto = 1000.0\n', 'kind = "ramp"\n')
+    with pytest.raises(sc.ScenarioError, match=r"case\.toml:9: speed\[0\]\.to: required"):
+        sc.load_scenario(_write(tmp_path, text))
+
+
+def test_toml_syntax_error_has_its_line(tmp_path: Path) -> None:
+    text = GOOD.replace("limit = 20.0", "limit = = 20.0")
+    with pytest.raises(sc.ScenarioError, match=r"case\.toml:38: TOML syntax"):
+        sc.load_scenario(_write(tmp_path, text))
+
+
+def test_semantic_checks(tmp_path: Path) -> None:
+    rev = GOOD.replace('kind = "ramp"\nto = 1000.0', 'kind = "reversal"\nto = 1000.0')
+    with pytest.raises(sc.ScenarioError, match=r"speed\[0\]\.to: a reversal goes"):
+        sc.load_scenario(_write(tmp_path, rev, "rev"))
+    long = GOOD.replace("duration = 2.0", "duration = 1.0")
+    with pytest.raises(sc.ScenarioError) as info:
+        sc.load_scenario(_write(tmp_path, long, "long"))
+    assert "longer than duration" in str(info.value)
+    assert "load[0].at: 1 s is not before the end" in str(info.value)
+    named = 'name = "other"\n' + GOOD
+    with pytest.raises(sc.ScenarioError, match=r"named\.toml:1: name: must match"):
+        sc.load_scenario(_write(tmp_path, named, "named"))
+
+
+def test_suite_errors_name_the_entry(tmp_path: Path) -> None:
+    _write(tmp_path, GOOD, "ok_one")
+    suite = _write(tmp_path, 'description = "s"\nscenarios = [\n  "ok_one",\n  "nope",\n]\n',
+                   "suite")
+    with pytest.raises(sc.ScenarioError, match=r"suite\.toml:4: scenarios\[1\]: no scenario"):
+        sc.load_suite(suite)
+    good_suite = _write(tmp_path, 'scenarios = ["ok_one", "smoke"]\n', "suite2")
+    loaded = sc.load(good_suite)
+    assert isinstance(loaded, sc.Suite) and [s.name for s in loaded.scenarios] == ["ok_one",
+                                                                                   "smoke"]
+
+
+LOCATOR_TEXT = '''title = "a [b] # not a comment = x"
+"quoted.key" = 1
+dotted.inner = 2
+multi = """
+[[not_a_header]]
+"""
+[table]
+key = [1,
+  2, # comment [
+  3]
+[[arr]]
+x = 1
+[[arr]]
+x = 2
+[arr.sub]
+y = 3
+[[arr.list]]
+z = 4
+'''
+
+
+@pytest.mark.parametrize("path, line", [
+    (("title",), 1), (("quoted.key",), 2), (("dotted", "inner"), 3), (("multi",), 4),
+    (("table",), 7), (("table", "key"), 8), (("table", "key", 2), 10), (("arr", 0, "x"), 12),
+    (("arr", 1), 13), (("arr", 1, "x"), 14), (("arr", 1, "sub", "y"), 16),
+    (("arr", 1, "list", 0, "z"), 18), (("arr", 1, "missing"), 13), (("nope",), None),
+])
+def test_locator(path: tuple[str | int, ...], line: int | None) -> None:
+    import tomllib
+
+    tomllib.loads(LOCATOR_TEXT)  # valid TOML
+    assert sc.locate(LOCATOR_TEXT, path) == line
+
+
+def test_cli_exits_2_on_schema_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = _write(tmp_path, GOOD.replace("duration = 2.0", "duration = 0"), "bad")
+    assert rig_main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}:3: duration: must be > 0" in err
+    assert not (tmp_path / "o").exists()
+    assert rig_main(["run", "no_such_scenario_anywhere"]) == 2
+
+
+def test_cli_list_shows_name_profile_duration_description(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert rig_main(["list"]) == 0
+    out = capsys.readouterr().out
+    smoke = next(line for line in out.splitlines() if line.startswith("smoke "))
+    assert "ideal" in smoke and "0.5 s" in smoke and "closed-loop" in smoke
+    assert any(line.startswith("paper ") and "suite" in line for line in out.splitlines())
+    assert rig_main(["list", "--metrics"]) == 0
+    assert "pos_err_max_deg" in capsys.readouterr().out
+
+
+def test_subcommands_have_help(capsys: pytest.CaptureFixture[str]) -> None:
+    for cmd in ("run", "list", "view"):
+        with pytest.raises(SystemExit) as exc:
+            rig_main([cmd, "--help"])
+        assert exc.value.code == 0
+        assert len(capsys.readouterr().out) > 200
+
+
+def test_view_without_recording_exits_2(tmp_path: Path) -> None:
+    assert rig_main(["view", str(tmp_path)]) == 2
