@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -34,6 +36,18 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     b.add_argument("--spin-us", type=int, default=100,
                    help="busy-poll budget of the 'spin' measurement (HILBUS_SPIN_US)")
     b.set_defaults(func=_bench_bus)
+
+    i = bsub.add_parser(
+        "isr", help="firmware ISR cost per period: ns on this host, instructions (callgrind)",
+        description="Times fw_core_isr() on the host (fw_isr_bench: the core against a small "
+        "motor model, RUN state at 1000 r/min) and counts instructions per call with "
+        "callgrind (one dump per call; the 1 kHz tasks run on a fixed period residue, so "
+        "calls are grouped by period mod 10 to tell the 10 kHz path from the 1 kHz path).",
+    )
+    i.add_argument("--periods", type=int, default=20000, help="RUN-state periods timed")
+    i.add_argument("--callgrind-periods", type=int, default=400,
+                   help="RUN-state periods under callgrind (0: skip callgrind)")
+    i.set_defaults(func=_bench_isr)
 
 
 def _available_transports(channel: str) -> list[str]:
@@ -101,4 +115,46 @@ def _bench_bus(args: argparse.Namespace) -> int:
                 t["unixcan"][kind]["rtt_us"]["median"]
                 / t["socketcan"][kind]["rtt_us"]["median"], 2)
     print(json.dumps(report))
+    return 0
+
+
+def _bench_isr(args: argparse.Namespace) -> int:
+    bench = str(_paths.binary("fw_isr_bench"))
+    timed = subprocess.run([bench, str(args.periods)], capture_output=True, text=True,
+                           check=True)
+    report: dict[str, Any] = {"benchmark": "isr", "host_timing": json.loads(timed.stdout)}
+    if args.callgrind_periods > 0:
+        report["instructions"] = callgrind_isr(bench, args.callgrind_periods)
+    print(json.dumps(report))
+    return 0
+
+
+def callgrind_isr(bench: str, periods: int) -> dict[str, Any]:
+    """Instructions per fw_core_isr() call, 10 kHz and 1 kHz paths, from callgrind dumps."""
+    if shutil.which("valgrind") is None:
+        return {"skipped": "valgrind not installed"}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "cg.out"
+        subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}",
+                        "--toggle-collect=fw_core_isr", "--dump-after=fw_core_isr",
+                        "--dump-instr=no", bench, str(periods)],
+                       capture_output=True, text=True, check=True)
+        dumps = sorted(Path(tmp).glob("cg.out.*"), key=lambda p: int(p.name.rsplit(".", 1)[1]))
+        per_call = [_callgrind_total(p) for p in dumps]
+    run = per_call[-periods:]  # the bench ends with `periods` calls in the RUN state
+    groups: dict[int, list[int]] = {k: run[k::10] for k in range(10)}
+    slow_key = max(groups, key=lambda k: statistics.median(groups[k]))
+    fast = [v for k, g in groups.items() if k != slow_key for v in g]
+    slow = groups[slow_key]
+    return {
+        "calls_measured": len(run),
+        "isr_10khz": {"median": statistics.median(fast), "max": max(fast)},
+        "isr_1khz": {"median": statistics.median(slow), "max": max(slow)},
+    }
+
+
+def _callgrind_total(path: Path) -> int:
+    for line in path.read_text().splitlines():
+        if line.startswith("totals:"):
+            return int(line.split()[1])
     return 0
