@@ -511,6 +511,7 @@ COMPARISONS: dict[str, Callable[[float, float], bool]] = {
     ">=": lambda v, lim: v >= lim,
     ">": lambda v, lim: v > lim,
     "==": lambda v, lim: v == lim,
+    "report": lambda v, lim: True,  # value recorded, no limit (NaN still fails)
 }
 
 

@@ -115,7 +115,11 @@ class RunResult:
         return list(self.data.get("criteria", []))
 
     def failed_criteria(self) -> list[dict[str, Any]]:
-        return [c for c in self.criteria if not c.get("passed")]
+        """Criteria that count against the run (an XFAIL does not, an XPASS does not)."""
+        return [c for c in self.criteria if outcome(c) == "fail"]
+
+    def expected_failures(self) -> list[dict[str, Any]]:
+        return [c for c in self.criteria if outcome(c) in ("xfail", "xpass")]
 
     def criterion(self, name: str) -> dict[str, Any]:
         for c in self.criteria:
@@ -787,18 +791,32 @@ def evaluate_one(cr: Criterion, cap: capture.Capture | None,
         elif math.isinf(value):
             note = "never settled" if cr.metric == "recovery_time_s" else "infinite"
     passed = metrics.compare(value, cr.comparison, cr.limit)
+    if cr.xfail:
+        result = "xpass" if passed else "xfail"
+    else:
+        result = "pass" if passed else "fail"
     return {
         "name": cr.name,
         "metric": cr.metric,
         "window": [cr.window[0], cr.window[1]],
         "value": value if math.isfinite(value) else None,
-        "limit": cr.limit,
+        "limit": cr.limit if math.isfinite(cr.limit) else None,
         "comparison": cr.comparison,
         "unit": metrics.unit_of(cr.metric),
         "params": dict(cr.params),
         "passed": passed,
+        "outcome": result,
+        "xfail": cr.xfail,
         "note": note,
     }
+
+
+def outcome(c: Mapping[str, Any]) -> str:
+    """pass | fail | xfail (known failure, reason in the scenario) | xpass (a known failure
+    that passed: its xfail should be removed)."""
+    if "outcome" in c:
+        return str(c["outcome"])
+    return "pass" if c.get("passed") else "fail"
 
 
 def _dir_size(path: Path) -> int:
@@ -992,7 +1010,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     result["counters"] = counters
     crit_results = [evaluate_one(cr, cap, counters) for cr in sc.criteria]
     result["criteria"] = crit_results
-    all_ok = all(c["passed"] for c in crit_results)
+    all_ok = all(outcome(c) != "fail" for c in crit_results)
     if failure is None:
         result["status"] = "passed" if all_ok else "failed"
         result["passed"] = all_ok
@@ -1084,6 +1102,14 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
                 "failed_criteria": [c["name"] for c in r.failed_criteria()],
                 "failure": (r.data.get("failure") or {}).get("message"),
                 "wall_s": r.data.get("timing", {}).get("wall_s"),
+                "profile": sc.profile, "figure": sc.figure, "tags": list(sc.tags),
+                "description": sc.description,
+                "criteria": [
+                    {k: c.get(k) for k in ("name", "metric", "window", "value", "limit",
+                                           "comparison", "unit", "outcome", "xfail", "note")}
+                    for c in r.criteria
+                ],
+                "recording": (r.data.get("recording") or {}).get("path"),
             })
     except (KeyboardInterrupt, Terminated) as exc:
         interrupted = exc

@@ -17,7 +17,7 @@ import math
 import re
 import tomllib
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -319,6 +319,13 @@ class Criterion:
     limit: float
     comparison: str = "<="
     params: Mapping[str, float] = field(default_factory=dict)
+    # fidelity profiles the criterion applies on (empty: every profile)
+    profiles: tuple[str, ...] = ()
+    # known failure: the reason with the measured value; reported XFAIL (XPASS if it passes)
+    xfail: str = ""
+
+    def applies_to(self, profile: str) -> bool:
+        return not self.profiles or profile in self.profiles
 
 
 @dataclass(frozen=True)
@@ -348,6 +355,15 @@ class Scenario:
     timeout_s: float = 0.0  # 0: derived from the duration
     ready_timeout_s: float = 10.0
     realtime_ok: bool = True
+
+    def with_profile(self, profile: str) -> Scenario:
+        """The same scenario on another fidelity profile, named ``<name>@<profile>``; only
+        the criteria that apply on that profile are kept."""
+        if profile not in PROFILES:
+            raise ValueError(f"unknown profile {profile!r} (one of: {', '.join(PROFILES)})")
+        base = self.name.split("@", 1)[0]
+        crits = tuple(c for c in self.criteria if c.applies_to(profile))
+        return replace(self, name=f"{base}@{profile}", profile=profile, criteria=crits)
 
     # -- derived profiles ------------------------------------------------------------
     def speed_commands(self, step_accel: float) -> list[SpeedCommand]:
@@ -632,15 +648,30 @@ def _load_event(c: _Checker, raw: Any, path: Path_, duration: float) -> LoadEven
 
 
 def _criterion(c: _Checker, raw: Any, path: Path_, duration: float) -> Criterion | None:
-    d = c.table(raw, path, ("name", "metric", "window", "limit", "comparison", "params"))
+    d = c.table(raw, path, ("name", "metric", "window", "limit", "comparison", "params",
+                            "profiles", "xfail"))
     if not d:
         return None
     metric = c.string(d, path, "metric")
     if metric and not metrics.known(metric):
         c.err((*path, "metric"), f"unknown metric {metric!r} (see `rig list --metrics`)")
     name = c.string(d, path, "name", metric)
-    limit = c.number(d, path, "limit")
     comparison = c.string(d, path, "comparison", "<=", choices=metrics.COMPARISONS)
+    # "report": the value is recorded, any value passes (no data still fails)
+    limit = c.number(d, path, "limit", math.nan if comparison == "report" else None)
+    profiles: tuple[str, ...] = ()
+    if "profiles" in d:
+        pr = d["profiles"]
+        if not isinstance(pr, list) or not pr or not all(isinstance(x, str) for x in pr):
+            c.err((*path, "profiles"), f"must be a non-empty list of profile names, not {pr!r}")
+        else:
+            for i, x in enumerate(pr):
+                if x not in PROFILES:
+                    c.err((*path, "profiles", i), f"{x!r} is not one of: {', '.join(PROFILES)}")
+            profiles = tuple(pr)
+    xfail = c.string(d, path, "xfail", "")
+    if "xfail" in d and not xfail.strip():
+        c.err((*path, "xfail"), "must give the reason and the measured value")
     window = (0.0, duration)
     if "window" in d:
         w = d["window"]
@@ -668,7 +699,7 @@ def _criterion(c: _Checker, raw: Any, path: Path_, duration: float) -> Criterion
         for k in pd:
             if k in metrics.params_of(metric):
                 params[k] = c.number(pd, (*path, "params"), k)
-    return Criterion(name, metric, window, limit, comparison, params)
+    return Criterion(name, metric, window, limit, comparison, params, profiles, xfail)
 
 
 def _scalars(c: _Checker, raw: Any, path: Path_) -> dict[str, float | int | str | bool]:
@@ -781,10 +812,14 @@ def parse_scenario(file: Path, text: str) -> Scenario:
         cr = _criterion(c, raw, ("criteria", i), duration)
         if cr is not None:
             crits.append(cr)
-    names = [cr.name for cr in crits]
-    for i, n in enumerate(names):
-        if names.index(n) != i:
-            c.err(("criteria", i, "name"), f"duplicate criterion name {n!r}")
+    for i, cr in enumerate(crits):
+        for other in crits[:i]:
+            if other.name == cr.name and any(
+                other.applies_to(pr) and cr.applies_to(pr) for pr in PROFILES
+            ):
+                c.err(("criteria", i, "name"),
+                      f"duplicate criterion name {cr.name!r} (on a common profile)")
+                break
 
     run = c.table(data.get("run", {}), ("run",),
                   ("grant_max_s", "timeout_s", "ready_timeout_s", "realtime_ok"))
@@ -830,14 +865,20 @@ def parse_suite(file: Path, text: str) -> Suite:
         if not isinstance(entry, str):
             c.err(("scenarios", i), f"must be a scenario name or path, not {entry!r}")
             continue
-        target = _scenario_path(entry, file.parent)
+        base, _, profile = entry.partition("@")
+        if profile and profile not in PROFILES:
+            c.err(("scenarios", i), f"profile {profile!r} is not one of: {', '.join(PROFILES)}")
+            continue
+        target = _scenario_path(base, file.parent)
         if target is None:
-            c.err(("scenarios", i), f"no scenario {entry!r} (looked in {SCENARIO_DIR})")
+            c.err(("scenarios", i), f"no scenario {base!r} (looked in {SCENARIO_DIR})")
             continue
         try:
-            scenarios.append(load_scenario(target))
+            sc = _parse_file(target)
         except ScenarioError as exc:
             issues.extend(exc.issues)
+            continue
+        scenarios.append(sc.with_profile(profile) if profile else _own_profile(sc))
     if c.issues or issues:
         raise ScenarioError(c.issues + issues)
     return Suite(name, file, description, tuple(scenarios))
@@ -852,9 +893,20 @@ def _scenario_path(entry: str, base: Path) -> Path | None:
     return None
 
 
+def _parse_file(path: Path) -> Scenario:
+    return parse_scenario(path, path.read_text(encoding="utf-8"))
+
+
+def _own_profile(sc: Scenario) -> Scenario:
+    """Only the criteria that apply on the scenario's own profile."""
+    if all(cr.applies_to(sc.profile) for cr in sc.criteria):
+        return sc
+    return replace(sc, criteria=tuple(cr for cr in sc.criteria if cr.applies_to(sc.profile)))
+
+
 def load_scenario(path: str | Path) -> Scenario:
-    p = Path(path)
-    return parse_scenario(p, p.read_text(encoding="utf-8"))
+    """A scenario file; only the criteria that apply on its own profile are kept."""
+    return _own_profile(_parse_file(Path(path)))
 
 
 def load_suite(path: str | Path) -> Suite:
@@ -883,7 +935,12 @@ def find(target: str | Path) -> Path:
 
 
 def load(target: str | Path) -> Scenario | Suite:
-    """A scenario or a suite, by name or path."""
+    """A scenario or a suite, by name or path; ``<scenario>@<profile>`` runs a scenario on
+    another fidelity profile."""
+    text = str(target)
+    if "@" in text and not Path(text).is_file():
+        base, _, profile = text.rpartition("@")
+        return _parse_file(find(base)).with_profile(profile)
     p = find(target)
     return load_suite(p) if is_suite_file(p) else load_scenario(p)
 

@@ -125,11 +125,16 @@ def _print_verdict(data: dict[str, Any]) -> None:
             for line in str(tail).splitlines()[-15:]:
                 print(f"    | {line}", file=sys.stderr)
     for c in data.get("criteria", []):
-        mark = "ok  " if c.get("passed") else "FAIL"
+        mark = {"pass": "ok   ", "fail": "FAIL ", "xfail": "XFAIL", "xpass": "XPASS"}.get(
+            str(c.get("outcome")), "ok   " if c.get("passed") else "FAIL ")
         value = c.get("value")
         shown = "n/a" if value is None else f"{value:.4g}"
+        limit = c.get("limit")
+        bound = "reported" if limit is None else f"{c['comparison']} {limit:g}"
         print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
-              f"({c['comparison']} {c['limit']:g}) over {c['window']}", file=sys.stderr)
+              f"({bound}) over {c['window']}", file=sys.stderr)
+        if c.get("xfail"):
+            print(f"        expected failure: {c['xfail']}", file=sys.stderr)
 
 
 def cmd_list(args: argparse.Namespace) -> int:

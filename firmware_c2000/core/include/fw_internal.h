@@ -79,6 +79,9 @@ real_t fw_fw_id(real_t iq, real_t omega, real_t vmax, real_t ld, real_t lq, real
 int16_t fw_circle_ellipse_id(real_t i_max, real_t omega, real_t vmax, real_t ld, real_t lq,
                              real_t lambda, real_t *id);
 real_t fw_torque(real_t id, real_t iq, real_t ld, real_t lq, real_t lambda, real_t pole_pairs);
+/* d current that makes the q current iq (|iq| <= |iq_demand|, same sign) produce the torque of
+ * the MTPA point of iq_demand through the reluctance term (<= 0; 0 without saliency). */
+real_t fw_id_for_torque(real_t iq_demand, real_t iq, real_t ld, real_t lq, real_t lambda);
 /* Current references from a q-current demand (mode FW_FWMODE_*). Returns 1 when the voltage
  * limit (flux weakening) is active. did_fb: extra d-current from the voltage feedback (<= 0). */
 int16_t fw_current_refs(int16_t mode, real_t iq_demand, real_t omega, real_t vmax, real_t i_max,

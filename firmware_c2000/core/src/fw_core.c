@@ -384,7 +384,7 @@ static void slow_tasks(fw_core_t *c)
     real_t i_max = p[FW_PI_I_MAX_A];
     real_t vmax_fw = p[FW_PI_FW_VMARGIN] * c->v_lim;
     real_t target = fw_clamp(c->cmd.speed_ref_rpm, -p[FW_PI_SPEED_MAX_RPM], p[FW_PI_SPEED_MAX_RPM]);
-    real_t iq_lim;
+    real_t iq_lim, iq_sal, iq_use;
 
     fw_pe_apparent(&c->pe, c->iq);
     select_parameters(c);
@@ -397,22 +397,34 @@ static void slow_tasks(fw_core_t *c)
         c->fw_did = FW_REAL(0.0);
     }
     iq_lim = fw_sqrt(fw_max(i_max * i_max - c->id_ref * c->id_ref, FW_REAL(0.0)));
+    iq_sal = iq_lim;
     if (p[FW_PI_SALIENCY_MIN] > FW_REAL(0.0)) {
         /* keep the q current where the saliency the estimator lives on is still there */
         real_t g1_nom = FW_REAL(0.5) * (FW_REAL(1.0) / p[FW_PI_LD_H] - FW_REAL(1.0) / p[FW_PI_LQ_H]);
-        iq_lim = fw_min(iq_lim, fw_pe_saliency_iq_limit(&c->pe, p[FW_PI_SALIENCY_MIN] * g1_nom,
+        iq_sal = fw_min(iq_lim, fw_pe_saliency_iq_limit(&c->pe, p[FW_PI_SALIENCY_MIN] * g1_nom,
                                                         i_max));
     }
-    c->iq_sal_lim = iq_lim;
+    c->iq_sal_lim = iq_sal;
+    /* the demand may exceed the saliency limit: the torque beyond it comes from more
+     * negative d current (reluctance torque) inside the current circle */
     if (c->cmd.ctrl_mode == FW_CTRL_SPEED) {
         c->iq_demand = fw_speed_ctrl(&c->pi_spd, c->speed_ref_ramped, c->speed_f_rpm, iq_lim, ts);
     } else {
         c->iq_demand = fw_clamp(c->cmd.iq_ref, -i_max, i_max);
         c->pi_spd.x = c->iq_demand; /* bumpless change to speed mode */
     }
-    c->fw_active = fw_current_refs(c->cmd.fw_mode, fw_clamp(c->iq_demand, -iq_lim, iq_lim),
-                                   c->pll.omega, vmax_fw, i_max, c->ld_use, c->lq_use,
-                                   c->lambda_use, c->fw_did, &c->id_ref, &c->iq_ref);
+    iq_use = fw_clamp(c->iq_demand, -iq_sal, iq_sal);
+    c->fw_active = fw_current_refs(c->cmd.fw_mode, iq_use, c->pll.omega, vmax_fw, i_max,
+                                   c->ld_use, c->lq_use, c->lambda_use, c->fw_did, &c->id_ref,
+                                   &c->iq_ref);
+    if (c->cmd.fw_mode != FW_FWMODE_ID_ZERO && fw_fabs(c->iq_demand) > fw_fabs(iq_use)) {
+        real_t id_t = fw_id_for_torque(c->iq_demand, c->iq_ref, c->ld_use, c->lq_use,
+                                       c->lambda_use);
+        if (id_t < c->id_ref) {
+            c->id_ref = fw_max(id_t, -fw_sqrt(fw_max(i_max * i_max - c->iq_ref * c->iq_ref,
+                                                     FW_REAL(0.0))));
+        }
+    }
 }
 
 static void polarity_lost_check(fw_core_t *c)

@@ -78,6 +78,19 @@ int16_t fw_circle_ellipse_id(real_t i_max, real_t omega, real_t vmax, real_t ld,
     return (int16_t)(*id >= -i_max && *id <= i_max);
 }
 
+real_t fw_id_for_torque(real_t iq_demand, real_t iq, real_t ld, real_t lq, real_t lambda)
+{
+    /* torque/(1.5 p) the MTPA point of iq_demand gives, produced at the smaller q current iq
+     * by the reluctance term: lambda iq + (Ld - Lq) id iq = tau  =>  id = (tau/iq - lambda)/(Ld - Lq) */
+    real_t dl = ld - lq;
+    real_t tau;
+    if (!(dl < FW_REAL(-1e-7)) || !(fw_fabs(iq) > FW_REAL(1e-3))) {
+        return FW_REAL(0.0);
+    }
+    tau = (lambda + dl * fw_mtpa_id(iq_demand, ld, lq, lambda)) * iq_demand;
+    return fw_min((tau / iq - lambda) / dl, FW_REAL(0.0));
+}
+
 real_t fw_torque(real_t id, real_t iq, real_t ld, real_t lq, real_t lambda, real_t pole_pairs)
 {
     return FW_REAL(1.5) * pole_pairs * (lambda * iq + (ld - lq) * id * iq);

@@ -316,3 +316,37 @@ def test_scenario_over_socketcan(with_fakes: Path, tmp_path: Path) -> None:
     assert r.data["bus"] == "socketcan"
     assert r.passed, r.explain()
     assert r.data["capture"]["periods"] == 1500
+
+
+def test_xfail_xpass_and_report_outcomes() -> None:
+    from rig import report
+
+    counters = {"rig.x": 3.0}
+    fail = sc.Criterion("a", "rig.x", (0.0, 1.0), 1.0)
+    xfail = sc.Criterion("b", "rig.x", (0.0, 1.0), 1.0, xfail="measured 3: reason")
+    xpass = sc.Criterion("c", "rig.x", (0.0, 1.0), 5.0, xfail="measured 6 once: reason")
+    rep = sc.Criterion("d", "rig.x", (0.0, 1.0), float("nan"), "report")
+    out = [runner.evaluate_one(c, None, counters) for c in (fail, xfail, xpass, rep)]
+    assert [runner.outcome(c) for c in out] == ["fail", "xfail", "xpass", "pass"]
+    assert out[3]["limit"] is None and out[3]["value"] == 3.0
+    res = runner.RunResult(Path("."), {"criteria": out})
+    assert [c["name"] for c in res.failed_criteria()] == ["a"]
+    assert [c["name"] for c in res.expected_failures()] == ["b", "c"]
+    text = report.scenario_report({"scenario": "s", "criteria": out})
+    assert "XFAIL" in text and "XPASS" in text and "measured 3: reason" in text
+    entries = [
+        {"name": "table2_1000rpm_2nm@paper", "dir": "t", "profile": "paper", "passed": True,
+         "status": "passed", "criteria": [
+             {"name": "e", "metric": "pos_err_max_deg", "value": 1.25, "limit": 2.5,
+              "comparison": "<=", "outcome": "pass"},
+             {"name": "r", "metric": "pos_err_rms_deg", "value": 0.5, "limit": 1.5,
+              "comparison": "<=", "outcome": "xpass", "xfail": "why"}]},
+        {"name": "fig06_2000rpm", "dir": "f", "profile": "paper", "figure": "Fig. 6",
+         "passed": False, "status": "failed", "failed_criteria": ["e"], "criteria": [
+             {"name": "e", "metric": "pos_err_max_deg", "value": 3.0, "limit": 2.0,
+              "comparison": "<=", "outcome": "fail"}], "recording": "recording.rrd"},
+    ]
+    md = report.suite_report({"suite": "paper", "passed": False, "scenarios": entries})
+    assert md.index("## Table 2") < md.index("### profile `paper`") < md.index("## Fig. 6")
+    assert "| 1000 | 2 | 1.25 | 0.5 (XPASS) |" in md
+    assert "rig view f" in md and "**FAIL**" in md

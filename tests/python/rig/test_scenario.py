@@ -277,3 +277,82 @@ def test_subcommands_have_help(capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_view_without_recording_exits_2(tmp_path: Path) -> None:
     assert rig_main(["view", str(tmp_path)]) == 2
+
+
+PER_PROFILE = """
+description = "per-profile criteria"
+profile = "paper"
+duration = 1.0
+
+[[criteria]]
+name = "err"
+metric = "pos_err_max_deg"
+limit = 0.5
+profiles = ["ideal"]
+
+[[criteria]]
+name = "err"
+metric = "pos_err_max_deg"
+limit = 2.5
+profiles = ["paper"]
+xfail = "measured 3.1 deg: noise-limited window (note 6)"
+
+[[criteria]]
+name = "err"
+metric = "pos_err_max_deg"
+comparison = "report"
+profiles = ["harsh"]
+
+[[criteria]]
+name = "speed"
+metric = "speed_track_err_max_rpm"
+limit = 10
+"""
+
+
+def test_criteria_per_profile_and_profile_override(tmp_path: Path) -> None:
+    p = _write(tmp_path, PER_PROFILE, "cell")
+    own = sc.load_scenario(p)
+    assert [(c.name, c.limit) for c in own.criteria] == [("err", 2.5), ("speed", 10.0)]
+    assert own.criteria[0].xfail.startswith("measured 3.1")
+    harsh = sc.load(f"{p}@harsh")
+    assert isinstance(harsh, sc.Scenario)
+    assert harsh.name == "cell@harsh" and harsh.profile == "harsh"
+    assert [c.comparison for c in harsh.criteria] == ["report", "<="]
+    suite = _write(tmp_path, 'scenarios = ["cell@ideal", "cell"]\n', "s")
+    su = sc.load_suite(suite)
+    assert [s.name for s in su.scenarios] == ["cell@ideal", "cell"]
+    assert [c.limit for c in su.scenarios[0].criteria] == [0.5, 10.0]
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    ('profiles = ["fast"]', "is not one of"),
+    ('xfail = " "', "reason"),
+])
+def test_criterion_profile_and_xfail_checks(tmp_path: Path, extra: str, message: str) -> None:
+    text = ('description = "x"\nprofile = "paper"\nduration = 1.0\n[[criteria]]\n'
+            f'metric = "pos_err_max_deg"\nlimit = 1\n{extra}\n')
+    with pytest.raises(sc.ScenarioError, match=message):
+        sc.parse_scenario(tmp_path / "x.toml", text)
+
+
+def test_duplicate_names_only_on_a_common_profile(tmp_path: Path) -> None:
+    text = PER_PROFILE.replace('profiles = ["harsh"]', 'profiles = ["harsh", "paper"]')
+    with pytest.raises(sc.ScenarioError, match="duplicate criterion name"):
+        sc.parse_scenario(tmp_path / "cell.toml", text)
+
+
+def test_table2_files_are_what_the_generator_writes() -> None:
+    """The grid cells are generated (rig/scenarios/gen_table2.py is their source)."""
+    import importlib.util
+
+    from rig.scenario import SCENARIO_DIR
+
+    spec = importlib.util.spec_from_file_location("gen_table2", SCENARIO_DIR / "gen_table2.py")
+    assert spec is not None and spec.loader is not None
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    files = gen.render()
+    assert len(files) == 17
+    for name, text in files.items():
+        assert (SCENARIO_DIR / name).read_text() == text, f"{name} is stale: rerun gen_table2.py"

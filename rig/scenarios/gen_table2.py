@@ -1,0 +1,167 @@
+"""Writes the Table 2 grid scenarios (one file per cell, criteria per profile, xfails with
+measured values). This file is their source: edit it, not the generated files.
+
+    python rig/scenarios/gen_table2.py rig/scenarios           # write the files
+    python rig/scenarios/gen_table2.py --check rig/scenarios   # exit 1 if any is stale
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+GRID = [(1, 0), (1, 1), (1, 2), (100, 0), (100, 1), (100, 2), (600, 0), (600, 1), (600, 2),
+        (1000, 0), (1000, 1), (1000, 2), (2000, 0), (2000, 1), (2000, 2), (3000, 0), (3000, 1.5)]
+I_MAX = 4.5
+V5 = ("the FW voltage limit (1 - Tmin/Ts)*Vdc/sqrt(3) = 92.4 V that keeps a measurable "
+      "zero window (estimator-math note 5)")
+SAT = ("q saturation of the paper profile: 2 N*m + B*w needs iq ~3.4-3.6 A where the "
+       "incremental Lq falls to 18 mH and Gamma1 to ~0.35 of nominal (saliency_min cap); the "
+       "rest comes from -id (reluctance torque) inside i_max 4.5 A; the noise grows as "
+       "1/Gamma1 (note 6, 7)")
+LOW = ("5000-period window at <= 100 r/min: the raw per-period estimate (W = Tmin - 9 us = "
+       "11 us) is noise-limited (note 6) and the 60 Hz PLL passes its tail; not yet improved")
+# measured values: /tmp run of this grid on the firmware of this change (max deg / r/min)
+XFAIL: dict[tuple[int, float, str, str], str] = {
+    (100, 0, "paper", "pos_err_max_deg"): "measured 2.81 deg: " + LOW,
+    (100, 0, "paper", "speed_track_err_max_rpm"): "measured 17.5 r/min: " + LOW,
+    (100, 2, "paper", "pos_err_max_deg"): "measured 3.00 deg: " + LOW,
+    (100, 2, "paper", "speed_track_err_max_rpm"): "measured 20.6 r/min: " + LOW,
+    (600, 2, "paper", "pos_err_max_deg"): "measured 26.6 deg: " + SAT,
+    (600, 2, "paper", "pos_err_rms_deg"): "measured 2.65 deg: " + SAT,
+    (600, 2, "paper", "speed_track_err_max_rpm"): "measured 274 r/min: " + SAT,
+    (1000, 2, "paper", "pos_err_max_deg"): "measured 18.0 deg: " + SAT,
+    (1000, 2, "paper", "pos_err_rms_deg"): "measured 2.61 deg: " + SAT,
+    (1000, 2, "paper", "speed_track_err_max_rpm"): "measured 324 r/min: " + SAT,
+    (2000, 2, "ideal", "speed_track_err_max_rpm"): "measured 284 r/min: 2.63 N*m at 2000 r/min "
+    "needs more than i_max 4.5 A under " + V5,
+    (2000, 2, "paper", "speed_track_err_max_rpm"): "measured 2144 r/min (stalls): " + SAT
+    + "; and " + V5,
+    (3000, 0, "ideal", "speed_track_err_max_rpm"): "measured 531 r/min: 3000 r/min needs >= 4.7 A"
+    " of FW current under " + V5,
+    (3000, 0, "paper", "speed_track_err_max_rpm"): "measured 615 r/min: 3000 r/min needs >= 4.7 A"
+    " of FW current under " + V5,
+    (3000, 1.5, "ideal", "speed_track_err_max_rpm"): "measured 1108 r/min: 1.5 N*m at 3000 r/min"
+    " needs ~6.3 A under " + V5,
+    (3000, 1.5, "paper", "speed_track_err_max_rpm"): "measured 1197 r/min: 1.5 N*m at 3000 r/min"
+    " needs ~6.3 A under " + V5,
+    (3000, 1.5, "paper", "pos_err_max_deg"): "measured 3.30 deg while the drive cannot reach the "
+    "speed (voltage and current limits); " + V5,
+}
+XFAIL[(1, 2, "harsh", "polarity_loss_count")] = (
+    "measured 1773 periods past 90 deg: the drive lost the rotor at 1 r/min under 2 N*m and the "
+    "torque-mode load drove it to -3154 r/min. harsh = 12-bit ADC, 5 mA noise (raw sigma ~3x "
+    "paper, note 6), cross-saturation bias ~1.7 deg uncompensated (note 7) and Gamma1 down to "
+    "~0.35 at this load (note 7); the same cell held on a build with marginally different "
+    "plant numerics, so it is on the edge. Needs cross-saturation compensation and a "
+    "load-aware low-speed estimator")
+ONE = ("1 r/min: speed excursions of the true shaft speed around 1 r/min from the position "
+       "noise through the speed loop (no load torque to stiffen it); " + LOW)
+for (_tq, _e, _v) in ((0, "3.03", "16.1"), (1, "2.56", "11.8"), (2, "4.39", "22.0")):
+    XFAIL[(1, _tq, "paper", "pos_err_max_deg")] = f"measured {_e} deg: " + ONE
+    XFAIL[(1, _tq, "paper", "speed_track_err_max_rpm")] = f"measured {_v} r/min: " + ONE
+    XFAIL[(1, _tq, "ideal", "speed_track_err_max_rpm")] = (
+        "measured 1.63 r/min (0 N*m cell, over [5, 35.6] s): the speed loop's 0.01 A/(r/min) "
+        "proportional gain against 0.5 r/min at 1 r/min; not tuned yet")
+for _p in ("ideal", "paper"):
+    for _rpm, _tq in ((2000, 2), (3000, 0), (3000, 1.5)):
+        XFAIL.setdefault((_rpm, _tq, _p, "speed_track_err_max_rpm"),
+                         "not reachable within i_max 4.5 A under " + V5)
+FIRMWARE = {"soc_on_us": 8, "soc_off_us": 1, "soc_per_state": 5}
+
+
+def tname(t: float) -> str:
+    return (f"{t:g}".replace(".", "p")) + "nm"
+
+
+def cell(rpm: int, torque: float) -> str:
+    t_ramp = max(0.05, rpm / 2000.0)
+    t_load = t_ramp + 0.2
+    t0 = t_load + (0.2 if torque else 0.0) + 0.4      # settled after the load ramp
+    if rpm < 10:
+        t0 = 5.0  # start-up (polarity check, speed loop at 1 r/min) is over by then
+    rev = 60.0 / (rpm * 2)                            # one electrical revolution, s
+    steady = max(0.5, rev * 1.02)
+    dur = round(t0 + steady, 2)
+    t0 = round(t0, 2)
+    trk = 0.5 if rpm < 10 else max(10.0, 0.02 * rpm)
+    lines = [
+        f"# Table 2 grid cell: steady-state position error at {rpm} r/min, {torque:g} N*m.",
+        "# Paper (Table 2, Section V): |error| within 2.5 deg from 1 r/min to 1.5x rated speed.",
+        "# Run on every profile from the table2/paper suites (`<name>@<profile>`); criteria",
+        "# carry the profiles they apply on. Steady window: after start-up and the load ramp,",
+        f"# max(5000 periods, one electrical revolution = {rev:.3g} s) long.",
+        f"# i_max {I_MAX} A: above the rated 3 A, as a drive allows for rated torque plus",
+        "# friction (2 N*m + B*w needs ~3.6-4.1 A here with q saturation); see the report.",
+        f'description = "Table 2 grid: steady state at {rpm} r/min with {torque:g} N*m load"',
+        'profile = "paper"',
+        f"duration = {dur}",
+        'figure = "Table 2"',
+        'tags = ["table2", "steady-state"' + (', "slow"]' if rpm < 10 else "]"),
+        "",
+        "[limits]",
+        f"i_max = {I_MAX}",
+        "",
+        "[firmware]",
+    ]
+    lines += [f"{k} = {v}" for k, v in FIRMWARE.items()]
+    if rpm < 10:
+        lines += ["", "[run]", "timeout_s = 600.0"]
+    lines += ["", "[[speed]]", 'kind = "ramp"', f"to = {float(rpm)}", f"duration = {t_ramp:.3f}",
+              "", "[[speed]]", 'kind = "hold"', f"duration = {dur - t_ramp:.3f}"]
+    if torque:
+        lines += ["", "[[load]]", f"at = {t_load:.3f}", 'kind = "ramp"', f"torque = {torque:g}",
+                  "duration = 0.2"]
+
+    def crit(name: str, metric: str, limit: float | None, comp: str = "<=",
+             profiles: list[str] | None = None, w0: float = t0) -> None:
+        lines.extend(["", "[[criteria]]", f'name = "{name}"', f'metric = "{metric}"',
+                      f'window = [{w0}, "end"]'])
+        xf = [XFAIL[(rpm, torque, pr, metric)] for pr in (profiles or ["ideal", "paper", "harsh"])
+              if (rpm, torque, pr, metric) in XFAIL]
+        if xf and profiles and len(profiles) == 1:
+            lines.append(f'xfail = "{xf[0]}"')
+        if limit is not None:
+            lines.append(f"limit = {limit:g}")
+        if comp != "<=":
+            lines.append(f'comparison = "{comp}"')
+        if profiles:
+            lines.append("profiles = [" + ", ".join(f'"{p}"' for p in profiles) + "]")
+
+    crit("steady-state position error", "pos_err_max_deg", 0.5, profiles=["ideal"])
+    crit("steady-state position error", "pos_err_max_deg", 2.5, profiles=["paper"])
+    crit("steady-state position error", "pos_err_max_deg", None, "report", ["harsh"])
+    crit("RMS position error", "pos_err_rms_deg", 1.5, profiles=["ideal"])
+    crit("RMS position error", "pos_err_rms_deg", 1.5, profiles=["paper"])
+    crit("RMS position error", "pos_err_rms_deg", None, "report", ["harsh"])
+    for pr in ("ideal", "paper", "harsh"):
+        crit("no polarity loss", "polarity_loss_count", 0, "==", profiles=[pr], w0=0.1)
+    for pr in ("ideal", "paper"):
+        crit("speed holds", "speed_track_err_max_rpm", trk, profiles=[pr])
+    crit("speed holds", "speed_track_err_max_rpm", None, "report", ["harsh"])
+    return "\n".join(lines) + "\n"
+
+
+def render() -> dict[str, str]:
+    """File name -> content of every grid cell."""
+    return {f"table2_{rpm:04d}rpm_{tname(tq)}.toml": cell(rpm, tq) for rpm, tq in GRID}
+
+
+def main(argv: list[str]) -> int:
+    check = "--check" in argv
+    out = Path(next(a for a in argv if a != "--check"))
+    stale = []
+    for name, text in render().items():
+        path = out / name
+        if check:
+            if not path.is_file() or path.read_text() != text:
+                stale.append(name)
+        else:
+            path.write_text(text)
+    if stale:
+        print("stale (run python rig/scenarios/gen_table2.py rig/scenarios):", *stale)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
