@@ -22,6 +22,8 @@ import contextlib
 import json
 import math
 import mmap
+import shutil
+import tempfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -168,7 +170,12 @@ class Capture:
         if name not in self._cache:
             if name not in self.columns:
                 raise KeyError(f"capture has no column {name!r}")
-            self._cache[name] = np.load(self.folder / f"{name}.npy", mmap_mode="r")
+            path = self.folder / f"{name}.npy"
+            try:
+                self._cache[name] = np.load(path, mmap_mode="r")
+            except OSError:
+                # A file system that cannot map files (9p in the VM runner): read it whole.
+                self._cache[name] = np.load(path)
         return self._cache[name]
 
     def keys(self) -> list[str]:
@@ -195,15 +202,33 @@ class Capture:
 
 
 class _ColumnStore:
+    """Columns as memory-mapped .npy files, so memory stays flat on long captures.
+
+    Some file systems cannot map files (9p, which the VM runner mounts the checkout with):
+    then the columns are built in a local temporary folder and moved into place by flush().
+    """
+
     def __init__(self, folder: Path, n: int) -> None:
         self.folder = folder
         self.n = n
         self.cols: dict[str, np.memmap] = {}
+        self._work = folder
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    def _open(self, name: str, dtype: npt.DTypeLike) -> np.memmap:
+        return np.lib.format.open_memmap(
+            self._work / f"{name}.npy", mode="w+", dtype=np.dtype(dtype), shape=(self.n,)
+        )
 
     def create(self, name: str, dtype: npt.DTypeLike, fill: float | None = None) -> np.memmap:
-        arr = np.lib.format.open_memmap(
-            self.folder / f"{name}.npy", mode="w+", dtype=np.dtype(dtype), shape=(self.n,)
-        )
+        try:
+            arr = self._open(name, dtype)
+        except OSError:
+            if self._tmp is not None or self.cols:
+                raise
+            self._tmp = tempfile.TemporaryDirectory(prefix="rig-capture-")
+            self._work = Path(self._tmp.name)
+            arr = self._open(name, dtype)
         if fill is not None and self.n:
             arr[:] = fill
         self.cols[name] = arr
@@ -212,6 +237,12 @@ class _ColumnStore:
     def flush(self) -> None:
         for arr in self.cols.values():
             arr.flush()
+        if self._tmp is not None:
+            for name in self.cols:
+                shutil.move(self._work / f"{name}.npy", self.folder / f"{name}.npy")
+            self.cols = {}
+            self._tmp.cleanup()
+            self._tmp = None
 
     def release(self) -> None:
         """Drops the pages written so far from this process's resident memory. The mapping

@@ -142,3 +142,36 @@ def test_empty_trace_is_total_loss(tmp_path: Path, missing: str) -> None:
     target.write_bytes(target.read_bytes()[:16])
     _, loss = capture.build(tmp_path / "cap", capture.default_specs(plant, fw), expected=(0, 99))
     assert not loss.ok and loss.lost >= 99  # the firmware's last period is tolerated
+
+
+def test_capture_on_a_file_system_that_cannot_map_files(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """9p (the VM runner's mount) refuses mmap: the same capture must come out."""
+    syn = Synthetic(n=800, error_deg=lambda t: np.full_like(t, 0.75))
+    (tmp_path / "mapped").mkdir()
+    (tmp_path / "unmappable").mkdir()
+    reference, _ = _build(tmp_path / "mapped", syn)
+    out = tmp_path / "unmappable" / "cap"
+    real_open_memmap = np.lib.format.open_memmap
+    real_load = np.load
+
+    def refuse_under_out(path, *a, **kw):  # type: ignore[no-untyped-def]
+        if Path(path).parent == out:
+            raise OSError(22, "Invalid argument")
+        return real_open_memmap(path, *a, **kw)
+
+    def load(path, *a, **kw):  # type: ignore[no-untyped-def]
+        if Path(path).parent == out and kw.get("mmap_mode"):
+            raise OSError(22, "Invalid argument")
+        return real_load(path, *a, **kw)
+
+    monkeypatch.setattr(np.lib.format, "open_memmap", refuse_under_out)
+    monkeypatch.setattr(np, "load", load)
+    plant, fw = syn.write(tmp_path / "unmappable")
+    cap, loss = capture.build(out, capture.default_specs(plant, fw), expected=(0, syn.n - 1),
+                              pole_pairs=syn.pole_pairs, chunk=512)
+    assert loss.ok
+    assert sorted(p.name for p in out.glob("*.npy")) == sorted(
+        f"{c}.npy" for c in reference.keys())
+    for col in ("period", "fw.theta_hat", "pos_err_deg", "speed_true_rpm"):
+        np.testing.assert_array_equal(np.asarray(cap[col]), np.asarray(reference[col]))
