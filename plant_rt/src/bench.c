@@ -3,7 +3,9 @@
  * Runs each profile in speed hold at 1500 r/min with an open-loop SVPWM pattern that
  * holds about 2 A on the q axis (dead time, zero crossings and ringing included), six
  * SOCs per period, and prints one JSON object: median and 99th percentile of the wall time
- * per period in microseconds. Usage: plant_bench [PROFILES_DIR] [PERIODS]
+ * per period in microseconds, and the work per period (right-hand-side evaluations, Newton
+ * iterations, located conduction events).
+ * Usage: plant_bench [PROFILES_DIR] [PERIODS] [PROFILE...]   (default: ideal paper harsh)
  */
 #define _POSIX_C_SOURCE 200809L
 #include <math.h>
@@ -51,7 +53,9 @@ int main(int argc, char **argv)
 {
     const char *dir = argc > 1 ? argv[1] : PLANT_SOURCE_PROFILES_DIR;
     const int periods = argc > 2 ? atoi(argv[2]) : 20000;
-    const char *names[3] = {"ideal", "paper", "harsh"};
+    static const char *const all[3] = {"ideal", "paper", "harsh"};
+    const char *const *names = argc > 3 ? (const char *const *)(argv + 3) : all;
+    const int n_names = argc > 3 ? argc - 3 : 3;
     double *cost = (double *)malloc(sizeof(double) * (size_t)(periods > 0 ? periods : 1));
     int p;
 
@@ -60,7 +64,7 @@ int main(int argc, char **argv)
         return 2;
     }
     printf("{");
-    for (p = 0; p < 3; ++p) {
+    for (p = 0; p < n_names; ++p) {
         char path[4096], err[512];
         const char *sets[2] = {"load.mode=1", "load.speed_rpm=1500"};
         plant_t *plant;
@@ -101,9 +105,10 @@ int main(int argc, char **argv)
         plant_get_stats(plant, &st);
         qsort(cost, (size_t)periods, sizeof(double), cmp_double);
         printf("%s\"%s\": {\"median_us\": %.3f, \"p99_us\": %.3f, \"rhs_per_period\": %.1f, "
-               "\"events_per_period\": %.3f, \"final_iq_a\": %.3f}",
+               "\"newton_per_rhs\": %.3f, \"events_per_period\": %.3f, \"final_iq_a\": %.3f}",
                p ? ", " : "", names[p], cost[periods / 2], cost[(int)(0.99 * (periods - 1))],
                (double)st.rhs_evals / (double)st.periods,
+               (double)st.newton_iterations / (double)(st.rhs_evals ? st.rhs_evals : 1),
                (double)st.conduction_events / (double)st.periods, truth.iq);
         plant_free(plant);
     }

@@ -145,27 +145,4 @@ void plant_inverter_schedule(const plant_pwm_cmd_t *cmd, int32_t dead_ticks,
     }
 }
 
-void plant_leg_band(int gate, double vdc, double vdrop, double *lo, double *hi)
-{
-    switch (gate) {
-    case GATE_UPPER:
-        *lo = vdc - vdrop;
-        *hi = vdc + vdrop;
-        break;
-    case GATE_LOWER:
-        *lo = -vdrop;
-        *hi = vdrop;
-        break;
-    default:
-        *lo = -vdrop;
-        *hi = vdc + vdrop;
-        break;
-    }
-}
-
-double plant_leg_voltage(int gate, int mode, double vdc, double vdrop)
-{
-    double lo, hi;
-    plant_leg_band(gate, vdc, vdrop, &lo, &hi);
-    return mode == LEG_NEG ? hi : lo;
-}
+/* plant_leg_band and plant_leg_voltage are static inline in plant_internal.h (hot path). */

@@ -24,14 +24,21 @@
 
 #define TWO_THIRDS (2.0 / 3.0)
 
-int plant_machine_zero_count(const plant_machine_t *m)
+static void phase_axes(plant_machine_t *m, double theta, double cph[3][2], double *s_out,
+                       double *c_out)
 {
-    return (m->mode[0] == LEG_ZERO) + (m->mode[1] == LEG_ZERO) + (m->mode[2] == LEG_ZERO);
-}
-
-static void phase_axes(double theta, double cph[3][2], double *s_out, double *c_out)
-{
-    const double s = sin(theta), c = cos(theta);
+    double s, c;
+    if (m->sc_valid && theta == m->sc_theta) {
+        s = m->sc_sin;
+        c = m->sc_cos;
+    } else {
+        s = sin(theta);
+        c = cos(theta);
+        m->sc_theta = theta;
+        m->sc_sin = s;
+        m->sc_cos = c;
+        m->sc_valid = 1;
+    }
     const double h = 0.5, r = 0.5 * PLANT_SQRT3;
     /* cos/sin of theta - 2pi/3 and theta + 2pi/3 */
     const double cb = -h * c + r * s, sb = -h * s - r * c;
@@ -69,16 +76,30 @@ static void currents_from_flux(plant_machine_t *m, const plant_state_t *x, plant
 {
     double i[2], l[3];
     int it;
-    /* Warm start: last solution plus one linear step with its inverse inductance. */
-    const double dpd = x->psi_d - m->psi_last[0], dpq = x->psi_q - m->psi_last[1];
-    i[0] = m->i_guess[0] + m->g_last[0] * dpd + m->g_last[2] * dpq;
-    i[1] = m->i_guess[1] + m->g_last[2] * dpd + m->g_last[1] * dpq;
-    it = plant_mag_invert(m->mag, x->psi_d, x->psi_q, i, l);
-    if (it < 0) {
-        m->stats->newton_failures++;
-        it = -it;
+    if (m->last_exact && x->psi_d == m->psi_last[0] && x->psi_q == m->psi_last[1]) {
+        /* The same flux as the last inversion (right-hand sides at a gate edge, after a
+         * mode change, at the period start): its solution, not a second Newton pass. */
+        i[0] = m->i_guess[0];
+        i[1] = m->i_guess[1];
+        l[0] = m->l_last[0];
+        l[1] = m->l_last[1];
+        l[2] = m->l_last[2];
+    } else {
+        /* Warm start: last solution plus one linear step with its inverse inductance. */
+        const double dpd = x->psi_d - m->psi_last[0], dpq = x->psi_q - m->psi_last[1];
+        i[0] = m->i_guess[0] + m->g_last[0] * dpd + m->g_last[2] * dpq;
+        i[1] = m->i_guess[1] + m->g_last[2] * dpd + m->g_last[1] * dpq;
+        it = plant_mag_invert(m->mag, x->psi_d, x->psi_q, i, l);
+        if (it < 0) {
+            m->stats->newton_failures++;
+            it = -it;
+        }
+        m->stats->newton_iterations += (uint64_t)it;
+        m->l_last[0] = l[0];
+        m->l_last[1] = l[1];
+        m->l_last[2] = l[2];
+        m->last_exact = 1;
     }
-    m->stats->newton_iterations += (uint64_t)it;
     d->id = i[0];
     d->iq = i[1];
     d->ldd = l[0];
@@ -107,7 +128,7 @@ void plant_machine_rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t
     int k;
 
     m->stats->rhs_evals++;
-    phase_axes(x->theta, d->cph, &sn, &cs);
+    phase_axes(m, x->theta, d->cph, &sn, &cs);
     d->n_monitor = 3;
 
     if (nz == 3) {
@@ -212,7 +233,7 @@ void plant_machine_rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t
 static void project_zero(plant_machine_t *m, plant_state_t *x, int z)
 {
     double i[2], l[3], psi[2], cph[3][2], sn, cs, iz;
-    phase_axes(x->theta, cph, &sn, &cs);
+    phase_axes(m, x->theta, cph, &sn, &cs);
     i[0] = m->i_guess[0];
     i[1] = m->i_guess[1];
     if (plant_mag_invert(m->mag, x->psi_d, x->psi_q, i, l) < 0) {
@@ -226,6 +247,7 @@ static void project_zero(plant_machine_t *m, plant_state_t *x, int z)
     x->psi_q = psi[1];
     m->i_guess[0] = i[0];
     m->i_guess[1] = i[1];
+    m->last_exact = 0; /* i_guess no longer belongs to psi_last */
 }
 
 void plant_machine_project(plant_machine_t *m, plant_state_t *x)
@@ -243,6 +265,7 @@ void plant_machine_project(plant_machine_t *m, plant_state_t *x)
         x->psi_q = m->psi_zero[1];
         m->i_guess[0] = 0.0;
         m->i_guess[1] = 0.0;
+        m->last_exact = 0;
     }
 }
 

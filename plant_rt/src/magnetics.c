@@ -109,12 +109,16 @@ void plant_mag_flux(const plant_mag_t *mag, double id, double iq, double psi[2],
 {
     double psid, psiq, ldd, lqq, ldq = 0.0;
 
-    /* d axis */
+    /* d axis: one exponential serves the logistic and the softplus, e = exp(-|u|) <= 1:
+     *   u <= 0: sigma = 1/(1 + e), softplus(u) = log1p(e)
+     *   u > 0:  sigma = e/(1 + e), softplus(u) = u + log1p(e)                          */
     if (mag->ld_delta != 0.0) {
         const double u = (id - mag->ld_knee) / mag->ld_width;
-        const double sig = 1.0 / (1.0 + exp(u)); /* logistic of (knee - id)/width */
+        const double e = exp(-fabs(u));
+        const double sig = (u > 0.0 ? e : 1.0) / (1.0 + e); /* logistic of (knee - id)/width */
+        const double sp = (u > 0.0 ? u : 0.0) + log1p(e);
         psid = mag->lambda_m + mag->ld_sat * id +
-               mag->ld_delta * (id - mag->ld_width * (softplus(u) - mag->ld_sp0));
+               mag->ld_delta * (id - mag->ld_width * (sp - mag->ld_sp0));
         ldd = mag->ld_sat + mag->ld_delta * sig;
     } else {
         psid = mag->lambda_m + mag->ld_sat * id;

@@ -6,6 +6,8 @@
  *
  * Period 0 runs with the start-up command: gates disabled, one SOC at tick 0, so that
  * ADC(0) reaches the firmware, which answers with PWM(1).
+ *
+ * Counters go to stderr as one JSON line at exit (plant_rt/README.md lists them).
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -35,6 +37,7 @@
 #define VIO_RANGE_HI 0x2Fu
 #define BENCH_RANGE_LO 0x300u
 #define BENCH_RANGE_HI 0x33Fu
+#define WAKE_HIST_BINS 10000 /* wake-up lateness histogram: 1 us bins, 0 .. 10 ms */
 
 static volatile sig_atomic_t g_stop = 0;
 
@@ -57,6 +60,7 @@ typedef struct options {
     uint32_t run_until;
     uint32_t truth_every;
     int rt_priority;
+    uint32_t rt_spin_us;
 } options_t;
 
 typedef struct counters {
@@ -65,6 +69,9 @@ typedef struct counters {
     uint64_t max_late_us;
     uint64_t load_cmds, steps;
     const char *rt_note;
+    /* real time: wake-up lateness after clock_nanosleep, and periods slipped on overruns */
+    uint64_t wake_n, wake_sum_ns, wake_max_ns, slipped_periods;
+    uint32_t wake_hist[WAKE_HIST_BINS + 1]; /* last bin: 10 ms and more */
 } counters_t;
 
 typedef struct app {
@@ -416,6 +423,10 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
     }
     if (id == HIL_BENCH_LOAD_CMD_FRAME_ID) {
         struct hil_bench_load_cmd_t m;
+        if (!fd) {
+            reject(a, PLANT_REJ_MALFORMED, id, 0); /* LOAD_CMD is a CAN FD frame */
+            return;
+        }
         if (f->len != HIL_BENCH_LOAD_CMD_LENGTH) {
             reject(a, PLANT_REJ_BAD_LENGTH, id, 0);
             return;
@@ -432,6 +443,10 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
     }
     if (id == HIL_BENCH_BENCH_STEP_FRAME_ID) {
         struct hil_bench_bench_step_t m;
+        if (!fd) {
+            reject(a, PLANT_REJ_MALFORMED, id, 0); /* BENCH_STEP is a CAN FD frame */
+            return;
+        }
         if (f->len != HIL_BENCH_BENCH_STEP_LENGTH) {
             reject(a, PLANT_REJ_BAD_LENGTH, id, 0);
             return;
@@ -440,6 +455,11 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
         a->run_until = m.run_until;
         a->step_seq = m.seq;
         a->cnt.steps++;
+        if (!a->opt.realtime && (int32_t)(plant_next_period(a->plant) - m.run_until) >= 0) {
+            /* Nothing to simulate (a repeated grant, or one already reached): the grant is
+             * used up on arrival, so say so now rather than at the next housekeeping. */
+            send_progress(a, 0);
+        }
         return;
     }
     if (!known_id(id) && ((id >= VIO_RANGE_LO && id <= VIO_RANGE_HI) ||
@@ -556,6 +576,50 @@ static void setup_realtime(app_t *a)
     }
 }
 
+static void note_wakeup(counters_t *c, int64_t late_ns)
+{
+    uint64_t us;
+    if (late_ns < 0) {
+        late_ns = 0;
+    }
+    us = (uint64_t)late_ns / 1000u;
+    c->wake_n++;
+    c->wake_sum_ns += (uint64_t)late_ns;
+    if ((uint64_t)late_ns > c->wake_max_ns) {
+        c->wake_max_ns = (uint64_t)late_ns;
+    }
+    c->wake_hist[us < WAKE_HIST_BINS ? us : WAKE_HIST_BINS]++;
+}
+
+/* Wake-up lateness quantile q in microseconds (upper edge of its 1 us bin). */
+static double wake_quantile_us(const counters_t *c, double q)
+{
+    uint64_t need, seen = 0;
+    int b;
+    if (c->wake_n == 0) {
+        return 0.0;
+    }
+    need = (uint64_t)ceil(q * (double)c->wake_n);
+    if (need < 1) {
+        need = 1;
+    }
+    for (b = 0; b <= WAKE_HIST_BINS; ++b) {
+        seen += c->wake_hist[b];
+        if (seen >= need) {
+            return b < WAKE_HIST_BINS ? (double)(b + 1) : (double)c->wake_max_ns * 1e-3;
+        }
+    }
+    return (double)c->wake_max_ns * 1e-3;
+}
+
+/* Real time: period k starts at start + k*Ts on CLOCK_MONOTONIC. The PWM command of period
+ * k is whatever valid VIO_PWM(k) has arrived when the period starts; without one the old
+ * compare values stay loaded (late_cmds). A period that ends after the next period's start
+ * is an overrun; the plant then does not run the missed periods back to back (that would
+ * answer the firmware with a burst of ADC frames it cannot keep up with, and the burst
+ * would make the next periods late as well): the period grid slips by whole periods so
+ * that the firmware again has up to one period to answer the ADC frame just sent
+ * (slipped_periods). Simulated time stays k*Ts; wall time lags it by the slip. */
 static int realtime(app_t *a)
 {
     const int64_t ts_ns = (int64_t)(PLANT_TS_S * 1e9 + 0.5);
@@ -571,6 +635,7 @@ static int realtime(app_t *a)
     while (!g_stop) {
         const uint32_t k = plant_next_period(a->plant);
         const int64_t deadline = start + (int64_t)k * ts_ns;
+        const int64_t wake = deadline - (int64_t)a->opt.rt_spin_us * 1000;
         struct timespec ts;
         struct canfd_frame f;
         int fd;
@@ -579,14 +644,21 @@ static int realtime(app_t *a)
         if (a->opt.max_periods && a->cnt.periods >= a->opt.max_periods) {
             break;
         }
-        ts.tv_sec = (time_t)(deadline / NS_PER_S);
-        ts.tv_nsec = (long)(deadline % NS_PER_S);
+        in.have_pwm = 0;
+        ts.tv_sec = (time_t)(wake / NS_PER_S);
+        ts.tv_nsec = (long)(wake % NS_PER_S);
         while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR && !g_stop) {
+        }
+        /* --rt-spin-us: take frames as they come while spinning up to the deadline */
+        while (!g_stop && (t = now_ns()) < deadline) {
+            if (hilbus_recv(a->bus, &f, &fd, 0) == 1) {
+                handle_frame(a, &f, fd, &in, deadline);
+            }
         }
         if (g_stop) {
             break;
         }
-        in.have_pwm = 0;
+        note_wakeup(&a->cnt, now_ns() - deadline);
         while (hilbus_recv(a->bus, &f, &fd, 0) == 1) {
             handle_frame(a, &f, fd, &in, deadline);
         }
@@ -598,7 +670,13 @@ static int realtime(app_t *a)
         run_period(a, &current);
         t = now_ns();
         if (t > deadline + ts_ns) {
-            a->cnt.overruns++; /* the next period starts late */
+            /* the next period's start has passed: slip the grid by whole periods */
+            const int64_t behind = t - (deadline + ts_ns);
+            const int64_t slip = (behind + ts_ns - 1) / ts_ns;
+            a->cnt.overruns++;
+            a->cnt.slipped_periods += (uint64_t)slip;
+            start += slip * ts_ns;
+            next_housekeeping += slip * ts_ns;
         }
         if (t >= next_housekeeping) {
             send_housekeeping(a, 1);
@@ -621,7 +699,10 @@ static void usage(FILE *out)
             "\n"
             "  --bus socketcan|unixcan|auto   transport (default $HIL_BUS, else unixcan)\n"
             "  --channel NAME                 channel (default $HIL_CHANNEL, else vcan0)\n"
-            "  --lockstep | --realtime        pacing (default lockstep)\n"
+            "  --lockstep | --realtime        pacing (default lockstep). Real time: a PWM frame\n"
+            "                                 not there when its period starts leaves the old\n"
+            "                                 command loaded (late_cmds); an overrun slips the\n"
+            "                                 period grid by whole periods (slipped_periods)\n"
             "  --profile NAME|FILE            fidelity profile (default paper); a NAME is looked\n"
             "                                 up as NAME.toml in the profiles folder\n"
             "  --config FILE                  same as --profile FILE\n"
@@ -641,6 +722,9 @@ static void usage(FILE *out)
             "  --truth-every N                BENCH_TRUTH on the bus every N periods (default 10;\n"
             "                                 the trace has every period)\n"
             "  --rt-priority N                SCHED_FIFO priority in real time (default 80; 0 off)\n"
+            "  --rt-spin-us N                 real time: wake N us before each period start and\n"
+            "                                 poll the bus until it (less timer jitter, one busy\n"
+            "                                 core; default 0)\n"
             "  --help                         this text\n"
             "\n"
             "Profile keys:");
@@ -729,7 +813,7 @@ static void print_counters(app_t *a)
             "\"tx_drops\": %llu, \"tx_errors\": %llu, \"rx_frames\": %llu, "
             "\"rx_overflows\": %llu, \"load_cmds\": %llu, \"steps\": %llu, "
             "\"conduction_events\": %llu, \"newton_failures\": %llu, \"mode_loops_cut\": %llu, "
-            "\"rt\": \"%s\"}\n",
+            "\"rt\": \"%s\"",
             (unsigned long long)a->cnt.adc_clipped, (unsigned long long)a->cnt.resends,
             (unsigned long long)bs.tx_frames, (unsigned long long)bs.tx_drops,
             (unsigned long long)bs.tx_errors, (unsigned long long)bs.rx_frames,
@@ -737,6 +821,25 @@ static void print_counters(app_t *a)
             (unsigned long long)a->cnt.steps, (unsigned long long)ps.conduction_events,
             (unsigned long long)ps.newton_failures, (unsigned long long)ps.mode_loops_cut,
             a->cnt.rt_note ? a->cnt.rt_note : "not requested (lockstep)");
+    if (a->opt.realtime) {
+        const counters_t *c = &a->cnt;
+        fprintf(stderr,
+                ", \"slipped_periods\": %llu, \"wake_late_us\": {\"n\": %llu, \"mean\": %.2f, "
+                "\"p99\": %.0f, \"max\": %.1f}",
+                (unsigned long long)c->slipped_periods, (unsigned long long)c->wake_n,
+                c->wake_n ? (double)c->wake_sum_ns * 1e-3 / (double)c->wake_n : 0.0,
+                wake_quantile_us(c, 0.99), (double)c->wake_max_ns * 1e-3);
+    }
+    fputs("}\n", stderr);
+}
+
+static void free_sets(char **sets, int n)
+{
+    int k;
+    for (k = 0; k < n; ++k) {
+        free(sets[k]);
+    }
+    free(sets);
 }
 
 static int parse_u64(const char *s, uint64_t *v)
@@ -758,6 +861,7 @@ int main(int argc, char **argv)
         O_BUS = 256, O_CHANNEL, O_LOCKSTEP, O_REALTIME, O_PROFILE, O_CONFIG, O_PROFILES_DIR,
         O_SET, O_SEED, O_THETA0, O_SPEED0, O_LOAD_MODE, O_LOAD_TORQUE, O_LOAD_SPEED, O_LOAD_K,
         O_TRACE, O_TRACE_VIO, O_READY, O_MAX_PERIODS, O_RUN_UNTIL, O_TRUTH_EVERY, O_RT_PRIO,
+        O_RT_SPIN,
         O_HELP
     };
     static const struct option longopts[] = {
@@ -783,6 +887,7 @@ int main(int argc, char **argv)
         {"run-until", required_argument, 0, O_RUN_UNTIL},
         {"truth-every", required_argument, 0, O_TRUTH_EVERY},
         {"rt-priority", required_argument, 0, O_RT_PRIO},
+        {"rt-spin-us", required_argument, 0, O_RT_SPIN},
         {"help", no_argument, 0, O_HELP},
         {0, 0, 0, 0},
     };
@@ -830,6 +935,7 @@ int main(int argc, char **argv)
                 const double rad = strtod(optarg, &end);
                 if (end == optarg || *end) {
                     fprintf(stderr, "plant_rt: --theta0 %s: not a number\n", optarg);
+                    free_sets(sets, n_sets);
                     return 2;
                 }
                 snprintf(buf, sizeof(buf), "%s=%.17g", keys[idx], rad * 180.0 / 3.14159265358979323846);
@@ -854,9 +960,15 @@ int main(int argc, char **argv)
         case O_RUN_UNTIL:
         case O_TRUTH_EVERY:
         case O_RT_PRIO:
+        case O_RT_SPIN:
             if (parse_u64(optarg, &v) != 0 || (c != O_MAX_PERIODS && v > UINT32_MAX)) {
-                fprintf(stderr, "plant_rt: %s %s: not a non-negative integer\n", argv[optind - 2],
-                        optarg);
+                const char *flag = c == O_MAX_PERIODS ? "--max-periods"
+                                 : c == O_RUN_UNTIL   ? "--run-until"
+                                 : c == O_TRUTH_EVERY ? "--truth-every"
+                                 : c == O_RT_PRIO     ? "--rt-priority"
+                                                      : "--rt-spin-us";
+                fprintf(stderr, "plant_rt: %s %s: not a non-negative integer\n", flag, optarg);
+                free_sets(sets, n_sets);
                 return 2;
             }
             if (c == O_MAX_PERIODS) {
@@ -865,6 +977,14 @@ int main(int argc, char **argv)
                 a.opt.run_until = (uint32_t)v;
             } else if (c == O_TRUTH_EVERY) {
                 a.opt.truth_every = (uint32_t)v;
+            } else if (c == O_RT_SPIN) {
+                if (v >= (uint64_t)(PLANT_TS_S * 1e6)) {
+                    fprintf(stderr, "plant_rt: --rt-spin-us %s: must be below the period (100)\n",
+                            optarg);
+                    free_sets(sets, n_sets);
+                    return 2;
+                }
+                a.opt.rt_spin_us = (uint32_t)v;
             } else {
                 a.opt.rt_priority = v > 99 ? 99 : (int)v;
             }
@@ -872,14 +992,17 @@ int main(int argc, char **argv)
         case O_HELP:
         case 'h':
             usage(stdout);
+            free_sets(sets, n_sets);
             return 0;
         default:
             usage(stderr);
+            free_sets(sets, n_sets);
             return 2;
         }
     }
     if (optind < argc) {
         fprintf(stderr, "plant_rt: unexpected argument '%s'\n", argv[optind]);
+        free_sets(sets, n_sets);
         return 2;
     }
 
@@ -888,16 +1011,17 @@ int main(int argc, char **argv)
     profile_file(&a.opt, path, sizeof(path));
     if (plant_config_load(&cfg, path, err, sizeof(err)) != 0) {
         fprintf(stderr, "plant_rt: bad configuration: %s\n", err);
+        free_sets(sets, n_sets);
         return 2;
     }
     for (k = 0; k < n_sets; ++k) {
         if (!sets[k] || plant_config_set(&cfg, sets[k], err, sizeof(err)) != 0) {
             fprintf(stderr, "plant_rt: bad configuration: %s\n", sets[k] ? err : "out of memory");
+            free_sets(sets, n_sets);
             return 2;
         }
-        free(sets[k]);
     }
-    free(sets);
+    free_sets(sets, n_sets);
     a.plant = plant_new(&cfg, err, sizeof(err));
     if (!a.plant) {
         fprintf(stderr, "plant_rt: bad configuration: %s (after --set)\n", err);

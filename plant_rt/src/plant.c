@@ -149,6 +149,7 @@ void plant_set_state(plant_t *p, double theta_e, double omega_m, double id, doub
     p->mach.i_guess[1] = iq;
     p->mach.psi_last[0] = psi[0];
     p->mach.psi_last[1] = psi[1];
+    p->mach.last_exact = 0;
     plant_machine_modes_from_currents(&p->mach, &p->x);
     plant_machine_rhs(&p->mach, &p->x, &p->d);
 }
@@ -273,7 +274,8 @@ static double min_monitor(const plant_deriv_t *d)
 /* Earliest h* in (0, h] where the smallest event function changes sign (it is >= 0 at 0,
  * < 0 at h). Returns the state and derivative just past the root (function < 0 there). */
 typedef struct warm_start {
-    double i[2], psi[2], g[3];
+    double i[2], psi[2], g[3], l[3];
+    int exact;
 } warm_start_t;
 
 static void warm_save(const plant_machine_t *m, warm_start_t *w)
@@ -281,6 +283,8 @@ static void warm_save(const plant_machine_t *m, warm_start_t *w)
     memcpy(w->i, m->i_guess, sizeof(w->i));
     memcpy(w->psi, m->psi_last, sizeof(w->psi));
     memcpy(w->g, m->g_last, sizeof(w->g));
+    memcpy(w->l, m->l_last, sizeof(w->l));
+    w->exact = m->last_exact;
 }
 
 static void warm_restore(plant_machine_t *m, const warm_start_t *w)
@@ -288,6 +292,8 @@ static void warm_restore(plant_machine_t *m, const warm_start_t *w)
     memcpy(m->i_guess, w->i, sizeof(w->i));
     memcpy(m->psi_last, w->psi, sizeof(w->psi));
     memcpy(m->g_last, w->g, sizeof(w->g));
+    memcpy(m->l_last, w->l, sizeof(w->l));
+    m->last_exact = w->exact;
 }
 
 static double locate_event(plant_t *p, const plant_state_t *x0, const plant_deriv_t *d0,

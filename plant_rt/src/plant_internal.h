@@ -63,8 +63,31 @@ void plant_inverter_schedule(const plant_pwm_cmd_t *cmd, int32_t dead_ticks,
                              plant_gate_memory_t *memory, plant_leg_schedule_t legs[3]);
 /* Voltage band of a leg at zero current: lo = voltage with positive current, hi = with
  * negative current (hi >= lo); legs clamp at zero current anywhere in [lo, hi]. */
-void plant_leg_band(int gate, double vdc, double vdrop, double *lo, double *hi);
-double plant_leg_voltage(int gate, int mode, double vdc, double vdrop);
+static inline void plant_leg_band(int gate, double vdc, double vdrop, double *lo, double *hi)
+{
+    switch (gate) {
+    case GATE_UPPER:
+        *lo = vdc - vdrop;
+        *hi = vdc + vdrop;
+        break;
+    case GATE_LOWER:
+        *lo = -vdrop;
+        *hi = vdrop;
+        break;
+    default:
+        *lo = -vdrop;
+        *hi = vdc + vdrop;
+        break;
+    }
+}
+
+/* Terminal voltage of a leg in conduction mode POS (lo of the band) or NEG (hi). */
+static inline double plant_leg_voltage(int gate, int mode, double vdc, double vdrop)
+{
+    double lo, hi;
+    plant_leg_band(gate, vdc, vdrop, &lo, &hi);
+    return mode == LEG_NEG ? hi : lo;
+}
 
 /* ------------------------------------------------------------------ sensors.c */
 
@@ -140,11 +163,19 @@ typedef struct plant_machine {
     double i_guess[2];   /* warm start of the flux inversion: last solution, */
     double psi_last[2];  /* the flux it belongs to */
     double g_last[3];    /* and the inverse incremental inductances there (dd, qq, dq) */
+    double l_last[3];    /* the incremental inductances there */
+    int last_exact;      /* i_guess is the inversion of psi_last (else only a warm start) */
     double psi_zero[2];  /* flux at zero current */
+    /* sin and cos of the last angle evaluated (RK4 stages often repeat an angle exactly) */
+    double sc_theta, sc_sin, sc_cos;
+    int sc_valid;
     plant_stats_t *stats;
 } plant_machine_t;
 
-int plant_machine_zero_count(const plant_machine_t *m);
+static inline int plant_machine_zero_count(const plant_machine_t *m)
+{
+    return (m->mode[0] == LEG_ZERO) + (m->mode[1] == LEG_ZERO) + (m->mode[2] == LEG_ZERO);
+}
 void plant_machine_rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d);
 /* Removes integration drift of open phases (their currents exactly zero). */
 void plant_machine_project(plant_machine_t *m, plant_state_t *x);

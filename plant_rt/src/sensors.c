@@ -124,6 +124,9 @@ void plant_filter_eval(const plant_sensors_t *sen, const double i0[2], const dou
 
 /* ------------------------------------------------------------ ringing */
 
+/* A ringing source older than this many decay times is gone: exp(-40) ~ 4e-18. */
+#define RING_HORIZON_TAUS 40.0
+
 void plant_ring_add(plant_sensors_t *sen, double t, int leg, double sign)
 {
     if (sen->n_ring == PLANT_MAX_RINGS) {
@@ -145,14 +148,15 @@ void plant_ring_eval(const plant_sensors_t *sen, const plant_config_t *cfg, doub
     const double amp = cfg->sensors.ring_amp_a, tau = cfg->sensors.ring_tau_s;
     const double w = PLANT_TWO_PI * cfg->sensors.ring_freq_hz;
     const double ret = -0.5 * cfg->sensors.ring_return_fraction;
+    const double horizon = RING_HORIZON_TAUS * tau; /* as plant_ring_next_period */
     int k;
     out[0] = 0.0;
     out[1] = 0.0;
     for (k = 0; k < sen->n_ring; ++k) {
         const double dt = t - sen->ring[k].t;
         double r;
-        if (dt <= 0.0) {
-            continue;
+        if (dt <= 0.0 || dt >= horizon) {
+            continue; /* not started, or decayed below 1e-18 of its amplitude */
         }
         r = sen->ring[k].sign * amp * exp(-dt / tau) * sin(w * dt);
         switch (sen->ring[k].leg) {
@@ -174,7 +178,7 @@ void plant_ring_eval(const plant_sensors_t *sen, const plant_config_t *cfg, doub
 
 void plant_ring_next_period(plant_sensors_t *sen, const plant_config_t *cfg, double ts)
 {
-    const double horizon = 40.0 * cfg->sensors.ring_tau_s; /* exp(-40) ~ 4e-18 */
+    const double horizon = RING_HORIZON_TAUS * cfg->sensors.ring_tau_s;
     int k, n = 0;
     for (k = 0; k < sen->n_ring; ++k) {
         if (ts - sen->ring[k].t < horizon) {

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rig import _paths
+from rig import _paths, bench_plant
 from rig import bus as rigbus
 
 
@@ -48,6 +48,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     i.add_argument("--callgrind-periods", type=int, default=400,
                    help="RUN-state periods under callgrind (0: skip callgrind)")
     i.set_defaults(func=_bench_isr)
+
+    pl = bsub.add_parser(
+        "plant", help="plant compute per period, lockstep periods/s, real-time jitter",
+        description=bench_plant.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    bench_plant.add_arguments(pl)
+    pl.set_defaults(func=_bench_plant)
+
+
+def _bench_plant(args: argparse.Namespace) -> int:
+    bench_plant.bench_plant(args)  # prints its JSON object
+    return 0
 
 
 def _available_transports(channel: str) -> list[str]:
