@@ -14,6 +14,7 @@ COMMAND_MODULES = (
     "rig.commands.bus",
     "rig.commands.bench",
     "rig.commands.vm",
+    *(f"rig.commands.{m}" for m in ("console", "param", "loadbench", "commission")),
 )
 
 

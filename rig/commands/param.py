@@ -1,0 +1,82 @@
+"""``rig param``: drive parameters over CAN (PARAM_REQ / PARAM_RESP)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "param", help="read, write, list, save and load drive parameters over CAN",
+        description="Drive parameters (protocols/parameters.csv) through PARAM_REQ / "
+        "PARAM_RESP: every request has a sequence number and a time-out; a write is "
+        "range-checked here and by the drive and then read back.",
+        epilog="exit status: 0 done; 1 refused or not read back; 2 usage; 3 no answer or no "
+        "bus.")
+    p.add_argument("--bench", metavar="FILE", help="take the bus from a bench description")
+    p.add_argument("--bus", choices=("auto", "socketcan", "unixcan"), default=None)
+    p.add_argument("--channel", default=None)
+    p.add_argument("--timeout", type=float, default=1.0, metavar="S",
+                   help="time-out per request (default 1 s)")
+    ps = p.add_subparsers(dest="param_command", metavar="ACTION", required=True)
+    g = ps.add_parser("get", help="read one parameter")
+    g.add_argument("name", metavar="NAME|ID")
+    s = ps.add_parser("set", help="write one parameter (range-checked, read back)")
+    s.add_argument("name", metavar="NAME|ID")
+    s.add_argument("value", type=float)
+    ps.add_parser("list", help="every parameter with its value, unit and range")
+    ps.add_parser("save", help="drive: write the parameters to its store")
+    ps.add_parser("load", help="drive: re-read its store")
+    p.set_defaults(func=cmd_param)
+
+
+def cmd_param(args: argparse.Namespace) -> int:
+    from rig import bench_description
+    from rig.commissioning.link import CanLink, LinkError
+    from rig.params import ParamClient, ParamError, ParamTimeout
+
+    bus, channel = args.bus, args.channel
+    if args.bench:
+        try:
+            desc = bench_description.load(args.bench)
+        except bench_description.BenchDescriptionError as exc:
+            print(f"rig param: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        bus, channel = bus or desc.can.transport, channel or desc.can.channel
+    try:
+        link = CanLink(bus, channel)
+    except (LinkError, ValueError) as exc:
+        print(f"rig param: {exc}", file=sys.stderr)
+        return EXIT_LINK
+    client = ParamClient(link, timeout_s=args.timeout)
+    try:
+        act = args.param_command
+        if act == "get":
+            info = client.t.lookup(args.name)
+            print(f"{info.name} = {client.get(info.id):.9g} {info.unit}")
+        elif act == "set":
+            info = client.t.lookup(args.name)
+            print(f"{info.name} = {client.set(info.id, args.value):.9g} {info.unit} "
+                  "(read back)")
+        elif act == "list":
+            for info, value in client.list():
+                print(f"{info.id:4d} {info.name:22s} {value:14.9g} {info.unit:10s} "
+                      f"[{info.minimum:g}, {info.maximum:g}] {info.access}")
+        elif act == "save":
+            client.save()
+            print("saved")
+        else:
+            client.load()
+            print("loaded")
+        return EXIT_OK
+    except ParamTimeout as exc:
+        print(f"rig param: {exc}", file=sys.stderr)
+        return EXIT_LINK
+    except ParamError as exc:
+        print(f"rig param: {exc}", file=sys.stderr)
+        return EXIT_ERR
+    finally:
+        link.close()

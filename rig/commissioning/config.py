@@ -1,0 +1,89 @@
+"""Test levels of the commissioning scripts: the ``[commissioning]`` table of a bench
+description (every key optional; unknown keys are errors)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+from rig.bench_description import BenchDescriptionError
+
+
+@dataclass(frozen=True)
+class CommissioningConfig:
+    # limits the scripts run with (DRIVE_LIMITS)
+    i_max_a: float = 4.0
+    speed_max_rpm: float = 3300.0
+    accel_rpm_s: float = 3000.0
+    # start-up: polarity detection must end in RUN within this much bench time
+    start_timeout_s: float = 1.0
+    # polarity check: locked rotor, this q current must give a positive shaft torque of at
+    # least this fraction of the nominal 1.5·p·λm·iq
+    polarity_current_a: float = 1.0
+    polarity_torque_fraction: float = 0.3
+    # Ld, Lq: slope estimator at standstill, zero current
+    ldlq_settle_s: float = 0.25
+    ldlq_window_s: float = 0.1
+    # rs: locked rotor, q-current steps; voltage vs current slope. The smallest step keeps
+    # every phase carrying current well above the ripple (at least half the step), so the
+    # inverter's voltage error is the same at every step; the online inductances settle
+    # (param_tau_ms) before the window.
+    rs_currents_a: tuple[float, ...] = (1.5, 2.25, 3.0)
+    rs_settle_s: float = 0.2
+    rs_window_s: float = 0.3
+    # current steps of the polarity and flux tests
+    step_settle_s: float = 0.08
+    step_window_s: float = 0.1
+    # sensorless start at low speed (free shaft)
+    start_speed_rpm: float = 100.0
+    start_accel_rpm_s: float = 500.0
+    start_hold_s: float = 0.3
+    start_tolerance_rpm: float = 10.0
+    start_fw_mode: str = "conventional"
+    # λm: the load machine holds each speed, ±flux_current_a in q, id = 0
+    flux_speeds_rpm: tuple[float, ...] = (300.0, 600.0, 900.0)
+    flux_current_a: float = 1.0
+    flux_ramp_rpm_s: float = 2000.0
+    # speed sweep with load steps (speed control, load machine in torque mode)
+    sweep_speeds_rpm: tuple[float, ...] = (300.0, 1000.0, 1800.0)
+    sweep_load_nm: float = 1.0
+    sweep_settle_s: float = 0.2
+    sweep_step_s: float = 0.3
+    sweep_fw_mode: str = "realtime"
+    sweep_tolerance_rpm: float = 20.0
+    sweep_recovery_s: float = 0.3
+
+    @classmethod
+    def from_mapping(cls, raw: Mapping[str, Any], where: str = "[commissioning]"
+                     ) -> CommissioningConfig:
+        known = {f.name: f for f in fields(cls)}
+        unknown = set(raw) - set(known)
+        if unknown:
+            raise BenchDescriptionError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+        base = cls()
+        values: dict[str, Any] = {}
+        for key, value in raw.items():
+            default = getattr(base, key)
+            if isinstance(default, tuple):
+                if not isinstance(value, list) or not value or not all(
+                        isinstance(x, int | float) and not isinstance(x, bool) for x in value):
+                    raise BenchDescriptionError(f"{where}.{key}: a non-empty list of numbers")
+                values[key] = tuple(float(x) for x in value)
+            elif isinstance(default, float):
+                if isinstance(value, bool) or not isinstance(value, int | float):
+                    raise BenchDescriptionError(f"{where}.{key}: a number")
+                values[key] = float(value)
+            else:
+                if not isinstance(value, str):
+                    raise BenchDescriptionError(f"{where}.{key}: a string")
+                values[key] = value
+        cfg = replace(base, **values)
+        for key in ("start_fw_mode", "sweep_fw_mode"):
+            if getattr(cfg, key) not in ("realtime", "conventional", "id_zero"):
+                raise BenchDescriptionError(f"{where}.{key}: realtime, conventional or id_zero")
+        if max(cfg.rs_currents_a) > cfg.i_max_a or cfg.flux_current_a > cfg.i_max_a:
+            raise BenchDescriptionError(f"{where}: test currents above i_max_a")
+        if len(cfg.rs_currents_a) < 2:
+            raise BenchDescriptionError(f"{where}.rs_currents_a: at least two currents")
+        return cfg

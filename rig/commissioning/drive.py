@@ -1,0 +1,193 @@
+"""The commissioning scripts as the drive's CAN master (DRIVE_CMD, DRIVE_LIMITS).
+
+DRIVE_CMD goes out on every clock cycle (before each lockstep grant, or every 10 ms), which
+keeps the firmware's command time-out alive; changes go out at once. Every change is read
+back: the modes and the command status from DRIVE_STATUS, the references from the console's
+``status`` line (``speed_ref``, ``iq_ref_cmd``, ``enable``, ``owner``) when a console is
+open, the limits from the parameters they write (PARAM_REQ reads).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+from rig import protocols
+from rig.commissioning.clock import BenchClock, BenchTimeout
+from rig.commissioning.link import CanLink
+from rig.console import ConsoleClient
+from rig.params import ParamClient
+
+READBACK_WALL_S = 1.0
+
+
+def _choices(message: str, signal: str) -> dict[str, int]:
+    sig = protocols.database("drive").get_message_by_name(message).get_signal_by_name(signal)
+    return {str(n).lower(): int(v) for v, n in (sig.choices or {}).items()}
+
+
+CTRL = _choices("DRIVE_CMD", "ctrl_mode")
+FWMODE = _choices("DRIVE_CMD", "fw_mode")
+STATE = {v: k.upper() for k, v in _choices("DRIVE_STATUS", "state").items()}
+CMD_STATUS = {v: k.upper() for k, v in _choices("PARAM_RESP", "status").items()}
+
+
+class DriveError(RuntimeError):
+    """The drive did not do what it was told (fault, refused command, no read-back)."""
+
+
+@dataclass(frozen=True)
+class DriveCommand:
+    enable: int = 0
+    ctrl_mode: str = "speed"
+    fw_mode: str = "conventional"
+    speed_ref: float = 0.0
+    iq_ref: float = 0.0
+    fault_reset: int = 0
+
+
+def _quantize(signal: str, value: float) -> float:
+    sig = protocols.database("drive").get_message_by_name("DRIVE_CMD").get_signal_by_name(signal)
+    return round(value / float(sig.scale)) * float(sig.scale)
+
+
+class DriveMaster:
+    def __init__(self, link: CanLink, clock: BenchClock, params: ParamClient,
+                 console: ConsoleClient | None = None) -> None:
+        self.link = link
+        self.clock = clock
+        self.params = params
+        self.console = console
+        self.cmd = DriveCommand()
+        self.alive = 0
+        self.sent = 0
+        self.master = False  # True once the scripts have commanded the drive
+        clock.on_cycle(self.cyclic)
+
+    # -- frames ------------------------------------------------------------------------
+    def _send_cmd(self) -> None:
+        self.alive = (self.alive + 1) % 256
+        c = self.cmd
+        self.link.send("DRIVE_CMD", {
+            "enable": c.enable, "fault_reset": c.fault_reset, "ctrl_mode": CTRL[c.ctrl_mode],
+            "fw_mode": FWMODE[c.fw_mode], "alive": self.alive,
+            "speed_ref": _quantize("speed_ref", c.speed_ref),
+            "iq_ref": _quantize("iq_ref", c.iq_ref)})
+        self.sent += 1
+
+    def cyclic(self) -> None:
+        if self.master:
+            self._send_cmd()
+
+    # -- status ------------------------------------------------------------------------
+    @property
+    def status(self) -> dict[str, Any]:
+        return dict(self.link.latest.get("DRIVE_STATUS", {}))
+
+    @property
+    def state(self) -> str:
+        st = self.status
+        return STATE.get(int(st["state"]), "?") if st else "UNKNOWN"
+
+    def fault_text(self) -> str:
+        st = self.status
+        code = int(st.get("fault_code", 0))
+        name = ""
+        if self.console is not None:
+            try:
+                name = self.console.status().get("fault_name", "")
+            except Exception:  # the fault text is a courtesy; the code is what counts
+                name = ""
+        return f"fault {code}{f' ({name})' if name else ''}"
+
+    def check_no_fault(self, what: str) -> None:
+        if self.state == "FAULT":
+            raise DriveError(f"{what}: the drive is in FAULT, {self.fault_text()}")
+
+    # -- commands ----------------------------------------------------------------------
+    def command(self, **changes: Any) -> None:
+        """Changes fields of the drive command, sends it at once and reads it back."""
+        self.cmd = replace(self.cmd, **changes)
+        self.master = True
+        self._send_cmd()
+        self.readback()
+
+    def readback(self) -> None:
+        """DRIVE_STATUS: modes and command status; console status: references and enable."""
+        want = self.cmd
+        deadline = time.monotonic() + READBACK_WALL_S
+        while True:
+            self.link.pump(0.01)
+            st = self.status
+            ok_status = bool(st) and int(st["ctrl_mode"]) == CTRL[want.ctrl_mode] and \
+                int(st["fw_mode"]) == FWMODE[want.fw_mode] and int(st["cmd_status"]) == 0
+            ok_console = True
+            detail = ""
+            if self.console is not None:
+                cs = self.console.status()
+                ok_console = (cs.get("owner") == "can" and int(cs["enable"]) == want.enable
+                              and math.isclose(float(cs["speed_ref"]),
+                                               _quantize("speed_ref", want.speed_ref),
+                                               abs_tol=2e-3)
+                              and math.isclose(float(cs["iq_ref_cmd"]),
+                                               _quantize("iq_ref", want.iq_ref), abs_tol=2e-3))
+                detail = (f"console: owner={cs.get('owner')} enable={cs.get('enable')} "
+                          f"speed_ref={cs.get('speed_ref')} iq_ref_cmd={cs.get('iq_ref_cmd')}")
+            if ok_status and ok_console:
+                return
+            if time.monotonic() > deadline:
+                why = ""
+                if st and int(st["cmd_status"]) != 0:
+                    why = (" - the drive refused it: "
+                           f"{CMD_STATUS.get(int(st['cmd_status']), st['cmd_status'])}")
+                raise DriveError(f"drive command {want} not read back within "
+                                 f"{READBACK_WALL_S:g} s{why} (DRIVE_STATUS {st}; {detail})")
+
+    def set_limits(self, i_max: float, speed_max: float, accel: float) -> None:
+        """DRIVE_LIMITS, read back through the parameters they set."""
+        self.link.send("DRIVE_LIMITS", {"i_max": i_max, "speed_max": speed_max,
+                                        "accel_max": accel})
+        for name, want in (("i_max_a", i_max), ("speed_max_rpm", speed_max),
+                           ("accel_rpm_s", accel)):
+            got = self.params.get(name)
+            if not math.isclose(got, want, rel_tol=1e-4, abs_tol=0.06):
+                raise DriveError(f"DRIVE_LIMITS not applied: {name} reads {got:g}, sent "
+                                 f"{want:g} (refused by the drive?)")
+
+    def enable(self, *, ctrl_mode: str, fw_mode: str, speed_ref: float = 0.0,
+               iq_ref: float = 0.0, timeout_s: float = 1.0) -> float:
+        """Enables the drive (polarity detection, then RUN); the bench time it took."""
+        self.check_no_fault("enable")
+        if self.cmd.enable:
+            self.command(enable=0)
+            self.clock.advance(0.002)
+        self.command(enable=1, ctrl_mode=ctrl_mode, fw_mode=fw_mode, speed_ref=speed_ref,
+                     iq_ref=iq_ref, fault_reset=0)
+        try:
+            return self.clock.wait(lambda: self.state in ("RUN", "FAULT"), timeout_s,
+                                   "drive start (polarity detection, then RUN)")
+        finally:
+            self.check_no_fault("start-up")
+
+    def reset_fault(self, timeout_s: float = 0.1) -> None:
+        """fault_reset edge with enable 0; the drive goes back to IDLE."""
+        self.command(enable=0, fault_reset=1, speed_ref=0.0, iq_ref=0.0)
+        try:
+            self.clock.wait(lambda: self.state == "IDLE", timeout_s, "fault reset")
+        finally:
+            self.command(fault_reset=0)
+
+    def disable(self, timeout_s: float = 0.1) -> None:
+        self.command(enable=0, speed_ref=0.0, iq_ref=0.0)
+        try:
+            self.clock.wait(lambda: self.state in ("IDLE", "FAULT"), timeout_s, "drive disable")
+        except BenchTimeout as exc:
+            raise DriveError(f"the drive did not go IDLE after disable ({self.state})") from exc
+
+    def require_idle(self, what: str) -> None:
+        self.link.pump(0.0)
+        self.check_no_fault(what)
+        if self.state not in ("IDLE", "INIT", "UNKNOWN"):
+            raise DriveError(f"{what}: the drive is {self.state}; it must be disabled first")

@@ -1,0 +1,20 @@
+"""Helpers of the commissioning tests (imported by name: conftest puts this folder on
+sys.path)."""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Callable
+
+from rig import _paths
+from rig import bench_description as bd
+
+MakeDesc = Callable[..., bd.BenchDescription]
+
+
+def paper_truth() -> dict[str, float]:
+    """The paper profile's machine, read here from the profile file (independent of rig)."""
+    data = tomllib.loads((_paths.data_dir("profiles") / "paper.toml").read_text())
+    return {"rs_ohm": data["machine"]["rs_ohm"], "ld_h": data["magnetics"]["ld_h"],
+            "lq_h": data["magnetics"]["lq_h"], "lambda_m_wb": data["machine"]["lambda_m_wb"],
+            "pole_pairs": data["machine"]["pole_pairs"]}
