@@ -190,16 +190,30 @@ def test_stalled_lockstep_fails_with_the_period(with_fakes: Path, channel: str,
 
 
 def test_realtime_mode(with_fakes: Path, channel: str, tmp_path: Path) -> None:
+    """A real-time run follows the wall clock and accounts for every period.
+
+    The stand-in firmware is Python: on a machine loaded by other tests it can fall behind
+    the wall clock and miss periods. That is a real-time failure the rig must report, not
+    hide: either the capture is complete, or the run fails with the loss counted exactly.
+    (Loss detection itself is tested deterministically in test_capture.py; the plant's
+    late-update and overrun counting in tests/python/plant_program/test_realtime.py.)
+    """
     s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
     r = runner.run_scenario(s, runner.RunOptions(out=tmp_path / "out", bus="unixcan",
                                                  channel=channel, realtime=True,
                                                  progress=False, record=False,
                                                  env={"FAKE_RT_SCALE": "0.2"}))
     assert r.data["mode"] == "realtime"
-    cap = r.data["capture"]
-    assert cap["lost"] == 0 and cap["last_period"] >= 1499, r.explain()
     assert r.data["counters"]["plant.periods"] >= 1500
-    assert r.criterion("position error")["passed"]
+    cap = r.data["capture"]
+    missing = sum(m["missing"] for m in cap["messages"])
+    assert cap["lost"] == missing + cap["short_end"]
+    if cap["lost"] == 0:
+        assert cap["last_period"] >= 1499, r.explain()
+        assert r.criterion("position error")["passed"]
+    else:
+        assert r.status == "failed" and r.data["failure"]["kind"] == "capture_loss"
+        assert f"{cap['lost']} missing" in r.data["failure"]["message"]
 
 
 def _rig(args: list[str], env_extra: dict[str, str]) -> subprocess.Popen[str]:
