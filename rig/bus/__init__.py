@@ -34,7 +34,14 @@ def interface_exists(channel: str) -> bool:
 
 
 def vcan_up(channel: str = DEFAULT_CHANNEL) -> None:
-    """Create (if needed) and bring up a CAN FD capable vcan interface. Needs root."""
+    """Create (if needed) and bring up a CAN FD capable vcan interface. Needs root.
+
+    Only `vcan*` names: a real controller (can0) needs its bit timing set by whoever knows
+    the installation (`ip link set can0 type can bitrate 1000000`), never a virtual twin.
+    """
+    if not channel.startswith("vcan"):
+        raise RuntimeError(f"{channel!r} is not a vcan name; configure real CAN interfaces "
+                           "with ip link (bit rate) before use")
     if not kernel_has_can():
         raise RuntimeError(
             "this kernel has no CAN support (AF_CAN unavailable); use the unixcan fallback "
