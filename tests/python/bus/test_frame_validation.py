@@ -76,9 +76,3 @@ def test_rejections_are_logged_sparingly(decoder: FrameDecoder,
     assert decoder.rejected["unknown_id"] == 2500
     assert len(caplog.records) == 3  # first, 1000th, 2000th
 
-
-def test_bus_up_refuses_to_make_a_virtual_twin_of_a_real_interface() -> None:
-    from rig import bus as rigbus
-
-    with pytest.raises(RuntimeError, match="not a vcan name"):
-        rigbus.vcan_up("can0")
