@@ -24,3 +24,10 @@ def database(name: str) -> Database:
     db = cantools.database.load_file(str(path(name)), strict=True)
     assert isinstance(db, Database)
     return db
+
+
+def quantize(db: str, message: str, signal: str, value: float) -> float:
+    """The physical value a signal actually carries for `value` (nearest raw step)."""
+    sig = database(db).get_message_by_name(message).get_signal_by_name(signal)
+    raw = round((value - float(sig.offset)) / float(sig.scale))
+    return raw * float(sig.scale) + float(sig.offset)

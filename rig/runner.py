@@ -182,6 +182,11 @@ class SuiteResult:
 # Commands
 
 
+def _step_accel() -> float:
+    """The acceleration limit of a speed step, as DRIVE_LIMITS carries it."""
+    return protocols.quantize("drive", "DRIVE_LIMITS", "accel_max", accel_step_limit())
+
+
 def _msg(db: str, name: str) -> Any:
     return protocols.database(db).get_message_by_name(name)
 
@@ -190,12 +195,6 @@ def accel_step_limit() -> float:
     """The largest acceleration DRIVE_LIMITS can carry (a speed 'step')."""
     sig = _msg("drive", "DRIVE_LIMITS").get_signal_by_name("accel_max")
     return float(sig.maximum)
-
-
-def quantize(db: str, message: str, signal: str, value: float) -> float:
-    sig = _msg(db, message).get_signal_by_name(signal)
-    raw = round((value - float(sig.offset)) / float(sig.scale))
-    return raw * float(sig.scale) + float(sig.offset)
 
 
 @dataclass
@@ -242,9 +241,9 @@ class Plan:
 
         on(sc.enable_at, lambda s: setattr(s, "enable", 1))
         for cmd in sc.speed_commands(step):
-            acc = quantize("drive", "DRIVE_LIMITS", "accel_max", min(cmd.accel, step))
+            acc = protocols.quantize("drive", "DRIVE_LIMITS", "accel_max", min(cmd.accel, step))
             if acc <= 0:
-                acc = quantize("drive", "DRIVE_LIMITS", "accel_max", step)
+                acc = protocols.quantize("drive", "DRIVE_LIMITS", "accel_max", step)
 
             def apply(s: DriveState, target: float = cmd.target, a: float = acc) -> None:
                 s.speed_ref, s.accel = target, a
@@ -646,7 +645,7 @@ def execute_lockstep(
     """Runs every grant; returns the number of periods simulated."""
     drive = DriveState(ctrl_mode=sc.ctrl_mode, fw_mode=sc.fw_mode, iq_ref=sc.iq_ref,
                        i_max=sc.i_max, speed_max=sc.speed_max,
-                       accel=quantize("drive", "DRIVE_LIMITS", "accel_max", accel_step_limit()))
+                       accel=_step_accel())
     load = LoadState()
     for start, until in plan.grants():
         for fn in plan.drive_events.get(start, []):
@@ -710,7 +709,7 @@ def execute_realtime(
     """Sends the plan's commands on the wall clock; returns the last period commanded."""
     drive = DriveState(ctrl_mode=sc.ctrl_mode, fw_mode=sc.fw_mode, iq_ref=sc.iq_ref,
                        i_max=sc.i_max, speed_max=sc.speed_max,
-                       accel=quantize("drive", "DRIVE_LIMITS", "accel_max", accel_step_limit()))
+                       accel=_step_accel())
     load = LoadState()
     events = sorted(set(plan.drive_events) | set(plan.load_events))
     t_origin = time.monotonic()

@@ -24,6 +24,7 @@
 #include <unistd.h>
 
 #include "fw_host.h"
+#include "hil_ready.h"
 #include "param_file.h"
 
 #define LOG_LINES_PER_S 10
@@ -339,23 +340,6 @@ static int load_parameters(const fwh_param_list_t *sets)
 }
 
 /* ------------------------------------------------------------------------ start-up */
-
-static int write_ready(const char *path)
-{
-    char tmp[PATH_MAX + 32];
-    FILE *f;
-    snprintf(tmp, sizeof(tmp), "%s.tmp.%ld", path, (long)getpid());
-    f = fopen(tmp, "w");
-    if (f == NULL) {
-        return -1;
-    }
-    fprintf(f, "%ld\n", (long)getpid());
-    if (fclose(f) != 0 || rename(tmp, path) != 0) {
-        unlink(tmp);
-        return -1;
-    }
-    return 0;
-}
 
 static void setup_realtime(void)
 {
@@ -703,7 +687,7 @@ int main(int argc, char **argv)
             app.opt.channel, app.pty_open ? app.pty.slave_path : "off",
             app.pty.link[0] ? " linked from " : "", app.pty.link);
     rc = 0;
-    if (app.opt.ready_file != NULL && write_ready(app.opt.ready_file) != 0) {
+    if (app.opt.ready_file != NULL && hil_write_ready_file(app.opt.ready_file) != 0) {
         fprintf(stderr, "fw_host: cannot write ready file %s: %s\n", app.opt.ready_file,
                 strerror(errno));
         rc = 1;

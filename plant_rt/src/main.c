@@ -26,6 +26,7 @@
 
 #include "hil_bench.h"
 #include "hil_vio.h"
+#include "hil_ready.h"
 #include "hilbus.h"
 #include "hiltrace.h"
 #include "plant_core.h"
@@ -769,23 +770,6 @@ static int profile_file(const options_t *o, char *out, size_t outlen)
     return 0;
 }
 
-static int write_ready(const char *path)
-{
-    char tmp[PATH_MAX];
-    FILE *f;
-    snprintf(tmp, sizeof(tmp), "%s.tmp.%ld", path, (long)getpid());
-    f = fopen(tmp, "w");
-    if (!f) {
-        return -1;
-    }
-    fprintf(f, "%ld\n", (long)getpid());
-    if (fclose(f) != 0 || rename(tmp, path) != 0) {
-        unlink(tmp);
-        return -1;
-    }
-    return 0;
-}
-
 static void print_counters(app_t *a)
 {
     hilbus_stats_t bs;
@@ -1052,7 +1036,7 @@ int main(int argc, char **argv)
             return 1;
         }
     }
-    if (a.opt.ready_file && write_ready(a.opt.ready_file) != 0) {
+    if (a.opt.ready_file && hil_write_ready_file(a.opt.ready_file) != 0) {
         fprintf(stderr, "plant_rt: cannot write ready file %s: %s\n", a.opt.ready_file,
                 strerror(errno));
         rc = 1;

@@ -49,8 +49,7 @@ class DriveCommand:
 
 
 def _quantize(signal: str, value: float) -> float:
-    sig = protocols.database("drive").get_message_by_name("DRIVE_CMD").get_signal_by_name(signal)
-    return round(value / float(sig.scale)) * float(sig.scale)
+    return protocols.quantize("drive", "DRIVE_CMD", signal, value)
 
 
 class DriveMaster:
