@@ -299,12 +299,7 @@ class Commander:
     def drive(self, s: DriveState) -> None:
         self._send("DRIVE_LIMITS", {"i_max": s.i_max, "speed_max": s.speed_max,
                                     "accel_max": s.accel})
-        self.alive = (self.alive + 1) % 256
-        self._send("DRIVE_CMD", {
-            "enable": s.enable, "fault_reset": 0, "ctrl_mode": self._ctrl[s.ctrl_mode],
-            "fw_mode": self._fw[s.fw_mode], "alive": self.alive, "speed_ref": s.speed_ref,
-            "iq_ref": s.iq_ref,
-        })
+        self.drive_cmd_only(s)
 
     def drive_cmd_only(self, s: DriveState) -> None:
         self.alive = (self.alive + 1) % 256

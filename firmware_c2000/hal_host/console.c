@@ -61,18 +61,6 @@ static void err_line(fwh_t *app, int code, const char *fmt, ...)
     app->cnt.console_errors++;
 }
 
-static const fw_param_info_t *param_by_name(const char *name)
-{
-    uint16_t i;
-    const fw_param_info_t *p;
-    for (i = 0; (p = fw_param_info_at(i)) != NULL; i++) {
-        if (strcmp(p->name, name) == 0) {
-            return p;
-        }
-    }
-    return NULL;
-}
-
 static const char *ctrl_name(int16_t m)
 {
     return m == FW_CTRL_CURRENT ? "current" : "speed";
@@ -205,7 +193,7 @@ static void execute(fwh_t *app, char **tok, int ntok, const con_cmd_info_t *cmd)
         const con_arg_info_t *ai = &cmd->args[a];
         const char *t = tok[a + 1];
         if (ai->type == CON_ARG_PARAM) {
-            param = param_by_name(t);
+            param = fwh_param_by_name(t);
             if (param == NULL) {
                 err_line(app, CON_ERR_UNKNOWN_PARAM, "unknown parameter '%s'", t);
                 return;
@@ -241,7 +229,7 @@ static void execute(fwh_t *app, char **tok, int ntok, const con_cmd_info_t *cmd)
     }
     case CON_CMD_VERSION: {
         real_t core_version = 0.0f;
-        const fw_param_info_t *vp = param_by_name("fw_version");
+        const fw_param_info_t *vp = fwh_param_by_name("fw_version");
         if (vp != NULL) {
             (void)fw_param_get(&app->core, vp->id, &core_version);
         }

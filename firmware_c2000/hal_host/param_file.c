@@ -82,7 +82,7 @@ static int valid_name(const char *s)
     return 1;
 }
 
-static const fw_param_info_t *param_by_name(const char *name)
+const fw_param_info_t *fwh_param_by_name(const char *name)
 {
     uint16_t i;
     const fw_param_info_t *p;
@@ -122,7 +122,7 @@ static int parse_assignment(char *text, fwh_param_item_t *item, char *why, size_
         return -1;
     }
     *field = name;
-    info = param_by_name(name);
+    info = fwh_param_by_name(name);
     if (info == NULL) {
         snprintf(why, whylen, "unknown parameter");
         return -1;

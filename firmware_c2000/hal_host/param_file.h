@@ -33,6 +33,9 @@ typedef struct {
 } fwh_param_list_t;
 
 /* Strict decimal number (grammar above); 0 and *out finite, or -1. */
+/* The parameter named `name` in the generated table, or NULL. */
+const fw_param_info_t *fwh_param_by_name(const char *name);
+
 int fwh_parse_number(const char *text, double *out);
 /* Shortest decimal text that reads back as the same real_t (at most 16 characters). */
 void fwh_fmt_real(char *buf, size_t len, real_t value);
