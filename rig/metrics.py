@@ -307,6 +307,22 @@ def _spd_err_max(w: Window, p: Mapping[str, float]) -> float:
     return error_stats(w.get("speed_err_rpm")).max_abs
 
 
+SPEED_LOOP_PERIODS = 10  # the firmware's speed loop and telemetry run at 1 kHz (10 periods)
+
+
+def block_means(x: npt.ArrayLike, n: int) -> FloatArray:
+    """Means of consecutive blocks of ``n`` samples (an incomplete last block is dropped)."""
+    a = np.asarray(x, dtype=np.float64)
+    k = a.size // n
+    return a[: k * n].reshape(k, n).mean(axis=1) if k else np.empty(0)
+
+
+@_register("speed_err_1khz_max_rpm", "r/min",
+           "max |estimated - true speed| of 1 ms means (the speed loop's 1 kHz rate)")
+def _spd_err_1khz(w: Window, p: Mapping[str, float]) -> float:
+    return error_stats(block_means(w.get("speed_err_rpm"), SPEED_LOOP_PERIODS)).max_abs
+
+
 @_register("speed_err_rms_rpm", "r/min", "RMS estimated - true speed")
 def _spd_err_rms(w: Window, p: Mapping[str, float]) -> float:
     return error_stats(w.get("speed_err_rpm")).rms
@@ -325,6 +341,32 @@ def _trk_max(w: Window, p: Mapping[str, float]) -> float:
 @_register("speed_track_err_rms_rpm", "r/min", "RMS true speed - scenario speed reference")
 def _trk_rms(w: Window, p: Mapping[str, float]) -> float:
     return error_stats(w.get("speed_true_rpm") - w.get("speed_ref_rpm")).rms
+
+
+def settling_time(t: npt.ArrayLike, err: npt.ArrayLike, t0: float, band: float) -> float:
+    """Time from ``t0`` to the first sample after which |err| stays within ``band`` to the
+    end (0 when it never leaves, inf when it is outside at the end)."""
+    tt = np.asarray(t, dtype=np.float64)
+    e = np.abs(np.asarray(err, dtype=np.float64))
+    if e.size == 0 or not np.isfinite(e).any():
+        return float("nan")
+    outside = ~(e <= band)
+    if not outside.any():
+        return 0.0
+    if outside[-1]:
+        return math.inf
+    return float(tt[int(np.flatnonzero(outside)[-1]) + 1] - t0)
+
+
+@_register(
+    "speed_settling_time_s", "s",
+    "time from window t0 until |true speed - reference| stays within band_rpm up to t1",
+    params={"band_rpm": 30.0},
+)
+def _settle(w: Window, p: Mapping[str, float]) -> float:
+    t, ref = w.around("speed_ref_rpm", w.t0, w.t1)
+    _, v = w.around("speed_true_rpm", w.t0, w.t1)
+    return settling_time(t, v - ref, w.t0, p["band_rpm"])
 
 
 @_register("speed_mean_rpm", "r/min", "mean true speed")
@@ -411,6 +453,12 @@ def _lam_mean(w: Window, p: Mapping[str, float]) -> float:
 @_register("flux_circularity_pct", "%", "std/mean of the estimated flux vector's radius")
 def _circ(w: Window, p: Mapping[str, float]) -> float:
     return circularity_pct(w.get("fw.lambda_hat"))
+
+
+@_register("lambda_min_max_ratio", "", "min/max of the estimated PM flux magnitude")
+def _lam_ratio(w: Window, p: Mapping[str, float]) -> float:
+    x = _finite(w.get("fw.lambda_hat"))
+    return float(x.min() / x.max()) if x.size and x.max() > 0 else float("nan")
 
 
 @_register("i_mag_max_a", "A", "max true current magnitude sqrt(id² + iq²)")

@@ -212,6 +212,23 @@ def _figures(entries: list[Mapping[str, Any]]) -> list[str]:
     return lines
 
 
+def _comparisons(comps: list[Mapping[str, Any]]) -> list[str]:
+    if not comps:
+        return []
+    lines = ["## Comparisons between runs", "",
+             "| comparison | a | b | a ? b | result |", "|---|---|---|---|---|"]
+    for c in comps:
+        unit = f" {c['unit']}" if c.get("unit") else ""
+        lines.append(
+            f"| {c['name']} | {c['a']}: {_fmt(c.get('value_a'))}{unit} | "
+            f"{c['b']}: {_fmt(c.get('value_b'))}{unit} | {c['relation']} | "
+            f"{_OUTCOME.get(c['outcome'], c['outcome'])} |")
+    for c in comps:
+        if c.get("xfail"):
+            lines.append(f"\n- {c['name']}: expected failure: {c['xfail']}")
+    return [*lines, ""]
+
+
 def suite_report(summary: Mapping[str, Any]) -> str:
     verdict = "PASS" if summary.get("passed") else "FAIL"
     entries = list(summary.get("scenarios", []))
@@ -220,6 +237,8 @@ def suite_report(summary: Mapping[str, Any]) -> str:
         for c in s.get("criteria") or []:
             o = _outcome(c)
             counts[o] = counts.get(o, 0) + 1
+    for c in summary.get("comparisons") or []:
+        counts[c["outcome"]] = counts.get(c["outcome"], 0) + 1
     lines = [
         f"# Suite {summary.get('suite')}: {verdict}",
         "",
@@ -232,6 +251,7 @@ def suite_report(summary: Mapping[str, Any]) -> str:
     ]
     lines += _table2(entries)
     lines += _figures(entries)
+    lines += _comparisons(list(summary.get("comparisons") or []))
     lines += [
         "## Runs",
         "",

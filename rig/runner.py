@@ -42,7 +42,7 @@ import numpy as np
 from rig import __version__, _paths, capture, metrics, protocols, recording, report
 from rig.frames import FrameDecoder
 from rig.progress import Progress
-from rig.scenario import Criterion, Scenario, Suite
+from rig.scenario import Comparison, Criterion, Scenario, Suite
 from rig.supervisor import ChildFailed, StopReport, Supervisor, Terminated
 
 TS = capture.TS
@@ -1107,9 +1107,11 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
             })
     except (KeyboardInterrupt, Terminated) as exc:
         interrupted = exc
+    summary["comparisons"] = [evaluate_comparison(cmp, entries) for cmp in suite.comparisons]
     summary["passed"] = (
         interrupted is None and len(results) == len(suite.scenarios)
         and all(r.passed for r in results)
+        and all(c["outcome"] in ("pass", "xfail") for c in summary["comparisons"])
     )
     summary["complete"] = len(results) == len(suite.scenarios)
     (out / "result.json").write_text(json.dumps(summary, indent=1, default=_json_default))
@@ -1117,6 +1119,35 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     if interrupted is not None:
         raise interrupted
     return SuiteResult(out, summary, results)
+
+
+def evaluate_comparison(cmp: Comparison,
+                        entries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """A suite comparison on the criterion values recorded in the entries of two runs: a run
+    that is missing (interrupted suite) or has no value fails the comparison."""
+
+    def value(run: str) -> float:
+        for e in entries:
+            if e["name"] == run:
+                for c in e.get("criteria") or []:
+                    if c.get("name") == cmp.criterion and c.get("value") is not None:
+                        return float(c["value"])
+        return math.nan
+
+    a, b = value(cmp.a), value(cmp.b)
+    passed = not (math.isnan(a) or math.isnan(b)) and metrics.compare(a, cmp.relation, b)
+    if cmp.xfail:
+        result = "xpass" if passed else "xfail"
+    else:
+        result = "pass" if passed else "fail"
+    unit = next((c.get("unit") for e in entries if e["name"] == cmp.a
+                 for c in e.get("criteria") or [] if c.get("name") == cmp.criterion), "")
+    return {
+        "name": cmp.name, "criterion": cmp.criterion, "a": cmp.a, "b": cmp.b,
+        "relation": cmp.relation, "value_a": None if math.isnan(a) else a,
+        "value_b": None if math.isnan(b) else b, "unit": unit or "", "passed": passed,
+        "outcome": result, "xfail": cmp.xfail,
+    }
 
 
 def exit_code(passed: bool, status: str) -> int:

@@ -463,11 +463,26 @@ class Scenario:
 
 
 @dataclass(frozen=True)
+class Comparison:
+    """A suite-level criterion between two runs of the suite: the value of the criterion
+    ``criterion`` in run ``a`` must stand in ``relation`` to its value in run ``b`` (for
+    example Fig. 9: the real-time MTPA drops less speed than the conventional one)."""
+
+    name: str
+    criterion: str
+    a: str
+    b: str
+    relation: str = "<"
+    xfail: str = ""
+
+
+@dataclass(frozen=True)
 class Suite:
     name: str
     file: Path
     description: str
     scenarios: tuple[Scenario, ...]
+    comparisons: tuple[Comparison, ...] = ()
 
 
 # --------------------------------------------------------------------------------------
@@ -721,7 +736,7 @@ def parse_scenario(file: Path, text: str) -> Scenario:
         raise ScenarioError(
             [Issue(str(file), int(m.group(1)) if m else None, "", f"TOML syntax: {exc}")]
         ) from exc
-    if "scenarios" in data:
+    if "scenarios" in data or "include" in data:
         raise ScenarioError([Issue(str(file), locate(text, ("scenarios",)), "scenarios",
                                    "this is a suite file, not a scenario")])
     root: Path_ = ()
@@ -852,15 +867,37 @@ def parse_suite(file: Path, text: str) -> Suite:
             [Issue(str(file), int(m.group(1)) if m else None, "", f"TOML syntax: {exc}")]
         ) from exc
     c = _Checker(file, text)
-    c.table(data, (), ("name", "description", "scenarios"))
+    c.table(data, (), ("name", "description", "include", "scenarios", "comparisons"))
     name = c.string(data, (), "name", file.stem)
     description = c.string(data, (), "description", "")
-    raw = data.get("scenarios")
     scenarios: list[Scenario] = []
-    if not isinstance(raw, list) or not raw:
-        c.err(("scenarios",), "must be a non-empty list of scenario names or paths")
-        raw = []
+    comparisons: list[Comparison] = []
     issues: list[Issue] = []
+    included = data.get("include", [])
+    if not isinstance(included, list) or not all(isinstance(x, str) for x in included):
+        c.err(("include",), "must be a list of suite names")
+        included = []
+    for i, entry in enumerate(included):
+        sub = _suite_path(entry, file.parent)
+        if sub is None or sub.resolve() in _including:
+            c.err(("include", i), f"no suite {entry!r} (looked in {SUITE_DIR})" if sub is None
+                  else f"suite {entry!r} includes itself")
+            continue
+        _including.add(sub.resolve())
+        try:
+            inner = load_suite(sub)
+        except ScenarioError as exc:
+            issues.extend(exc.issues)
+            continue
+        finally:
+            _including.discard(sub.resolve())
+        scenarios.extend(inner.scenarios)
+        comparisons.extend(inner.comparisons)
+    raw = data.get("scenarios", [])
+    if not isinstance(raw, list) or not (raw or scenarios):
+        c.err(("scenarios",), "must be a non-empty list of scenario names or paths "
+                              "(or the suite must include other suites)")
+        raw = []
     for i, entry in enumerate(raw):
         if not isinstance(entry, str):
             c.err(("scenarios", i), f"must be a scenario name or path, not {entry!r}")
@@ -879,9 +916,58 @@ def parse_suite(file: Path, text: str) -> Suite:
             issues.extend(exc.issues)
             continue
         scenarios.append(sc.with_profile(profile) if profile else _own_profile(sc))
+    if not issues:
+        comparisons += _comparisons(c, data.get("comparisons", []), scenarios)
+    names = [s.name for s in scenarios]
+    for dup in sorted({n for n in names if names.count(n) > 1}):
+        c.err(("scenarios",), f"{dup!r} appears more than once (its output folder is its name)")
     if c.issues or issues:
         raise ScenarioError(c.issues + issues)
-    return Suite(name, file, description, tuple(scenarios))
+    return Suite(name, file, description, tuple(scenarios), tuple(comparisons))
+
+
+_including: set[Path] = set()  # suites being parsed (include cycles)
+
+
+def _suite_path(entry: str, base: Path) -> Path | None:
+    for cand in (base / f"{entry}.toml", SUITE_DIR / f"{entry}.toml", Path(entry)):
+        if cand.is_file():
+            return cand
+    return None
+
+
+COMPARISON_RELATIONS = ("<", "<=", ">", ">=")
+
+
+def _comparisons(c: _Checker, raw: Any, scenarios: Sequence[Scenario]) -> list[Comparison]:
+    if not isinstance(raw, list):
+        c.err(("comparisons",), "must be an array of tables ([[comparisons]])")
+        return []
+    by_name = {s.name: s for s in scenarios}
+    out: list[Comparison] = []
+    for i, item in enumerate(raw):
+        path: Path_ = ("comparisons", i)
+        d = c.table(item, path, ("name", "criterion", "a", "b", "relation", "xfail"))
+        if not d:
+            continue
+        crit = c.string(d, path, "criterion")
+        runs = []
+        for key in ("a", "b"):
+            run = c.string(d, path, key)
+            sc = by_name.get(run)
+            if run and sc is None:
+                c.err((*path, key), f"{run!r} is not a scenario of this suite "
+                                    f"(entries: {', '.join(by_name) or 'none'})")
+            elif sc is not None and crit and not any(
+                    cr.name == crit and cr.applies_to(sc.profile) for cr in sc.criteria):
+                c.err((*path, "criterion"),
+                      f"scenario {run!r} has no criterion named {crit!r} on profile {sc.profile}")
+            runs.append(run)
+        relation = c.string(d, path, "relation", "<", choices=COMPARISON_RELATIONS)
+        name = c.string(d, path, "name", f"{runs[0]} {relation} {runs[1]}: {crit}")
+        xfail = c.string(d, path, "xfail", "")
+        out.append(Comparison(name, crit, runs[0], runs[1], relation, xfail))
+    return out
 
 
 def _scenario_path(entry: str, base: Path) -> Path | None:
@@ -916,7 +1002,8 @@ def load_suite(path: str | Path) -> Suite:
 
 def is_suite_file(path: Path) -> bool:
     try:
-        return "scenarios" in tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return "scenarios" in data or "include" in data
     except (OSError, tomllib.TOMLDecodeError):
         return False
 

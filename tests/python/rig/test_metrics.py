@@ -150,3 +150,41 @@ def test_progress_line_plain_and_tty() -> None:
     q.update(0.5, None, None)
     q.finish("done")
     assert tty.getvalue().startswith("\rx: t=") and tty.getvalue().endswith("\rdone\n")
+
+
+def test_block_means_and_the_1khz_speed_error() -> None:
+    # a 5 kHz square wave of +-3 r/min averages to zero over every 1 ms block (10 periods);
+    # a 2 r/min offset in one block is what the 1 kHz report shows
+    n = 1000
+    err = np.where(np.arange(n) % 2 == 0, 3.0, -3.0)
+    err[500:510] += 2.0
+    cols = {"period": np.arange(n), "speed_err_rpm": err}
+    w = metrics.Window(cols, 0.0, (n - 1) * TS, ts=TS)
+    assert metrics.compute("speed_err_max_rpm", w) == pytest.approx(5.0)
+    assert metrics.compute("speed_err_1khz_max_rpm", w) == pytest.approx(2.0)
+    assert metrics.block_means(np.arange(25.0), 10).tolist() == [4.5, 14.5]
+
+
+def test_settling_time_analytic() -> None:
+    # first-order approach e(t) = 100 exp(-t/tau): inside 30 from t = tau ln(100/30)
+    tau = 0.05
+    t = np.arange(0, 0.5, TS)
+    e = 100.0 * np.exp(-t / tau)
+    expected = tau * math.log(100.0 / 30.0)
+    assert metrics.settling_time(t, e, 0.0, 30.0) == pytest.approx(expected, abs=TS)
+    assert metrics.settling_time(t, -e, 0.0, 30.0) == pytest.approx(expected, abs=TS)
+    assert metrics.settling_time(t, e, 0.0, 200.0) == 0.0
+    assert metrics.settling_time(t, e + 50.0, 0.0, 30.0) == math.inf
+    cols = {"period": np.arange(t.size), "speed_true_rpm": 1500.0 - e,
+            "speed_ref_rpm": np.full(t.size, 1500.0)}
+    w = metrics.Window(cols, 0.0, t[-1], ts=TS)
+    assert metrics.compute("speed_settling_time_s", w) == pytest.approx(expected, abs=TS)
+    assert metrics.compute("speed_settling_time_s", w, {"band_rpm": 10.0}) == pytest.approx(
+        tau * math.log(10.0), abs=TS)
+
+
+def test_flux_min_max_ratio() -> None:
+    lam = 0.216 * (1.0 + 0.02 * np.sin(np.linspace(0, 20, 2000)))
+    cols = {"period": np.arange(lam.size), "fw.lambda_hat": lam}
+    w = metrics.Window(cols, 0.0, 0.2, ts=TS)
+    assert metrics.compute("lambda_min_max_ratio", w) == pytest.approx(0.98 / 1.02, rel=1e-4)

@@ -364,3 +364,23 @@ def test_xfail_xpass_and_report_outcomes() -> None:
     assert md.index("## Table 2") < md.index("### profile `paper`") < md.index("## Fig. 6")
     assert "| 1000 | 2 | 1.25 | 0.5 (XPASS) |" in md
     assert "rig view f" in md and "**FAIL**" in md
+
+
+def test_suite_comparison_outcomes() -> None:
+    def entry(name: str, value: float | None) -> dict[str, object]:
+        return {"name": name, "criteria": [{"name": "drop", "value": value, "unit": "%"}]}
+
+    cmp = sc.Comparison("a drops less", "drop", "a", "b", "<")
+    r = runner.evaluate_comparison(cmp, [entry("a", 18.0), entry("b", 21.8)])
+    assert (r["outcome"], r["value_a"], r["value_b"], r["unit"]) == ("pass", 18.0, 21.8, "%")
+    assert runner.evaluate_comparison(cmp, [entry("a", 21.8), entry("b", 18.0)])["outcome"] \
+        == "fail"
+    # a run without a value (crashed, or missing from an interrupted suite) fails it
+    assert runner.evaluate_comparison(cmp, [entry("a", None), entry("b", 1.0)])["outcome"] \
+        == "fail"
+    assert runner.evaluate_comparison(cmp, [entry("b", 1.0)])["outcome"] == "fail"
+    known = sc.Comparison("a drops less", "drop", "a", "b", "<", xfail="measured 30 vs 20")
+    assert runner.evaluate_comparison(known, [entry("a", 30.0), entry("b", 20.0)])["outcome"] \
+        == "xfail"
+    assert runner.evaluate_comparison(known, [entry("a", 1.0), entry("b", 20.0)])["outcome"] \
+        == "xpass"

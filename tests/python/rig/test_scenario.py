@@ -356,3 +356,46 @@ def test_table2_files_are_what_the_generator_writes() -> None:
     assert len(files) == 17
     for name, text in files.items():
         assert (SCENARIO_DIR / name).read_text() == text, f"{name} is stale: rerun gen_table2.py"
+
+
+COMPARED = '''description = "two runs compared"
+scenarios = ["ok_one", "ok_two"]
+
+[[comparisons]]
+name = "one drops less than two"
+criterion = "crit"
+a = "ok_one"
+b = "ok_two"
+relation = "<"
+'''
+
+
+def test_suite_comparisons_and_includes(tmp_path: Path) -> None:
+    crit = '\n[[criteria]]\nname = "crit"\nmetric = "speed_drop_pct"\ncomparison = "report"\n'
+    body = GOOD.split("[[criteria]]")[0]
+    _write(tmp_path, body + crit, "ok_one")
+    _write(tmp_path, body + crit, "ok_two")
+    su = sc.load_suite(_write(tmp_path, COMPARED, "cmp"))
+    assert su.comparisons == (sc.Comparison("one drops less than two", "crit", "ok_one",
+                                            "ok_two", "<"),)
+    outer = sc.load_suite(_write(tmp_path, 'include = ["cmp"]\nscenarios = ["smoke"]\n', "outer"))
+    assert [s.name for s in outer.scenarios] == ["ok_one", "ok_two", "smoke"]
+    assert outer.comparisons == su.comparisons
+    bad = COMPARED.replace('b = "ok_two"', 'b = "ok_three"').replace('"crit"\na', '"nope"\na')
+    with pytest.raises(sc.ScenarioError) as info:
+        sc.load_suite(_write(tmp_path, bad, "bad"))
+    msg = str(info.value)
+    assert "comparisons[0].b: 'ok_three' is not a scenario of this suite" in msg
+    assert "comparisons[0].criterion: scenario 'ok_one' has no criterion named 'nope'" in msg
+    with pytest.raises(sc.ScenarioError, match="includes itself"):
+        sc.load_suite(_write(tmp_path, 'include = ["loop"]\n', "loop"))
+    with pytest.raises(sc.ScenarioError, match="appears more than once"):
+        sc.load_suite(_write(tmp_path, 'include = ["cmp"]\nscenarios = ["ok_one"]\n', "dup"))
+
+
+def test_paper_suite_is_table2_then_figures_with_the_fig9_comparisons() -> None:
+    paper, t2, figs = (sc.load(n) for n in ("paper", "table2", "figures"))
+    assert isinstance(paper, sc.Suite) and isinstance(t2, sc.Suite) and isinstance(figs, sc.Suite)
+    assert paper.scenarios == t2.scenarios + figs.scenarios
+    assert {(c.a, c.b) for c in paper.comparisons} == {
+        ("fig09_load_step_realtime", "fig09_load_step_conventional")}
