@@ -40,6 +40,7 @@ import can
 import numpy as np
 
 from rig import __version__, _paths, capture, metrics, protocols, recording, report
+from rig.firmware_from_profile import firmware_settings
 from rig.frames import FrameDecoder
 from rig.progress import Progress
 from rig.scenario import Comparison, Criterion, Scenario, Suite
@@ -525,13 +526,6 @@ def pole_pairs(values: Mapping[str, Any]) -> int:
     return capture.DEFAULT_POLE_PAIRS
 
 
-# Profile fields the firmware needs as parameters (docs/interfaces.md, "ADC codes").
-FIRMWARE_FROM_PROFILE = {
-    "adc_bits": ("adc.bits",),
-    "adc_range_a": ("adc.range_a",),
-    "adc_vdc_range_v": ("adc.vdc_range_v",),
-    "adc_vdc_bits": ("adc.vdc_bits",),
-}
 # Plant configuration keys of the initial rotor state (set only when not zero).
 PLANT_INITIAL = {"theta_e_deg": "initial.theta_e_deg", "speed_rpm": "initial.speed_rpm"}
 
@@ -566,11 +560,8 @@ def build_argv(
     plant_argv += list(opts.extra_plant_args)
     fw_argv = [fw, *common, "--trace", str(out / "fw.trace"),
                "--ready-file", str(out / "fw.ready")]
-    for param, keys in FIRMWARE_FROM_PROFILE.items():
-        for key in keys:
-            if key in values:
-                fw_argv += ["--set", f"{param}={_fmt_value(values[key])}"]
-                break
+    for param, value in firmware_settings(values).items():
+        fw_argv += ["--set", f"{param}={_fmt_value(value)}"]
     for k, v in sc.firmware.items():
         fw_argv += ["--set", f"{k}={_fmt_value(v)}"]
     fw_argv += list(opts.extra_fw_args)

@@ -19,16 +19,8 @@ from typing import Any
 
 from rig import _paths
 from rig.bench_description import BenchDescription
+from rig.firmware_from_profile import firmware_settings
 from rig.supervisor import Supervisor
-
-# Profile fields the firmware needs as parameters (docs/interfaces.md, "ADC codes"); the same
-# table as rig.runner's (a test keeps them equal; importing the runner would pull in Rerun).
-FIRMWARE_FROM_PROFILE = {
-    "adc_bits": ("adc.bits",),
-    "adc_range_a": ("adc.range_a",),
-    "adc_vdc_range_v": ("adc.vdc_range_v",),
-    "adc_vdc_bits": ("adc.vdc_bits",),
-}
 
 
 def _fmt(v: Any) -> str:
@@ -102,11 +94,8 @@ class VirtualBench:
         fw = [str(_paths.binary("fw_host")), *common, "--ready-file", str(self.dir / "fw.ready"),
               "--pty-link", str(self.dir / "console.pty"), "--params",
               str(self.dir / "params.txt")]
-        for param, keys in FIRMWARE_FROM_PROFILE.items():
-            for key in keys:
-                if key in values:
-                    fw += ["--set", f"{param}={_fmt(values[key])}"]
-                    break
+        for param, value in firmware_settings(values).items():
+            fw += ["--set", f"{param}={_fmt(value)}"]
         for k, val in v.firmware.items():
             fw += ["--set", f"{k}={_fmt(val)}"]
         if v.trace:

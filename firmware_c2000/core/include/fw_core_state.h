@@ -113,12 +113,15 @@ typedef struct {
 typedef struct {
     int16_t phase;       /* polarity sub-state */
     int32_t count;       /* periods in the sub-state */
-    real_t peak_pos, peak_neg;  /* current rise of the +d and -d pulse, A */
-    real_t l_pos, l_neg;        /* chord inductance of each pulse, H */
-    real_t psi_acc;             /* flux change along d_hat during the pulse, V*s */
-    real_t theta_d;      /* frozen d-axis direction of the test, rad */
-    real_t vpulse;       /* V */
-    real_t base;         /* current projection on d_hat at the start of a pulse, A */
+    real_t id_pos, id_neg;      /* mean d current measured at the +d and -d bias, A */
+    real_t l_pos, l_neg;        /* incremental Ld measured at the +d and -d bias, H */
+    real_t ratio;               /* (l_neg - l_pos) / mean: > 0 when +d_hat is the magnet side */
+    real_t ratio_sigma;         /* standard error of ratio from the per-period scatter */
+    real_t g_ref;               /* 1/H, reference the per-period 1/Ld_inc are summed from */
+    real_t s1[2], s2[2];        /* [+d, -d]: sums of (1/Ld_inc - g_ref) and of its square */
+    real_t si[2];               /* [+d, -d]: sums of the measured d current, A */
+    int32_t n[2];               /* [+d, -d]: periods summed */
+    int16_t pairs;              /* +d/-d pairs of holds done */
     real_t theta_start;  /* unwrapped angle at the start of the motion check */
     real_t moved;        /* rad */
     int16_t method_used; /* 1 saturation, 2 motion */
@@ -164,7 +167,7 @@ struct fw_core {
     real_t vdc;
     real_t vdc_f;
     fw_cplx_t i_avg, i_end;      /* alpha-beta currents: period mean and at the period end */
-    fw_cplx_t v_meas;            /* period-mean voltage: pattern minus inverter error, V */
+    fw_cplx_t v_meas;            /* period-mean voltage: pattern plus inverter error, V */
     real_t i_peak;               /* largest phase-current magnitude of the period */
     fw_cplx_t slope[3];          /* A/s per window */
     real_t slope_t[3];           /* s, mean sample time per window from the period start */
@@ -179,6 +182,8 @@ struct fw_core {
     int16_t est_valid;
     int16_t est_fail_run;
     uint32_t est_reject_count;
+    uint32_t flux_pos_count;     /* periods whose position came from the flux estimator */
+    int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
     real_t theta_raw_branch;
     int16_t slopes_ok;
     int16_t stamp;
@@ -200,6 +205,7 @@ struct fw_core {
     real_t speed_ref_ramped;
     real_t iq_demand;
     real_t iq_sal_lim;           /* A, q-current limit from current, voltage and saliency */
+    real_t id_ref_base;          /* A, d reference of MTPA/FW before the reluctance extension */
     real_t fw_did;               /* A, voltage-feedback d-current */
     int16_t fw_active;
     real_t te_hat;

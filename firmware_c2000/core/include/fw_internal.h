@@ -28,6 +28,11 @@ void fw_svpwm_plan_off(fw_plan_t *plan, real_t vdc);
 fw_cplx_t fw_plan_volt_seconds(const fw_plan_t *plan, real_t t0, real_t t1);
 void fw_plan_to_pwm(const fw_plan_t *plan, uint32_t period, int16_t gate, fw_pwm_t *pwm);
 
+/* ---- fw_core.c: inverter model ----------------------------------------------------------- */
+/* Mean inverter voltage error of the period of c->plan_cur at current c->i_avg (dead time
+ * deadtime_us, device drop vdrop_v), alpha-beta, V: applied minus pattern voltage. */
+fw_cplx_t fw_inverter_error(const fw_core_t *c);
+
 /* ---- slope_estimator.c: slopes and the least-squares position estimate --------------------- */
 /* LS slope of window w: A/s alpha-beta, mean sample time (ticks), current at that time (A). */
 int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, int32_t adc_half,

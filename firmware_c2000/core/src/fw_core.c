@@ -49,6 +49,7 @@ static void reset_control(fw_core_t *c)
     fw_pi_reset(&c->pi_q);
     fw_pi_reset(&c->pi_spd);
     c->id_ref = c->iq_ref = FW_REAL(0.0);
+    c->id_ref_base = FW_REAL(0.0);
     c->vd = c->vq = FW_REAL(0.0);
     c->iq_demand = FW_REAL(0.0);
     c->fw_did = FW_REAL(0.0);
@@ -223,9 +224,11 @@ static void reconstruct_current(fw_core_t *c, const fw_adc_t *adc)
     c->i_end = fw_cadd(c->i_win[FW_WIN_ZERO], acc_end);
 }
 
-/* Average voltage error of the inverter in period k (dead time on every rising edge of a
- * switching leg, device drop), alpha-beta; subtracted from the ideal volt-seconds. */
-static fw_cplx_t inverter_error(const fw_core_t *c)
+/* Average voltage error of the inverter in the period of plan_cur (dead time on every rising
+ * edge of a switching leg, device drop), alpha-beta: APPLIED MINUS PATTERN voltage, so a
+ * positive phase current gives a negative error (it loses volt-seconds). It is ADDED to the
+ * ideal pattern voltage; c->i_avg must be the mean current of that same period. */
+fw_cplx_t fw_inverter_error(const fw_core_t *c)
 {
     const fw_plan_t *pl = &c->plan_cur;
     real_t td = c->p[FW_PI_DEADTIME_US] * FW_REAL(1e-6);
@@ -335,6 +338,54 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
     return (int16_t)(bad || (n_act == 0 && pl->layout != FW_LAYOUT_OFF));
 }
 
+/* Speed- and load-dependent hand-over (estimator-math notes 5-7): above flux_pos_min_rpm and
+ * flux_pos_min_iq_a the d axis
+ * comes from the flux estimator's active flux psi - Lq_app i (note 4.6: its direction is the
+ * magnet's whatever Ld does), which needs no saliency, so q saturation under load cannot take
+ * the position away; the slopes keep feeding the online Ld/Lq. Below it, the current slopes
+ * carry the PLL. */
+static int16_t flux_carries_position(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    /* only under load (|iq| above flux_pos_min_iq_a, 25 % hysteresis), where q saturation
+     * erodes the saliency; at light load the slopes keep the position (measured: the hand-over
+     * at no load let the PLL and the flux estimator's speed-dependent filter oscillate) */
+    real_t on = p[FW_PI_FLUX_POS_MIN_IQ_A];
+    real_t iq = fw_fabs(c->iq);
+    if (iq > on) {
+        c->flux_pos_load = 1;
+    } else if (iq < FW_REAL(0.75) * on) {
+        c->flux_pos_load = 0;
+    }
+    return (int16_t)(c->flux.active && c->state == FW_STATE_RUN && c->flux_pos_load &&
+                     p[FW_PI_FLUX_POS_MIN_RPM] > FW_REAL(0.0) &&
+                     fw_fabs(c->speed_f_rpm) >= p[FW_PI_FLUX_POS_MIN_RPM]);
+}
+
+/* PLL update from the active flux at the end of the period; 1 when plausible */
+static int16_t flux_position(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    real_t lam_min = FW_REAL(0.25) * p[FW_PI_LAMBDA_M_WB];
+    fw_cplx_t act;
+    real_t meas, eps;
+    if (!c->flux.active) {
+        return 0;
+    }
+    act = fw_csub(c->flux.psi, fw_cscale(c->i_end, c->pe.lq_app));
+    if (fw_cabs2(act) < lam_min * lam_min) {
+        return 0;
+    }
+    eps = fw_pll_update(&c->pll, fw_atan2(act.im, act.re), (uint16_t)(FW_P_TICKS - 1), &meas);
+    c->theta_raw_branch = meas;
+    c->stamp = (int16_t)(FW_P_TICKS - 1);
+    c->theta_hat = c->pll.theta;
+    if (c->flux_pos_count < 0xFFFFFFFFu) {
+        c->flux_pos_count++;
+    }
+    return (int16_t)(fw_fabs(eps) <= p[FW_PI_PLL_ERR_MAX_DEG] * (FW_PI_R / FW_REAL(180.0)));
+}
+
 static void update_parameters_and_flux(fw_core_t *c, int16_t run_flux)
 {
     const real_t *p = c->p;
@@ -345,7 +396,7 @@ static void update_parameters_and_flux(fw_core_t *c, int16_t run_flux)
         fw_pe_update(&c->pe, &c->est, c->theta_hat, c->iq, alpha, FW_REAL(0.2) * ld_nom,
                      FW_REAL(5.0) * lq_nom);
     }
-    c->v_meas = fw_csub(c->plan_cur.v_applied, inverter_error(c));
+    c->v_meas = fw_cadd(c->plan_cur.v_applied, fw_inverter_error(c));
     if (run_flux && c->pll.init) {
         fw_cplx_t u = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_PI_RS_OHM])), FW_TS);
         real_t omega_min = p[FW_PI_FLUX_MIN_RPM] / FW_RPM_PER_RADS * p[FW_PI_POLE_PAIRS];
@@ -396,7 +447,10 @@ static void slow_tasks(fw_core_t *c)
     } else {
         c->fw_did = FW_REAL(0.0);
     }
-    iq_lim = fw_sqrt(fw_max(i_max * i_max - c->id_ref * c->id_ref, FW_REAL(0.0)));
+    /* the q room the MTPA/FW d current leaves on the current circle; the d current the
+     * reluctance extension adds below must not shrink it, or the next cycle's demand falls
+     * under the saliency limit, the extension drops out and the two alternate at 500 Hz */
+    iq_lim = fw_sqrt(fw_max(i_max * i_max - c->id_ref_base * c->id_ref_base, FW_REAL(0.0)));
     iq_sal = iq_lim;
     if (p[FW_PI_SALIENCY_MIN] > FW_REAL(0.0)) {
         /* keep the q current where the saliency the estimator lives on is still there */
@@ -417,6 +471,7 @@ static void slow_tasks(fw_core_t *c)
     c->fw_active = fw_current_refs(c->cmd.fw_mode, iq_use, c->pll.omega, vmax_fw, i_max,
                                    c->ld_use, c->lq_use, c->lambda_use, c->fw_did, &c->id_ref,
                                    &c->iq_ref);
+    c->id_ref_base = c->id_ref;
     if (c->cmd.fw_mode != FW_FWMODE_ID_ZERO && fw_fabs(c->iq_demand) > fw_fabs(iq_use)) {
         real_t id_t = fw_id_for_torque(c->iq_demand, c->iq_ref, c->ld_use, c->lq_use,
                                        c->lambda_use);
@@ -577,11 +632,10 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     c->v_lim = fw_svpwm_vmax(c->vdc, c->pwm_cfg.tmin) * p[FW_PI_VLIM_FRACTION];
 
     /* 3.-4. estimation */
-    if (c->state == FW_STATE_POLARITY && c->pol.phase >= 1 && c->pol.phase <= 5) {
-        pll_freeze = 1; /* saturation pulses: hold the angle the test is made along */
-    }
+    /* (the polarity test runs with the PLL tracking: polarity_detect.c) */
     if (data_ok) {
-        bad_est = estimate_position(c, adc, pll_freeze);
+        int16_t by_flux = flux_carries_position(c);
+        bad_est = estimate_position(c, adc, (int16_t)(pll_freeze || by_flux));
         reconstruct_current(c, adc);
         {
             real_t th_mid = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
@@ -590,6 +644,9 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             c->iq = idq.im;
         }
         update_parameters_and_flux(c, (int16_t)(c->plan_cur.layout != FW_LAYOUT_OFF));
+        if (by_flux) {
+            bad_est = (int16_t)!flux_position(c);
+        }
     } else {
         c->slopes_ok = 0;
         c->slope_ok[0] = c->slope_ok[1] = c->slope_ok[2] = 0;

@@ -22,6 +22,7 @@ static int16_t is_integral(int16_t idx)
     case FW_PI_POL_METHOD:
     case FW_PI_POL_SETTLE_PERIODS:
     case FW_PI_POL_PULSE_PERIODS:
+    case FW_PI_POL_BIAS_PERIODS:
     case FW_PI_LAMBDA_MODE:
     case FW_PI_ADC_LOSS_MAX:
     case FW_PI_EST_FAIL_MAX:

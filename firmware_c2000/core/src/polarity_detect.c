@@ -2,87 +2,77 @@
  *
  * The slope estimator gives theta modulo pi. Two tests resolve the remaining pi:
  *
- * 1. Saturation: equal volt-second pulses along +d_hat and -d_hat, each starting from zero
- *    mean current held by the current controller. The pulse that adds to the magnet flux
- *    drives the iron further into saturation and ends with the larger current rise. The
- *    comparison is made on the chord inductance of each pulse, L = delta psi_d / delta i_d,
- *    between the zero-window current (mean of its samples, no slope involved) of the period
- *    before the pulse and that of the last pulse period; delta psi_d is the exact volt-seconds
- *    of the pattern between those two instants (whole periods plus the partial ones) minus
- *    rs times the mean current. Comparing raw peaks is biased by about 1 % in a LINEAR
- *    machine: the stretched patterns leave a pattern-dependent ripple offset at the pulse
- *    start, which then decays through rs during the pulse; slope-based period-end currents
- *    carry the slope noise (several % with a 12-bit, 5 mA converter). The chord on direct
- *    sample means avoids all three.
- * 2. Motion (for linear magnetics, e.g. the plant's `ideal` profile, where both peaks are
- *    equal): with id = 0 a q current +iq gives torque 1.5 p lambda_m iq in the TRUE frame only
- *    if d_hat points to the north pole; otherwise the rotor turns backwards. The core applies
- *    +iq then -iq (accelerate, brake) and looks at the sign of the angle travelled.
+ * 1. Saturation (incremental inductance under a d bias): the current controller holds
+ *    id = +pol_pulse_a and -pol_pulse_a along d_hat in turn (pairs of holds, ramps of
+ *    pol_pulse_periods between them), and in the last pol_bias_periods periods of each hold
+ *    the core takes the d-axis inverse incremental inductance the slope estimator measured,
+ *    Gamma_d = Gamma0 + Re(g exp(-j 2 theta_hat)) = 1/Ld_inc. The bias that adds to the
+ *    magnet flux drives the
+ *    iron further into saturation: smaller Ld_inc (paper profile: 14.35 mH at +3 A, 15.16 mH
+ *    at -3 A). The slopes are measured INSIDE switching states and differenced, so the
+ *    volt-second errors of the inverter (dead time at the edges, device drop; both depend on
+ *    the pattern layout and on the current signs) do not enter.
+ *    The PLL keeps tracking during the test, so the current stays on the estimated d axis and
+ *    makes no torque. (With the angle held, a current towards the south pole is an unstable
+ *    equilibrium of a free shaft, and Ld < Lq makes the reluctance torque turn the q axis
+ *    towards the current: the rotor moved 39 deg (electrical) in 80 ms on the paper profile.)
+ *    An earlier version compared the chord inductance of two open-loop volt-second pulses
+ *    along +-d_hat. The dead-time error of such a pulse depends on the vectors it uses: with
+ *    d_hat on an even vector (V2, V4, V6) the +d pulse lost 12.0 % of its volt-seconds and
+ *    the -d pulse 9.9 % (odd vectors the other way round), a 2 % bias against a chord
+ *    contrast of 2 %: it picked the south pole at 60, 180 and 300 deg.
+ *    Decision after each pair: ratio = (Ld(-) - Ld(+)) / mean, its standard error from the
+ *    scatter of the per-period values; conclusive when |ratio| >= pol_ratio_min and
+ *    >= POL_K_SIGMA standard errors. Another pair is averaged while that is still possible,
+ *    up to POL_MAX_PAIRS; then (or when |ratio| is below pol_ratio_min with confidence, as in
+ *    a linear machine) the test is inconclusive: the motion check instead of a guess.
+ * 2. Motion (for linear magnetics, e.g. the plant's `ideal` profile, where both inductances
+ *    are equal): with id = 0 a q current +iq gives torque 1.5 p lambda_m iq in the TRUE frame
+ *    only if d_hat points to the north pole; otherwise the rotor turns backwards. The core
+ *    applies +iq then -iq (accelerate, brake) and looks at the sign of the angle travelled.
  *
- * pol_method 0 runs 1 and falls back to 2 when the peak difference is below pol_ratio_min.
+ * pol_method 0 runs 1 and falls back to 2 when 1 is inconclusive.
  */
 #include "fw_internal.h"
 
 enum {
     POL_SETTLE = 0,
-    POL_REST_0,
-    POL_PULSE_P,
-    POL_REST_P,
-    POL_PULSE_N,
-    POL_REST_N,
-    POL_MOTION_ACC,
-    POL_MOTION_BRAKE,
-    POL_MOTION_REST,
-    POL_END
+    POL_BIAS_P = 1, /* ramp to +id, hold, average */
+    POL_BIAS_N = 2, /* ramp to -id, hold, average; after it: decide or one more pair */
+    POL_REST = 3,   /* back to zero current, decision */
+    POL_MOTION_ACC = 4,
+    POL_MOTION_BRAKE = 5,
+    POL_MOTION_REST = 6
 };
+
+/* periods after a ramp before the averaging starts (current loop: 400 Hz, tau = 4 periods) */
+#define POL_SKIP 10
+/* standard errors the inductance difference must exceed for a decision */
+#define POL_K_SIGMA FW_REAL(4.0)
+/* +/- pairs of holds at most (a noisy measurement averages longer before it gives up) */
+#define POL_MAX_PAIRS 4
 
 void fw_pol_start(fw_polarity_t *pol)
 {
     pol->phase = POL_SETTLE;
     pol->count = 0;
-    pol->peak_pos = FW_REAL(0.0);
-    pol->peak_neg = FW_REAL(0.0);
+    pol->id_pos = FW_REAL(0.0);
+    pol->id_neg = FW_REAL(0.0);
     pol->l_pos = FW_REAL(0.0);
     pol->l_neg = FW_REAL(0.0);
-    pol->psi_acc = FW_REAL(0.0);
-    pol->theta_d = FW_REAL(0.0);
-    pol->vpulse = FW_REAL(0.0);
+    pol->ratio = FW_REAL(0.0);
+    pol->ratio_sigma = FW_REAL(0.0);
+    pol->g_ref = FW_REAL(0.0);
+    pol->s1[0] = pol->s1[1] = FW_REAL(0.0);
+    pol->s2[0] = pol->s2[1] = FW_REAL(0.0);
+    pol->si[0] = pol->si[1] = FW_REAL(0.0);
+    pol->n[0] = pol->n[1] = 0;
+    pol->pairs = 0;
     pol->theta_start = FW_REAL(0.0);
-    pol->base = FW_REAL(0.0);
     pol->moved = FW_REAL(0.0);
     pol->method_used = 0;
     pol->flipped = 0;
     pol->result = 0;
-}
-
-/* d_hat component of an alpha-beta vector */
-static real_t along(fw_cplx_t v, fw_cplx_t dhat) { return v.re * dhat.re + v.im * dhat.im; }
-
-/* flux change along d_hat over period ticks [t0, t1) of the period just measured: pattern
- * volt-seconds, the inverter correction pro rata, minus the drop of the period-mean current */
-static real_t flux_part(const fw_core_t *c, fw_cplx_t dhat, real_t t0, real_t t1)
-{
-    fw_cplx_t vs = fw_plan_volt_seconds(&c->plan_cur, t0, t1);
-    fw_cplx_t corr = fw_csub(c->v_meas, c->plan_cur.v_applied);
-    fw_cplx_t u = fw_cadd(vs, fw_cscale(fw_csub(corr, fw_cscale(c->i_avg, c->p[FW_PI_RS_OHM])),
-                                        (t1 - t0) * FW_TICK_S));
-    return along(u, dhat);
-}
-
-static real_t flux_step(const fw_core_t *c, fw_cplx_t dhat)
-{
-    return flux_part(c, dhat, FW_REAL(0.0), (real_t)FW_P_TICKS);
-}
-
-/* zero-window current along d_hat and its instant (ticks); 0 when not measured */
-static int16_t anchor(const fw_core_t *c, fw_cplx_t dhat, real_t *i_d, real_t *t)
-{
-    if (!c->slope_ok[FW_WIN_ZERO]) {
-        return 0;
-    }
-    *i_d = along(c->i_win[FW_WIN_ZERO], dhat);
-    *t = c->slope_t[FW_WIN_ZERO];
-    return 1;
 }
 
 static void next_phase(fw_polarity_t *pol, int16_t phase)
@@ -91,19 +81,101 @@ static void next_phase(fw_polarity_t *pol, int16_t phase)
     pol->count = 0;
 }
 
+static void start_motion(fw_polarity_t *pol, const fw_core_t *c)
+{
+    pol->method_used = 2;
+    pol->theta_start = c->pll.theta_unwrapped;
+    next_phase(pol, POL_MOTION_ACC);
+}
+
+/* one period's estimate: deviation of 1/Ld_inc (two-vector estimates only) from g_ref */
+static void accumulate(fw_polarity_t *pol, const fw_core_t *c, int16_t neg)
+{
+    fw_cplx_t dir2;
+    real_t x;
+    if (!c->est.ok || c->est.n_active != 2) {
+        return;
+    }
+    dir2 = fw_cexpj(FW_REAL(-2.0) * c->theta_hat);
+    x = c->est.gamma0 + (c->est.g.re * dir2.re - c->est.g.im * dir2.im) - pol->g_ref;
+    pol->s1[neg] += x;
+    pol->s2[neg] += x * x;
+    pol->si[neg] += c->id;
+    pol->n[neg]++;
+}
+
+/* mean 1/Ld_inc of one sign and the variance of that mean; 0 when too few were usable */
+static int16_t sign_mean(const fw_polarity_t *pol, int16_t neg, int32_t n_planned, real_t *g,
+                         real_t *var_mean)
+{
+    int32_t n = pol->n[neg];
+    real_t m;
+    real_t var;
+    if (n < 2 || 2 * n < n_planned) { /* most estimates rejected: no result */
+        return 0;
+    }
+    m = pol->s1[neg] / (real_t)n;
+    var = fw_max(pol->s2[neg] / (real_t)n - m * m, FW_REAL(0.0)) * (real_t)n / (real_t)(n - 1);
+    *g = pol->g_ref + m;
+    *var_mean = var / (real_t)n;
+    return (int16_t)(*g > FW_REAL(0.0));
+}
+
+/* both averages done: inductances, ratio and its standard error; 0 when unusable */
+static int16_t evaluate(fw_polarity_t *pol, int32_t n_meas)
+{
+    real_t gp = FW_REAL(0.0);
+    real_t gn = FW_REAL(0.0);
+    real_t vp = FW_REAL(0.0);
+    real_t vn = FW_REAL(0.0);
+    real_t mean_g;
+    if (!sign_mean(pol, 0, n_meas, &gp, &vp) || !sign_mean(pol, 1, n_meas, &gn, &vn)) {
+        return 0;
+    }
+    pol->l_pos = FW_REAL(1.0) / gp;
+    pol->l_neg = FW_REAL(1.0) / gn;
+    pol->id_pos = pol->si[0] / (real_t)pol->n[0];
+    pol->id_neg = pol->si[1] / (real_t)pol->n[1];
+    /* (Ln - Lp) / ((Ln + Lp)/2) = (gp - gn) / ((gp + gn)/2) */
+    mean_g = FW_REAL(0.5) * (gp + gn);
+    pol->ratio = (gp - gn) / mean_g;
+    pol->ratio_sigma = fw_sqrt(vp + vn) / mean_g;
+    return 1;
+}
+
+/* after a +d/-d pair: 1 decided, -1 inconclusive for good (the difference is below
+ * pol_ratio_min with confidence, or the estimates are unusable), 0 average one more pair */
+static int16_t verdict(fw_polarity_t *pol, const real_t *p)
+{
+    int32_t n_planned = pol->pairs * (int32_t)p[FW_PI_POL_BIAS_PERIODS];
+    real_t a;
+    real_t k_sigma;
+    if (!evaluate(pol, n_planned)) {
+        return -1;
+    }
+    a = fw_fabs(pol->ratio);
+    k_sigma = POL_K_SIGMA * pol->ratio_sigma;
+    if (a >= p[FW_PI_POL_RATIO_MIN] && a >= k_sigma) {
+        return 1;
+    }
+    if (a + k_sigma < p[FW_PI_POL_RATIO_MIN] || pol->pairs >= POL_MAX_PAIRS) {
+        return -1;
+    }
+    return 0;
+}
+
 int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                     fw_pol_out_t *out)
 {
     const real_t *p = c->p;
-    int32_t n_pulse = (int32_t)p[FW_PI_POL_PULSE_PERIODS];
     int32_t n_settle = (int32_t)p[FW_PI_POL_SETTLE_PERIODS];
-    /* zero-current rest under current control: ten current-loop time constants at least */
-    int32_t n_rest = 2 * (int32_t)p[FW_PI_POL_PULSE_PERIODS] + 40;
+    int32_t n_ramp = (int32_t)p[FW_PI_POL_PULSE_PERIODS];
+    int32_t n_meas = (int32_t)p[FW_PI_POL_BIAS_PERIODS];
     int32_t n_motion = (int32_t)(p[FW_PI_POL_MOTION_MS] * FW_REAL(1e-3) / FW_TS);
     int16_t method = (int16_t)p[FW_PI_POL_METHOD];
-    fw_cplx_t dhat = fw_cexpj(pol->theta_d);
+    real_t i_bias = p[FW_PI_POL_PULSE_A];
 
-    out->kind = FW_POL_OUT_VOLTAGE;
+    out->kind = FW_POL_OUT_CURRENT;
     out->v = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     out->id = FW_REAL(0.0);
     out->iq = FW_REAL(0.0);
@@ -111,19 +183,18 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
     if (pol->result != 0) {
         return pol->result;
     }
-    if (n_rest > 2000) {
-        n_rest = 2000;
-    }
     if (n_motion < 1) {
         n_motion = 1;
     }
+    if (n_ramp < 1) {
+        n_ramp = 1;
+    }
     pol->count++;
-    (void)adc; /* the measurements come from the core's per-period results */
+    /* the measurements come from the core's per-period results (adc == 0: none this period) */
 
     switch (pol->phase) {
     case POL_SETTLE:
         /* zero current (any frame will do for a zero reference) while the PLL settles */
-        out->kind = FW_POL_OUT_CURRENT;
         if (pol->count >= n_settle) {
             if (!c->pll.init || !c->est_valid) {
                 if (pol->count > 4 * n_settle) {
@@ -131,112 +202,77 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                 }
                 break;
             }
-            pol->theta_d = fw_pll_predict(&c->pll, FW_P_TICKS + FW_H_TICKS);
-            pol->vpulse = p[FW_PI_LD_H] * p[FW_PI_POL_PULSE_A] / ((real_t)n_pulse * FW_TS);
-            pol->vpulse = fw_min(pol->vpulse, FW_REAL(0.9) * c->v_lim);
             if (method == 2) {
-                pol->method_used = 2;
-                pol->theta_start = c->pll.theta_unwrapped;
-                next_phase(pol, POL_MOTION_ACC);
+                start_motion(pol, c);
             } else {
                 pol->method_used = 1;
-                next_phase(pol, POL_REST_0);
+                pol->g_ref = FW_REAL(1.0) / p[FW_PI_LD_H];
+                next_phase(pol, POL_BIAS_P);
+                pol->count = 1;
+                out->id = i_bias / (real_t)n_ramp;
             }
         }
         break;
-    case POL_REST_0:
-        out->kind = FW_POL_OUT_CURRENT;
-        out->pll_freeze = 1;
-        if (pol->count >= n_rest) {
-            next_phase(pol, POL_PULSE_P);
+    case POL_BIAS_P:
+    case POL_BIAS_N: {
+        int16_t neg = (int16_t)(pol->phase == POL_BIAS_N);
+        int32_t d = pol->count - 2; /* reference index (in this phase) of this ISR's estimate */
+        int32_t r;
+        real_t to;
+        real_t from;
+        if (adc != 0 && d >= n_ramp + POL_SKIP) {
+            accumulate(pol, c, neg);
         }
-        break;
-    case POL_PULSE_P:
-    case POL_PULSE_N: {
-        int16_t pos = (int16_t)(pol->phase == POL_PULSE_P);
-        if (pol->count == 1) {
-            /* data of the period before the pulse: base current and the flux after it */
-            real_t t_a = FW_REAL(0.0);
-            pol->psi_acc = FW_REAL(0.0);
-            if (anchor(c, dhat, &pol->base, &t_a)) {
-                pol->psi_acc = flux_part(c, dhat, t_a, (real_t)FW_P_TICKS);
-            } else {
-                pol->result = -1;
+        if (pol->count > n_ramp + POL_SKIP + n_meas) {
+            if (neg) {
+                pol->pairs++;
+                if (verdict(pol, p) != 0) {
+                    next_phase(pol, POL_REST);
+                    pol->count = 1;
+                    out->id = -i_bias * (FW_REAL(1.0) - FW_REAL(1.0) / (real_t)n_ramp);
+                    break;
+                }
             }
-        } else {
-            pol->psi_acc += flux_step(c, dhat);
+            next_phase(pol, neg ? POL_BIAS_P : POL_BIAS_N);
+            pol->count = 1;
+            neg = (int16_t)!neg;
         }
-        out->v = fw_cscale(dhat, pos ? pol->vpulse : -pol->vpulse);
-        out->pll_freeze = 1;
-        if (pol->count >= n_pulse) {
-            next_phase(pol, pos ? POL_REST_P : POL_REST_N);
-        }
+        r = pol->count - 1;
+        to = neg ? -i_bias : i_bias;
+        from = (pol->phase == POL_BIAS_P && pol->pairs == 0) ? FW_REAL(0.0) : -to;
+        out->id = (r < n_ramp) ? from + (to - from) * (real_t)(r + 1) / (real_t)n_ramp : to;
         break;
     }
-    case POL_REST_P:
-        out->kind = FW_POL_OUT_CURRENT;
-        out->pll_freeze = 1;
-        if (pol->count == 1) { /* data of the last pulse period (one period of delay) */
-            real_t i_d = FW_REAL(0.0);
-            real_t t_a = FW_REAL(0.0);
-            if (!anchor(c, dhat, &i_d, &t_a)) {
-                pol->result = -1;
-                break;
-            }
-            pol->psi_acc += flux_part(c, dhat, FW_REAL(0.0), t_a);
-            pol->peak_pos = i_d - pol->base;
-            pol->l_pos = (pol->peak_pos > FW_REAL(0.0)) ? pol->psi_acc / pol->peak_pos : FW_REAL(0.0);
-        }
-        if (pol->count >= n_rest) {
-            next_phase(pol, POL_PULSE_N);
-        }
-        break;
-    case POL_REST_N:
-        out->kind = FW_POL_OUT_CURRENT;
-        out->pll_freeze = 1;
-        if (pol->count == 1) {
-            real_t i_d = FW_REAL(0.0);
-            real_t t_a = FW_REAL(0.0);
-            if (!anchor(c, dhat, &i_d, &t_a)) {
-                pol->result = -1;
-                break;
-            }
-            pol->psi_acc += flux_part(c, dhat, FW_REAL(0.0), t_a);
-            pol->peak_neg = pol->base - i_d;
-            pol->l_neg = (pol->peak_neg > FW_REAL(0.0)) ? -pol->psi_acc / pol->peak_neg : FW_REAL(0.0);
-        }
-        if (pol->count >= n_rest) {
-            real_t mean = FW_REAL(0.5) * (pol->l_pos + pol->l_neg);
-            /* the magnet side saturates: smaller chord inductance */
-            real_t ratio = (mean > FW_REAL(0.0)) ? (pol->l_neg - pol->l_pos) / mean : FW_REAL(0.0);
-            if (fw_fabs(ratio) >= p[FW_PI_POL_RATIO_MIN]) {
-                pol->flipped = (int16_t)(ratio < FW_REAL(0.0));
+    case POL_REST:
+        /* ramp back to zero current before the decision (the motion check starts from rest) */
+        out->id = (pol->count < n_ramp)
+                      ? -i_bias * (FW_REAL(1.0) - (real_t)pol->count / (real_t)n_ramp)
+                      : FW_REAL(0.0);
+        if (pol->count >= n_ramp + POL_SKIP) {
+            /* the magnet side saturates: smaller incremental inductance */
+            if (verdict(pol, p) > 0) {
+                pol->flipped = (int16_t)(pol->ratio < FW_REAL(0.0));
                 pol->result = 1;
             } else if (method == 0) {
-                pol->method_used = 2;
-                pol->theta_start = c->pll.theta_unwrapped;
-                next_phase(pol, POL_MOTION_ACC);
+                start_motion(pol, c);
             } else {
                 pol->result = -1;
             }
         }
         break;
     case POL_MOTION_ACC:
-        out->kind = FW_POL_OUT_CURRENT;
         out->iq = p[FW_PI_POL_MOTION_IQ_A];
         if (pol->count >= n_motion) {
             next_phase(pol, POL_MOTION_BRAKE);
         }
         break;
     case POL_MOTION_BRAKE:
-        out->kind = FW_POL_OUT_CURRENT;
         out->iq = -p[FW_PI_POL_MOTION_IQ_A];
         if (pol->count >= n_motion) {
             next_phase(pol, POL_MOTION_REST);
         }
         break;
     case POL_MOTION_REST:
-        out->kind = FW_POL_OUT_CURRENT;
         if (pol->count >= n_motion) {
             real_t min_move = p[FW_PI_POL_MOTION_MIN_DEG] * (FW_PI_R / FW_REAL(180.0));
             pol->moved = c->pll.theta_unwrapped - pol->theta_start;

@@ -46,7 +46,10 @@ static void startup(double theta0, double sat_k, int expect_method, const char *
     CHECK(run_until_state(s, FW_STATE_RUN, 20000), "%s: no RUN (state %d fault %u)", name,
           sim_state(s), s->core.fault_code);
     e = sim_theta_error(s);
-    printf("%s: rise %.4f %.4f A, chord L %.3f %.3f mH; ", name, (double)s->core.pol.peak_pos, (double)s->core.pol.peak_neg, s->core.pol.l_pos * 1e3, s->core.pol.l_neg * 1e3);
+    printf("%s: bias %.3f %.3f A, incremental Ld %.3f %.3f mH, ratio %+.2f %% (sigma %.2f %%); ",
+           name, (double)s->core.pol.id_pos, (double)s->core.pol.id_neg,
+           (double)s->core.pol.l_pos * 1e3, (double)s->core.pol.l_neg * 1e3,
+           (double)s->core.pol.ratio * 100.0, (double)s->core.pol.ratio_sigma * 100.0);
     printf("%s: start %.2f rad, RUN after %ld periods, method %d, flipped %d, error %.2f deg\n",
            name, theta0, s->periods, s->core.pol.method_used, s->core.pol.flipped,
            e * 180 / M_PI);

@@ -22,7 +22,7 @@ from commission_support import MakeDesc, paper_truth
 
 from rig import _paths, protocols
 from rig.commissioning import runner
-from rig.commissioning.virtual import FIRMWARE_FROM_PROFILE
+from rig.firmware_from_profile import firmware_settings
 
 
 def within(value: float, truth: float, rel: float) -> bool:
@@ -109,10 +109,11 @@ def pol_method_writes(log: Path) -> list[float]:
     return out
 
 
-# Start angles at which the firmware's saturation-pulse detection (pol_method 0) picks the
-# south pole on the paper profile (measured θ̂ - θ ≈ ±179.6°), the d axis on a negative
-# phase axis. The commissioning detects it and recovers with the motion check.
-FIRMWARE_WRONG = {60, 180, 300}
+# Start angles at which the firmware's saturation detection (pol_method 0) picks the south
+# pole on the paper profile; the commissioning would detect it and recover with the motion
+# check. None since the ±id incremental-Ld test replaced the pulse/chord comparison (that
+# one failed at 60°, 180°, 300°: dead-time volt-second error of the even SVPWM vectors).
+FIRMWARE_WRONG: set[int] = set()
 
 
 @pytest.mark.parametrize("theta0", range(0, 360, 30))
@@ -148,10 +149,12 @@ def test_standstill_from_12_start_angles(make_desc: MakeDesc, tmp_path: Path,
     assert run.passed, run.report_path.read_text()
 
 
-def test_runner_table_of_adc_parameters_is_the_same() -> None:
-    from rig.runner import FIRMWARE_FROM_PROFILE as runner_table
-
-    assert runner_table == FIRMWARE_FROM_PROFILE
+def test_firmware_settings_follow_the_profile() -> None:
+    """The firmware is told the hardware the plant emulates: ADC scaling, dead time, drop."""
+    values = {"adc.bits": 16, "adc.range_a": 10.0, "inverter.dead_time_s": 2e-6,
+              "inverter.device_drop_v": 1.2, "machine.rs_ohm": 1.93}
+    assert firmware_settings(values) == {"adc_bits": 16, "adc_range_a": 10.0,
+                                         "deadtime_us": 2.0, "vdrop_v": 1.2}
 
 
 # -- safety ----------------------------------------------------------------------------

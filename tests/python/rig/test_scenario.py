@@ -356,6 +356,7 @@ def test_table2_files_are_what_the_generator_writes() -> None:
     assert len(files) == 17
     for name, text in files.items():
         assert (SCENARIO_DIR / name).read_text() == text, f"{name} is stale: rerun gen_table2.py"
+        assert "not measured yet" not in text, f"{name}: run the grid, then --measured"
 
 
 COMPARED = '''description = "two runs compared"
