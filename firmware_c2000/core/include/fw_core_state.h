@@ -182,7 +182,6 @@ struct fw_core {
     int16_t est_valid;
     int16_t est_fail_run;
     uint32_t est_reject_count;
-    uint32_t flux_pos_count;     /* periods whose position came from the flux estimator */
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
     real_t theta_raw_branch;
     int16_t slopes_ok;

@@ -25,7 +25,6 @@ void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_cplx
                    uint32_t parity, fw_plan_t *plan);
 void fw_svpwm_plan_off(fw_plan_t *plan, real_t vdc);
 /* volt-seconds (V*s, ideal inverter) of the pattern between period ticks t0 and t1 */
-fw_cplx_t fw_plan_volt_seconds(const fw_plan_t *plan, real_t t0, real_t t1);
 void fw_plan_to_pwm(const fw_plan_t *plan, uint32_t period, int16_t gate, fw_pwm_t *pwm);
 
 /* ---- fw_core.c: inverter model ----------------------------------------------------------- */
@@ -108,13 +107,8 @@ uint16_t fw_protect_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb, r
 uint16_t fw_protect_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);
 
 /* ---- polarity_detect.c -------------------------------------------------------------------- */
-#define FW_POL_OUT_VOLTAGE 0
-#define FW_POL_OUT_CURRENT 1
 typedef struct {
-    int16_t kind;      /* FW_POL_OUT_* */
-    fw_cplx_t v;       /* alpha-beta voltage for FW_POL_OUT_VOLTAGE */
-    real_t id, iq;     /* references for FW_POL_OUT_CURRENT */
-    int16_t pll_freeze;
+    real_t id, iq;     /* current references along the estimated frame, A */
 } fw_pol_out_t;
 void fw_pol_start(fw_polarity_t *pol);
 /* One period; returns pol->result (0 running, 1 done, -1 failed). */

@@ -254,8 +254,9 @@ fw_cplx_t fw_inverter_error(const fw_core_t *c)
                 (dv[1] - dv[2]) * FW_INV_SQRT3_R);
 }
 
-/* Slopes, least-squares estimate and PLL for the period just measured. Returns 1 when the
- * period counted as implausible. */
+/* Slopes, least-squares estimate and PLL for the period just measured; with pll_freeze the
+ * flux estimator updates the PLL this period and only the branch is taken here. Returns 1 when
+ * the period counted as implausible. */
 static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_freeze)
 {
     const real_t *p = c->p;
@@ -380,9 +381,6 @@ static int16_t flux_position(fw_core_t *c)
     c->theta_raw_branch = meas;
     c->stamp = (int16_t)(FW_P_TICKS - 1);
     c->theta_hat = c->pll.theta;
-    if (c->flux_pos_count < 0xFFFFFFFFu) {
-        c->flux_pos_count++;
-    }
     return (int16_t)(fw_fabs(eps) <= p[FW_PI_PLL_ERR_MAX_DEG] * (FW_PI_R / FW_REAL(180.0)));
 }
 
@@ -548,7 +546,6 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     int16_t data_ok = 0;
     uint32_t k;
     int16_t bad_est = 0;
-    int16_t pll_freeze = 0;
     fw_pol_out_t pol_out;
     int16_t slow;
 
@@ -635,7 +632,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     /* (the polarity test runs with the PLL tracking: polarity_detect.c) */
     if (data_ok) {
         int16_t by_flux = flux_carries_position(c);
-        bad_est = estimate_position(c, adc, (int16_t)(pll_freeze || by_flux));
+        bad_est = estimate_position(c, adc, by_flux);
         reconstruct_current(c, adc);
         {
             real_t th_mid = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
@@ -720,15 +717,10 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
             break;
         }
-        if (pol_out.kind == FW_POL_OUT_CURRENT) {
-            select_parameters(c);
-            c->id_ref = pol_out.id;
-            c->iq_ref = pol_out.iq;
-            output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
-        } else {
-            c->vd = c->vq = FW_REAL(0.0);
-            output_voltage(c, pol_out.v, k + 1u, pwm);
-        }
+        select_parameters(c);
+        c->id_ref = pol_out.id;
+        c->iq_ref = pol_out.iq;
+        output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
         break;
     }
     case FW_STATE_RUN:

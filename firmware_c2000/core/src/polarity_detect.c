@@ -175,11 +175,8 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
     int16_t method = (int16_t)p[FW_PI_POL_METHOD];
     real_t i_bias = p[FW_PI_POL_PULSE_A];
 
-    out->kind = FW_POL_OUT_CURRENT;
-    out->v = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     out->id = FW_REAL(0.0);
     out->iq = FW_REAL(0.0);
-    out->pll_freeze = 0;
     if (pol->result != 0) {
         return pol->result;
     }

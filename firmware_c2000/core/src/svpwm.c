@@ -386,17 +386,3 @@ void fw_plan_to_pwm(const fw_plan_t *pl, uint32_t period, int16_t gate, fw_pwm_t
     }
     pwm->gate_enable = gate;
 }
-
-fw_cplx_t fw_plan_volt_seconds(const fw_plan_t *pl, real_t t0, real_t t1)
-{
-    fw_cplx_t acc = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    int16_t i;
-    for (i = 0; i < pl->n_seg; i++) {
-        real_t a = fw_max((real_t)pl->seg_t[i], t0);
-        real_t b = fw_min((real_t)pl->seg_t[i + 1], t1);
-        if (b > a) {
-            acc = fw_cadd(acc, fw_cscale(fw_state_voltage(pl->seg_state[i], pl->vdc), (b - a)));
-        }
-    }
-    return fw_cscale(acc, FW_TICK_S);
-}
