@@ -88,6 +88,21 @@ class SpeedDip:
     recovery_s: float  # inf when the speed never settles back into the band
 
 
+def settling_time(t: npt.ArrayLike, err: npt.ArrayLike, t0: float, band: float) -> float:
+    """Time from ``t0`` to the first sample after which |err| stays within ``band`` to the
+    end (0 when it never leaves, inf when it is outside at the end)."""
+    tt = np.asarray(t, dtype=np.float64)
+    e = np.abs(np.asarray(err, dtype=np.float64))
+    if e.size == 0 or not np.isfinite(e).any():
+        return float("nan")
+    outside = ~(e <= band)
+    if not outside.any():
+        return 0.0
+    if outside[-1]:
+        return math.inf
+    return float(tt[int(np.flatnonzero(outside)[-1]) + 1] - t0)
+
+
 def speed_dip(
     t: npt.ArrayLike,
     speed_rpm: npt.ArrayLike,
@@ -117,14 +132,7 @@ def speed_dip(
     k = int(np.argmin(wp))
     drop = base - float(wp[k])
     band = band_rpm if band_rpm > 0 else abs(base) * band_pct / 100.0
-    outside = np.abs(wp - base) > band
-    if not outside.any():
-        recovery = 0.0
-    elif outside[-1]:
-        recovery = math.inf
-    else:
-        last_out = int(np.flatnonzero(outside)[-1])
-        recovery = float(tp[last_out + 1] - t_step)
+    recovery = settling_time(tp, wp - base, t_step, band)
     pct = 100.0 * drop / abs(base) if base != 0 else float("nan")
     return SpeedDip(base, drop, pct, float(tp[k]), recovery)
 
@@ -341,21 +349,6 @@ def _trk_max(w: Window, p: Mapping[str, float]) -> float:
 @_register("speed_track_err_rms_rpm", "r/min", "RMS true speed - scenario speed reference")
 def _trk_rms(w: Window, p: Mapping[str, float]) -> float:
     return error_stats(w.get("speed_true_rpm") - w.get("speed_ref_rpm")).rms
-
-
-def settling_time(t: npt.ArrayLike, err: npt.ArrayLike, t0: float, band: float) -> float:
-    """Time from ``t0`` to the first sample after which |err| stays within ``band`` to the
-    end (0 when it never leaves, inf when it is outside at the end)."""
-    tt = np.asarray(t, dtype=np.float64)
-    e = np.abs(np.asarray(err, dtype=np.float64))
-    if e.size == 0 or not np.isfinite(e).any():
-        return float("nan")
-    outside = ~(e <= band)
-    if not outside.any():
-        return 0.0
-    if outside[-1]:
-        return math.inf
-    return float(tt[int(np.flatnonzero(outside)[-1]) + 1] - t0)
 
 
 @_register(

@@ -776,10 +776,7 @@ def evaluate_one(cr: Criterion, cap: capture.Capture | None,
         elif math.isinf(value):
             note = "never settled" if cr.metric == "recovery_time_s" else "infinite"
     passed = metrics.compare(value, cr.comparison, cr.limit)
-    if cr.xfail:
-        result = "xpass" if passed else "xfail"
-    else:
-        result = "pass" if passed else "fail"
+    result = outcome_of(passed, cr.xfail)
     return {
         "name": cr.name,
         "metric": cr.metric,
@@ -1117,28 +1114,25 @@ def evaluate_comparison(cmp: Comparison,
     """A suite comparison on the criterion values recorded in the entries of two runs: a run
     that is missing (interrupted suite) or has no value fails the comparison."""
 
-    def value(run: str) -> float:
-        for e in entries:
-            if e["name"] == run:
-                for c in e.get("criteria") or []:
-                    if c.get("name") == cmp.criterion and c.get("value") is not None:
-                        return float(c["value"])
-        return math.nan
+    def criterion(run: str) -> Mapping[str, Any]:
+        return next((c for e in entries if e["name"] == run
+                     for c in e.get("criteria") or [] if c.get("name") == cmp.criterion), {})
 
-    a, b = value(cmp.a), value(cmp.b)
-    passed = not (math.isnan(a) or math.isnan(b)) and metrics.compare(a, cmp.relation, b)
-    if cmp.xfail:
-        result = "xpass" if passed else "xfail"
-    else:
-        result = "pass" if passed else "fail"
-    unit = next((c.get("unit") for e in entries if e["name"] == cmp.a
-                 for c in e.get("criteria") or [] if c.get("name") == cmp.criterion), "")
+    ca, cb = criterion(cmp.a), criterion(cmp.b)
+    a, b = ca.get("value"), cb.get("value")
+    passed = a is not None and b is not None and metrics.compare(a, cmp.relation, b)
     return {
         "name": cmp.name, "criterion": cmp.criterion, "a": cmp.a, "b": cmp.b,
-        "relation": cmp.relation, "value_a": None if math.isnan(a) else a,
-        "value_b": None if math.isnan(b) else b, "unit": unit or "", "passed": passed,
-        "outcome": result, "xfail": cmp.xfail,
+        "relation": cmp.relation, "value_a": a, "value_b": b, "unit": ca.get("unit") or "",
+        "passed": passed, "outcome": outcome_of(passed, cmp.xfail), "xfail": cmp.xfail,
     }
+
+
+def outcome_of(passed: bool, xfail: str) -> str:
+    """pass/fail, or for a known failure (xfail reason given) xfail/xpass."""
+    if xfail:
+        return "xpass" if passed else "xfail"
+    return "pass" if passed else "fail"
 
 
 def exit_code(passed: bool, status: str) -> int:
