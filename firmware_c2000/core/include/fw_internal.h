@@ -62,6 +62,9 @@ void fw_pe_apparent(fw_param_est_t *pe, real_t iq);
 /* Gamma0 for the single-vector fallback at q current iq (section 3): the fast-filtered value
  * moved along the learnt Gamma0(iq) curve from the current it was measured at */
 real_t fw_pe_gamma0_prior(const fw_param_est_t *pe, real_t iq);
+/* Gamma1 along the d axis at theta: Re(g exp(-j 2 theta)), so 1/Ld_inc = Gamma0 + it and
+ * 1/Lq_inc = Gamma0 - it (estimator-math section 3) */
+real_t fw_est_gamma1_at(const fw_est_out_t *est, real_t theta);
 /* Largest |iq| at which the learnt incremental saliency Gamma1 stays above gamma1_min (linear
  * extrapolation of the measured bins); i_max when no measured bin approaches it. */
 real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max);

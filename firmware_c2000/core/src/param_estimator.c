@@ -37,17 +37,20 @@ void fw_pe_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max)
     pe->n_updates = 0;
 }
 
+real_t fw_est_gamma1_at(const fw_est_out_t *est, real_t theta)
+{
+    return fw_cmul(est->g, fw_cexpj(FW_REAL(-2.0) * theta)).re;
+}
+
 void fw_pe_update(fw_param_est_t *pe, const fw_est_out_t *est, real_t theta_ref, real_t iq,
                   real_t alpha, real_t l_lo, real_t l_hi)
 {
-    fw_cplx_t rot;
     real_t g1, ld_i, lq_i, inv_lq;
     int16_t b;
     if (est->n_active != 2 || !est->ok) {
         return;
     }
-    rot = fw_cexpj(FW_REAL(-2.0) * theta_ref);
-    g1 = fw_cmul(est->g, rot).re;
+    g1 = fw_est_gamma1_at(est, theta_ref);
     if (!(est->gamma0 - g1 > FW_REAL(0.0)) || !(est->gamma0 + g1 > FW_REAL(0.0))) {
         return;
     }

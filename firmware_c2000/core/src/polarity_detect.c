@@ -91,13 +91,11 @@ static void start_motion(fw_polarity_t *pol, const fw_core_t *c)
 /* one period's estimate: deviation of 1/Ld_inc (two-vector estimates only) from g_ref */
 static void accumulate(fw_polarity_t *pol, const fw_core_t *c, int16_t neg)
 {
-    fw_cplx_t dir2;
     real_t x;
     if (!c->est.ok || c->est.n_active != 2) {
         return;
     }
-    dir2 = fw_cexpj(FW_REAL(-2.0) * c->theta_hat);
-    x = c->est.gamma0 + (c->est.g.re * dir2.re - c->est.g.im * dir2.im) - pol->g_ref;
+    x = c->est.gamma0 + fw_est_gamma1_at(&c->est, c->theta_hat) - pol->g_ref;
     pol->s1[neg] += x;
     pol->s2[neg] += x * x;
     pol->si[neg] += c->id;
