@@ -125,22 +125,36 @@ def test_bad_input_rejected_counted_and_previous_command_kept(
     pwm_id = peer.message("VIO_PWM").frame_id
     try:
         peer.adc(0)
+        sent: dict[str, int] = {}
+
+        def bad(kind: str, send: Callable[[], object]) -> None:
+            # one at a time: the plant's datagram queue on unixcan holds 10 frames
+            # (net.unix.max_dgram_qlen) and on a loaded machine a burst can outlast the
+            # sender's 2 ms grace, which drops the rest (that is the bus's rule, not the test's)
+            send()
+            sent[kind] = sent.get(kind, 0) + 1
+            peer.wait_for(lambda f: f.name == "BENCH_REJECTS" and f.signals[kind] >= sent[kind],
+                          3.0, f"BENCH_REJECTS counting {kind}")
+
         # the plant expects PWM(1)
-        peer.pwm(Pwm(1, cmp_up=(5001, 2500, 2500)), strict=False)            # out_of_range
-        peer.pwm(Pwm(1, socs=(10, 20, 10000)), strict=False)                  # soc_outside
-        peer.pwm(Pwm(1, socs=tuple(range(16)), n_soc=17), strict=False)       # too_many_soc
-        peer.pwm(Pwm(0))                                                      # stale_period
-        peer.pwm(Pwm(2))                                                      # future_period
+        bad("out_of_range", lambda: peer.pwm(Pwm(1, cmp_up=(5001, 2500, 2500)), strict=False))
+        bad("soc_outside", lambda: peer.pwm(Pwm(1, socs=(10, 20, 10000)), strict=False))
+        bad("too_many_soc",
+            lambda: peer.pwm(Pwm(1, socs=tuple(range(16)), n_soc=17), strict=False))
+        bad("stale_period", lambda: peer.pwm(Pwm(0)))
+        bad("future_period", lambda: peer.pwm(Pwm(2)))
         good = peer.message("VIO_PWM").encode(Pwm(1).signals())
-        peer.send_raw(pwm_id, good[:48], is_fd=True)                          # bad_length
-        peer.send_raw(pwm_id, good[:8], is_fd=False)                          # malformed
-        peer.send_raw(0x1F, bytes(64), is_fd=True)                            # unknown_id
-        peer.load(0, torque=20.0, strict=False)                               # out_of_range
+        bad("bad_length", lambda: peer.send_raw(pwm_id, good[:48], is_fd=True))
+        bad("malformed", lambda: peer.send_raw(pwm_id, good[:8], is_fd=False))
+        bad("unknown_id", lambda: peer.send_raw(0x1F, bytes(64), is_fd=True))
+        bad("out_of_range", lambda: peer.load(0, torque=20.0, strict=False))
         step = peer.message("BENCH_STEP").encode({"run_until": 2, "seq": 1})
-        peer.send_raw(peer.message("BENCH_STEP").frame_id, step, is_fd=False)  # malformed
+        bad("malformed",
+            lambda: peer.send_raw(peer.message("BENCH_STEP").frame_id, step, is_fd=False))
         # a valid PWM(1), then a broken one for the same period: the valid one stays
         peer.pwm(Pwm(1, socs=(0, 5000, 9000)))
-        peer.pwm(Pwm(1, cmp_dn=(2500, 6000, 2500), socs=(1, 2, 3, 4, 5)), strict=False)
+        bad("out_of_range", lambda: peer.pwm(Pwm(1, cmp_dn=(2500, 6000, 2500),
+                                                  socs=(1, 2, 3, 4, 5)), strict=False))
         expected = {"unknown_id": 1, "bad_length": 1, "out_of_range": 3, "stale_period": 1,
                     "future_period": 1, "too_many_soc": 1, "soc_outside": 1, "malformed": 2}
         rejects = peer.wait_for(
@@ -149,8 +163,9 @@ def test_bad_input_rejected_counted_and_previous_command_kept(
         assert rejects.signals["period"] == 1
         counters = peer.wait_for(lambda f: f.name == "BENCH_COUNTERS", 3.0)
         assert counters.signals["rejected"] == sum(expected.values())
-        # none of that simulated anything: the grant still ends at period 1
-        assert [f.signals["period"] for f in peer.heard if f.name.startswith("VIO_ADC")] == [0]
+        # none of that simulated anything: the grant still ends at period 1 (ADC(0) may be
+        # heard again: the plant re-sends the last ADC every 100 ms while it waits)
+        assert {f.signals["period"] for f in peer.heard if f.name.startswith("VIO_ADC")} == {0}
 
         peer.step(2, seq=2)
         adc1 = peer.adc(1)
