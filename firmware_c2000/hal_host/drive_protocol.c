@@ -436,9 +436,9 @@ void fwh_drive_telemetry(fwh_t *app, const fw_status_t *s)
         struct hil_drive_tlm_volt_t m;
         memset(&m, 0, sizeof(m));
         m.period = period;
-        FWH_SAT_ENCODE(r, hil_drive_tlm_volt_vd, s->vd, I16_MIN, I16_MAX);
+        FWH_SAT_ENCODE(r, hil_drive_tlm_volt_vd, s->vd_mean, I16_MIN, I16_MAX);
         m.vd = (int16_t)r;
-        FWH_SAT_ENCODE(r, hil_drive_tlm_volt_vq, s->vq, I16_MIN, I16_MAX);
+        FWH_SAT_ENCODE(r, hil_drive_tlm_volt_vq, s->vq_mean, I16_MIN, I16_MAX);
         m.vq = (int16_t)r;
         m.sector = (uint8_t)(s->sector >= 0 && s->sector <= 6 ? s->sector : 0);
         m.slopes_ok = (uint8_t)(s->slopes_ok >= 0 && s->slopes_ok <= 3 ? s->slopes_ok : 0);

@@ -109,6 +109,8 @@ typedef struct {
     real_t id, iq;            /* A, measured, in the estimated frame */
     real_t id_ref, iq_ref;    /* A */
     real_t vd, vq;            /* V, voltage references for the next period */
+    real_t vd_mean, vq_mean;  /* V, mean of vd, vq over the last complete block of
+                                 FW_SPEED_DIVIDER periods (what the 1 kHz TLM_VOLT carries) */
     real_t ld_hat, lq_hat;    /* H, online estimates (incremental) */
     real_t lambda_hat;        /* Wb, online PM flux estimate */
     real_t te_hat;            /* N*m, estimated torque */

@@ -198,6 +198,12 @@ struct fw_core {
     real_t id, iq;               /* measured, estimated frame */
     real_t id_ref, iq_ref;
     real_t vd, vq;               /* references for the next period */
+    /* mean of (vd, vq) over blocks of FW_SPEED_DIVIDER periods for the 1 kHz telemetry:
+     * sampling the 10 kHz references every 10th period would alias their period-to-period
+     * ripple into a bias (a 10-period mean has zeros at every multiple of 1 kHz) */
+    fw_cplx_t vdq_sum;
+    int16_t vdq_sum_n;
+    fw_cplx_t vdq_mean;
     real_t v_lim;                /* V, voltage available to the current controller */
     real_t v_mag_f;              /* filtered |v| for the flux-weakening feedback */
     fw_pi_t pi_d, pi_q, pi_spd;

@@ -745,6 +745,13 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     } else {
         c->te_hat = FW_REAL(0.0);
     }
+    c->vdq_sum = fw_cadd(c->vdq_sum, fw_c(c->vd, c->vq));
+    c->vdq_sum_n++;
+    if (c->vdq_sum_n >= FW_SPEED_DIVIDER) {
+        c->vdq_mean = fw_cscale(c->vdq_sum, FW_REAL(1.0) / (real_t)c->vdq_sum_n);
+        c->vdq_sum = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+        c->vdq_sum_n = 0;
+    }
     c->pwm_last = *pwm;
     c->pwm_valid = 1;
 }
@@ -772,6 +779,8 @@ void fw_core_status(const fw_core_t *c, fw_status_t *s)
     s->iq_ref = c->iq_ref;
     s->vd = c->vd;
     s->vq = c->vq;
+    s->vd_mean = c->vdq_mean.re;
+    s->vq_mean = c->vdq_mean.im;
     s->ld_hat = c->pe.ld_inc;
     s->lq_hat = c->pe.lq_inc;
     s->lambda_hat = c->flux.lambda_f;

@@ -141,6 +141,50 @@ static void busy_while_running(void)
     CHECK(fw_param_set(&s->core, FW_PID_SPD_KP, 0.02f) == FW_STATUS_OK, "tuning while running");
 }
 
+/* the telemetry voltages are block means of FW_SPEED_DIVIDER periods: they change once per
+ * block, then equal the mean of the block's per-period references (an alias-free 1 kHz value) */
+static void telemetry_voltage_means(void)
+{
+    sim_t *s = &S;
+    double vd[FW_SPEED_DIVIDER * 40], vq[FW_SPEED_DIVIDER * 40];
+    const int n = FW_SPEED_DIVIDER * 40;
+    int k, changes = 0, last_change = -1;
+    double ripple = 0.0;
+    fw_status_t st, prev;
+    reach_run(s);
+    s->cmd.ctrl_mode = FW_CTRL_CURRENT;
+    s->cmd.iq_ref = 1.0f;
+    fw_core_status(&s->core, &prev);
+    for (k = 0; k < n; k++) {
+        sim_step(s);
+        fw_core_status(&s->core, &st);
+        vd[k] = st.vd;
+        vq[k] = st.vq;
+        if (k > 0) {
+            ripple = fmax(ripple, fabs(vq[k] - vq[k - 1]));
+        }
+        if (st.vd_mean != prev.vd_mean || st.vq_mean != prev.vq_mean) {
+            double md = 0.0, mq = 0.0;
+            int j;
+            CHECK(k >= FW_SPEED_DIVIDER - 1, "mean changed after %d periods", k + 1);
+            CHECK(last_change < 0 || k - last_change == FW_SPEED_DIVIDER,
+                  "mean changed %d periods after the last change", k - last_change);
+            for (j = k - FW_SPEED_DIVIDER + 1; j <= k && j >= 0; j++) {
+                md += vd[j] / FW_SPEED_DIVIDER;
+                mq += vq[j] / FW_SPEED_DIVIDER;
+            }
+            CHECK(fabs(st.vd_mean - md) < 1e-4 && fabs(st.vq_mean - mq) < 1e-4,
+                  "block mean (%g, %g) V, expected (%g, %g) V", st.vd_mean, st.vq_mean, md, mq);
+            changes++;
+            last_change = k;
+        }
+        prev = st;
+    }
+    CHECK(changes >= n / FW_SPEED_DIVIDER - 1, "only %d block means in %d periods", changes, n);
+    /* the test means something only when the per-period references do move */
+    CHECK(ripple > 1e-3, "references constant (%g V): nothing to average", ripple);
+}
+
 static void adc_loss(void)
 {
     sim_t *s = &S;
@@ -258,6 +302,7 @@ int main(void)
     bad_commands();
     bad_params();
     busy_while_running();
+    telemetry_voltage_means();
     adc_loss();
     command_timeout();
     repeated_frame();
