@@ -25,10 +25,14 @@ class CommissioningConfig:
     # Ld, Lq: slope estimator at standstill, zero current
     ldlq_settle_s: float = 0.25
     ldlq_window_s: float = 0.1
-    # rs: locked rotor, q-current steps; voltage vs current slope. The smallest step keeps
-    # every phase carrying current well above the ripple (at least half the step), so the
-    # inverter's voltage error is the same at every step; the online inductances settle
-    # (param_tau_ms) before the window.
+    # rs: locked rotor, q-current steps; voltage vs current slope. First the load machine
+    # turns the rotor at rs_align_speed_rpm until the q axis of θ̂ lies within
+    # rs_align_tolerance_deg (electrical) of a phase axis: then every phase carries at least
+    # half the step current, well above the ripple, so the inverter's voltage error is the
+    # same at every step. The online inductances settle (param_tau_ms) before the window.
+    rs_align_speed_rpm: float = 5.0
+    rs_align_tolerance_deg: float = 3.0
+    rs_align_timeout_s: float = 3.0
     rs_currents_a: tuple[float, ...] = (1.5, 2.25, 3.0)
     rs_settle_s: float = 0.2
     rs_window_s: float = 0.3
@@ -84,6 +88,12 @@ class CommissioningConfig:
                 raise BenchDescriptionError(f"{where}.{key}: realtime, conventional or id_zero")
         if max(cfg.rs_currents_a) > cfg.i_max_a or cfg.flux_current_a > cfg.i_max_a:
             raise BenchDescriptionError(f"{where}: test currents above i_max_a")
+        if not 0.0 < cfg.rs_align_speed_rpm <= 60.0:
+            raise BenchDescriptionError(f"{where}.rs_align_speed_rpm: above 0, at most 60 r/min")
+        if not 0.0 < cfg.rs_align_tolerance_deg <= 15.0:
+            raise BenchDescriptionError(f"{where}.rs_align_tolerance_deg: above 0, at most 15°")
+        if cfg.rs_align_timeout_s <= 0.0:
+            raise BenchDescriptionError(f"{where}.rs_align_timeout_s: above 0")
         if len(cfg.rs_currents_a) < 2:
             raise BenchDescriptionError(f"{where}.rs_currents_a: at least two currents")
         return cfg

@@ -13,8 +13,10 @@ drive runs.
 * Ld, Lq: the slope estimator's online incremental inductances (TLM_PARAM) at zero current.
 * rs: steady q-current steps; the firmware applies exactly the volt-seconds it commands
   (pattern carry), so the mean q voltage reference is rs·iq plus the inverter's voltage error
-  along the current, which is the same for every step once the current is well above the
-  ripple: rs is the slope of vq over iq, the intercept that error (dead time, device drop).
+  along the current, which is the same for every step once every phase current is well above
+  the ripple. The load machine therefore first turns the rotor until the q axis lies on a
+  phase axis (each phase then carries at least half the current). rs is the slope of vq over
+  iq, the intercept that error (dead time, device drop).
   The shaft torque of the same steps gives kt = 1.5·p·λm (a cross-check of λm).
 """
 
@@ -35,6 +37,7 @@ from rig.commissioning.steps.common import (
     pole_pairs,
     truth,
 )
+from rig.commissioning.telemetry import Window
 
 TITLE_POLARITY = "Polarity at standstill (free-shaft start, locked-rotor torque check)"
 TITLE = "Standstill identification: polarity, Ld, Lq, rs (locked rotor)"
@@ -128,6 +131,54 @@ def _step(s: BenchSession, iq: float, settle_s: float | None = None,
     return measure(s, s.config.step_window_s if window_s is None else window_s)
 
 
+def phase_axis_offset_deg(theta_hat_deg: float) -> float:
+    """Electrical angle from the q axis (θ̂ + 90°) to the nearest phase axis (±a, ±b, ±c,
+    every 60°), in [-30°, 30°)."""
+    return (theta_hat_deg + 90.0 + 30.0) % 60.0 - 30.0
+
+
+def smallest_phase_share(offset_deg: float) -> float:
+    """The smallest |phase current| / |current| of a current vector offset_deg from a phase
+    axis: 0.5 on the axis, 0 at 30° (one phase then carries no current at all)."""
+    return min(abs(math.cos(math.radians(offset_deg - k * 120.0))) for k in range(3))
+
+
+def _theta_hat_now(s: BenchSession, seconds: float) -> float | None:
+    with Window(s.link, ("TLM_POS",)) as w:
+        s.clock.advance(seconds)
+    th = w.values("TLM_POS", "theta_hat")
+    return float(th[-1]) if th.size else None
+
+
+def _align_q_with_a_phase(s: BenchSession, r: StepResult) -> None:
+    """Turns the rotor with the load machine (slow speed hold, the drive at zero current)
+    until the q axis lies on a phase axis, and locks it there. At an arbitrary angle one phase
+    may carry a current inside the ripple; its dead-time error then changes with the step
+    current and adds to the vq-over-iq slope (measured: up to +5 % on rs)."""
+    cfg = s.config
+    assert s.load is not None
+    poll_s = 0.002
+    theta = _theta_hat_now(s, poll_s)
+    waited = 0.0
+    if theta is None or abs(phase_axis_offset_deg(theta)) > cfg.rs_align_tolerance_deg:
+        s.load.set_speed(cfg.rs_align_speed_rpm)
+        while waited < cfg.rs_align_timeout_s:
+            theta = _theta_hat_now(s, poll_s)
+            waited += poll_s
+            if theta is not None and \
+                    abs(phase_axis_offset_deg(theta)) <= cfg.rs_align_tolerance_deg:
+                break
+        s.load.set_speed(0.0)
+    settled = measure(s, 0.05, polls=1)
+    theta_end = float(settled.window.values("TLM_POS", "theta_hat")[-1])
+    off = phase_axis_offset_deg(theta_end)
+    share = smallest_phase_share(off)
+    r.check("q axis on a phase axis for rs", abs(off) <= 2.0 * cfg.rs_align_tolerance_deg,
+            f"θ̂ {theta_end:.1f}° after turning {waited:.2f} s at "
+            f"{cfg.rs_align_speed_rpm:g} r/min: q axis {off:+.1f}° from a phase axis, "
+            f"smallest phase current {share:.2f}·iq")
+
+
 def _polarity_by_torque(s: BenchSession, r: StepResult, sample: Sample, label: str) -> str:
     cfg = s.config
     pp = pole_pairs(s)
@@ -186,6 +237,7 @@ def _identify(s: BenchSession, r: StepResult) -> None:
             f"{1e3 * w.std('TLM_PARAM', 'lq_hat'):.3f} mH)")
     s.identified["ld_h"], s.identified["lq_h"] = ld.value, lq.value
 
+    _align_q_with_a_phase(s, r)
     steps = [_step(s, i, cfg.rs_settle_s, cfg.rs_window_s) for i in cfg.rs_currents_a]
     iq = np.asarray([x.iq for x in steps])
     vq = np.asarray([x.vq for x in steps])

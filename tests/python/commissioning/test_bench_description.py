@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rig import bench_description as bd
@@ -78,7 +79,8 @@ def test_overrides(tmp_path: Path) -> None:
 @pytest.mark.parametrize(("table", "message"), [
     ({"i_max_a": "4"}, "a number"), ({"rs_currents_a": [1.0]}, "at least two"),
     ({"rs_currents_a": [1.0, 9.0]}, "above i_max_a"), ({"sweep_fw_mode": "mtpa"}, "realtime"),
-    ({"typo": 1}, "unknown key(s) typo"),
+    ({"typo": 1}, "unknown key(s) typo"), ({"rs_align_speed_rpm": 0.0}, "above 0"),
+    ({"rs_align_tolerance_deg": 30.0}, "at most 15°"), ({"rs_align_timeout_s": -1}, "above 0"),
 ])
 def test_commissioning_levels_are_checked(table: dict[str, object], message: str) -> None:
     with pytest.raises(bd.BenchDescriptionError) as e:
@@ -100,3 +102,21 @@ def test_cli_lists_the_steps_and_refuses_bad_input(tmp_path: Path) -> None:
     assert done.returncode == 2 and "unknown key(s) x" in done.stderr
     done = rig("commission", "dance", "--bench", "virtual")
     assert done.returncode == 2
+
+
+def test_phase_axis_geometry_against_the_phase_currents() -> None:
+    """The offset of the q axis from the nearest phase axis and the smallest phase share,
+    checked against the phase currents of a unit q current computed directly."""
+    from rig.commissioning.steps.standstill import phase_axis_offset_deg, smallest_phase_share
+
+    for theta in np.arange(-720.0, 720.0, 0.7):
+        phi = np.radians(theta + 90.0)  # direction of the q current
+        phases = [np.cos(phi - k * 2.0 * np.pi / 3.0) for k in range(3)]
+        off = phase_axis_offset_deg(float(theta))
+        assert -30.0 <= off < 30.0
+        # on a phase axis one phase carries the whole current, so |i| max = 1 there
+        assert max(abs(x) for x in phases) == pytest.approx(np.cos(np.radians(off)), abs=1e-9)
+        assert smallest_phase_share(off) == pytest.approx(min(abs(x) for x in phases),
+                                                          abs=1e-9)
+    assert smallest_phase_share(0.0) == pytest.approx(0.5)
+    assert smallest_phase_share(30.0) == pytest.approx(0.0, abs=1e-12)

@@ -35,7 +35,9 @@ def test_commission_all_identifies_the_paper_machine(make_desc: MakeDesc,
     assert run.passed, run.report_path.read_text()
     truth = paper_truth()
     got = {k: run.value(k) for k in ("rs_ohm", "ld_h", "lq_h", "lambda_m_wb")}
-    assert within(got["rs_ohm"], truth["rs_ohm"], 0.05), got
+    # rs: the q current on a phase axis keeps the dead-time error constant over the steps
+    # (measured ≤ 0.6 % at any start angle; at arbitrary lock angles -2 % … +5 %)
+    assert within(got["rs_ohm"], truth["rs_ohm"], 0.02), got
     assert within(got["ld_h"], truth["ld_h"], 0.05), got
     assert within(got["lq_h"], truth["lq_h"], 0.05), got
     assert within(got["lambda_m_wb"], truth["lambda_m_wb"], 0.03), got
@@ -61,12 +63,25 @@ def test_identification_follows_the_plant_not_the_nominal(make_desc: MakeDesc,
     desc = make_desc(*(f"virtual.plant.{k}={v}" for k, v in machine.items()))
     run = runner.commission(desc, ["standstill", "flux"], tmp_path / "run")
     assert run.passed, run.report_path.read_text()
-    assert within(run.value("rs_ohm"), machine["machine.rs_ohm"], 0.05)
+    assert within(run.value("rs_ohm"), machine["machine.rs_ohm"], 0.02)
     assert within(run.value("ld_h"), machine["magnetics.ld_h"], 0.05)
     assert within(run.value("lq_h"), machine["magnetics.lq_h"], 0.05)
     assert within(run.value("lambda_m_wb"), machine["machine.lambda_m_wb"], 0.03)
     q = {x.key: x for s in run.steps for x in s.quantities}
     assert q["rs_ohm"].truth == 2.4 and q["rs_ohm"].nominal == 1.93
+
+
+@pytest.mark.parametrize("theta0", [45.0, 75.0])
+def test_rs_does_not_depend_on_where_the_rotor_stops(make_desc: MakeDesc, tmp_path: Path,
+                                                     theta0: float) -> None:
+    """The rotor is turned until the q current lies on a phase axis before the rs steps:
+    the identified rs must not depend on the angle the drive started at."""
+    desc = make_desc(f"virtual.plant.initial.theta_e_deg={theta0}")
+    run = runner.commission(desc, ["standstill"], tmp_path / "run")
+    assert run.passed, run.report_path.read_text()
+    assert within(run.value("rs_ohm"), paper_truth()["rs_ohm"], 0.02), run.value("rs_ohm")
+    aligned = [c for c in run.step("standstill").checks if c.name.startswith("q axis on")]
+    assert len(aligned) == 1 and aligned[0].passed
 
 
 def angle_errors_per_start(log: Path) -> list[np.ndarray]:
