@@ -243,8 +243,14 @@ class Supervisor:
 
     # -- stopping ----------------------------------------------------------------------
     def _signal(self, child: Child, sig: int) -> None:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
+        # The child leads its own session, so its group holds it: one signal, not two (a
+        # second SIGTERM can land while the child is already exiting and kill it by default
+        # action, turning a clean stop into -15). Only without the group signal it directly.
+        try:
             os.killpg(child.proc.pid, sig)
+            return
+        except (ProcessLookupError, PermissionError):
+            pass
         with contextlib.suppress(ProcessLookupError):
             child.proc.send_signal(sig)
 
