@@ -1,7 +1,7 @@
 /* console.c - the SCI console: a line protocol on the pseudo-terminal.
  *
  * protocols/console.md is the grammar; the command table is generated from
- * protocols/console.json (gen_console.py). Each non-blank line gets exactly one reply that
+ * protocols/console.json (tools/gen_console.py). Each non-blank line gets exactly one reply that
  * ends with a line starting "OK" or "ERR <code> "; list commands send data lines starting
  * "- " before it. No echo, no unsolicited output. A bad line changes nothing.
  *

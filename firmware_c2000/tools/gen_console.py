@@ -19,6 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from c_codegen import c_string, write_if_changed
+
 WORD_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 ARG_TYPES = {"param": "CON_ARG_PARAM", "number": "CON_ARG_NUMBER", "choice": "CON_ARG_CHOICE"}
 MAX_ARGS = 2
@@ -26,10 +28,6 @@ MAX_ARGS = 2
 
 class SpecError(ValueError):
     pass
-
-
-def c_string(s: str) -> str:
-    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
 def usage(cmd: dict[str, Any]) -> str:
@@ -147,12 +145,6 @@ def source(spec: dict[str, Any]) -> str:
         out.append(f"    {c_string(e['name'])},")
     out += ["};", ""]
     return "\n".join(out)
-
-
-def write_if_changed(path: Path, text: str) -> None:
-    if path.exists() and path.read_text(encoding="utf-8") == text:
-        return
-    path.write_text(text, encoding="utf-8")
 
 
 def main(argv: list[str]) -> int:
