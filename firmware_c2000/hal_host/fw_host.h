@@ -12,6 +12,7 @@
 
 #include "adc_assembly.h"
 #include "fw_core.h"
+#include "hil_log_limit.h"
 #include "hilbus.h"
 #include "hiltrace.h"
 #include "pty.h"
@@ -92,10 +93,7 @@ typedef struct fwh {
     int64_t t0_ns, next_status_ns, next_heartbeat_ns;
     uint8_t alive;
     fwh_status_key_t sent;
-    /* rate-limited rejection log */
-    int64_t log_window_ns;
-    int log_lines;
-    uint64_t log_suppressed;
+    hil_log_limit_t log_limit; /* rejection and protocol lines on stderr */
     fwh_counters_t cnt;
     const char *rt_note;
     volatile int stop;

@@ -85,22 +85,7 @@ uint64_t fwh_rejected_total(const fwh_t *a)
 
 static int log_allowed(fwh_t *a)
 {
-    const int64_t t = fwh_now_ns();
-    if (t - a->log_window_ns >= FWH_NS_PER_S) {
-        if (a->log_suppressed) {
-            fprintf(stderr, "fw_host: (%llu more messages not logged)\n",
-                    (unsigned long long)a->log_suppressed);
-        }
-        a->log_window_ns = t;
-        a->log_lines = 0;
-        a->log_suppressed = 0;
-    }
-    if (a->log_lines >= LOG_LINES_PER_S) {
-        a->log_suppressed++;
-        return 0;
-    }
-    a->log_lines++;
-    return 1;
+    return hil_log_limit_allow(&a->log_limit, fwh_now_ns());
 }
 
 void fwh_reject(fwh_t *a, int reason, const char *fmt, ...)
@@ -680,7 +665,7 @@ int main(int argc, char **argv)
     app.t0_ns = fwh_now_ns();
     app.next_status_ns = app.t0_ns;
     app.next_heartbeat_ns = app.t0_ns;
-    app.log_window_ns = app.t0_ns;
+    hil_log_limit_init(&app.log_limit, "fw_host", LOG_LINES_PER_S, app.t0_ns);
     housekeeping(app.t0_ns);
     fprintf(stderr, "fw_host: %s on %s/%s, console %s%s%s\n",
             app.opt.realtime ? "real time" : "lockstep", hilbus_transport(app.bus),

@@ -25,6 +25,7 @@
 #include <unistd.h>
 
 #include "hil_bench.h"
+#include "hil_log_limit.h"
 #include "hil_vio.h"
 #include "hil_ready.h"
 #include "hilbus.h"
@@ -84,9 +85,7 @@ typedef struct app {
     counters_t cnt;
     uint32_t run_until;
     uint8_t step_seq;
-    int64_t log_window_start;
-    int log_lines_in_window;
-    uint64_t log_suppressed;
+    hil_log_limit_t log_limit; /* rejection lines on stderr */
     /* last period's ADC frames, for the lockstep re-send */
     struct canfd_frame adc_frames[3];
     int n_adc_frames;
@@ -103,22 +102,10 @@ static int64_t now_ns(void)
 
 static void log_reject(app_t *a, const char *fmt, ...)
 {
-    const int64_t t = now_ns();
     va_list ap;
-    if (t - a->log_window_start > NS_PER_S) {
-        if (a->log_suppressed) {
-            fprintf(stderr, "plant_rt: (%llu more rejections not logged)\n",
-                    (unsigned long long)a->log_suppressed);
-        }
-        a->log_window_start = t;
-        a->log_lines_in_window = 0;
-        a->log_suppressed = 0;
-    }
-    if (a->log_lines_in_window >= 10) {
-        a->log_suppressed++;
+    if (!hil_log_limit_allow(&a->log_limit, now_ns())) {
         return;
     }
-    a->log_lines_in_window++;
     fputs("plant_rt: rejected: ", stderr);
     va_start(ap, fmt);
     vfprintf(stderr, fmt, ap);
@@ -884,6 +871,7 @@ int main(int argc, char **argv)
     struct sigaction sa;
 
     memset(&a, 0, sizeof(a));
+    hil_log_limit_init(&a.log_limit, "plant_rt", 10, now_ns());
     a.opt.bus = getenv("HIL_BUS") ? getenv("HIL_BUS") : "unixcan";
     a.opt.channel = getenv("HIL_CHANNEL") ? getenv("HIL_CHANNEL") : "vcan0";
     a.opt.truth_every = 10;
