@@ -19,10 +19,6 @@ GRID = [(1, 0), (1, 1), (1, 2), (100, 0), (100, 1), (100, 2), (600, 0), (600, 1)
 I_MAX = 4.5
 V5 = ("the FW voltage limit (1 - Tmin/Ts)*Vdc/sqrt(3) = 92.4 V that keeps a measurable "
       "zero window (estimator-math note 5)")
-SAT = ("q saturation of the paper profile: 2 N*m + B*w needs iq ~3.4-3.6 A where the "
-       "incremental Lq falls to 18 mH and Gamma1 to ~0.35 of nominal (saliency_min cap); the "
-       "rest comes from -id (reluctance torque) inside i_max 4.5 A; the noise grows as "
-       "1/Gamma1 (note 6, 7)")
 LOW = ("5000-period window at <= 100 r/min: the raw per-period estimate (W = Tmin - 9 us = "
        "11 us) is noise-limited (note 6) and the 60 Hz PLL passes its tail; not yet improved")
 # Known failures: the reason per (r/min, N*m, profile, metric). The measured values come from
@@ -32,12 +28,10 @@ XFAIL: dict[tuple[int, float, str, str], str] = {
     (100, 0, "paper", "speed_track_err_max_rpm"): LOW,
     (100, 2, "paper", "pos_err_max_deg"): LOW,
     (100, 2, "paper", "speed_track_err_max_rpm"): LOW,
-    (1000, 2, "paper", "pos_err_max_deg"): SAT,
-    (1000, 2, "paper", "pos_err_rms_deg"): SAT,
-    (1000, 2, "paper", "speed_track_err_max_rpm"): SAT,
     (2000, 2, "ideal", "speed_track_err_max_rpm"): "2.63 N*m at 2000 r/min needs more than "
     "i_max 4.5 A under " + V5,
-    (2000, 2, "paper", "speed_track_err_max_rpm"): SAT + "; and " + V5,
+    (2000, 2, "paper", "speed_track_err_max_rpm"): "2.63 N*m at 2000 r/min needs more than "
+    "i_max 4.5 A under " + V5,
     (3000, 0, "ideal", "speed_track_err_max_rpm"): "3000 r/min needs >= 4.7 A of FW current "
     "under " + V5,
     (3000, 0, "paper", "speed_track_err_max_rpm"): "3000 r/min needs >= 4.7 A of FW current "

@@ -183,6 +183,7 @@ struct fw_core {
     int16_t est_fail_run;
     uint32_t est_reject_count;
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
+    int16_t flux_pos_active;     /* the flux estimator carried the PLL in the last period */
     real_t theta_raw_branch;
     int16_t slopes_ok;
     int16_t stamp;

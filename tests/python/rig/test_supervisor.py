@@ -81,8 +81,10 @@ def test_crash_is_reported_quickly_with_log_tail(tmp_path: Path) -> None:
         pids = _pids(ready) + _pids(tmp_path / "fw_host.ready")
         t0 = time.monotonic()
         with pytest.raises(ChildFailed) as info:
-            sup.sleep(5.0)
-        assert time.monotonic() - t0 < 2.0
+            sup.sleep(60.0)
+        # the crash (0.3 s after ready) ends the sleep long before its 60 s; the bound is
+        # loose on purpose: a loaded machine (CI, a VM beside it) must not make this flaky
+        assert time.monotonic() - t0 < 20.0
     err = info.value
     assert err.name == "plant_rt" and err.returncode == 7
     assert "exit status 7" in str(err)
