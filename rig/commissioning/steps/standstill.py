@@ -244,7 +244,7 @@ def _identify(s: BenchSession, r: StepResult) -> None:
     rs, v0 = np.polyfit(iq, vq, 1)
     resid = float(np.max(np.abs(vq - (rs * iq + v0))))
     r.quantity(Quantity("rs_ohm", "rs", float(rs), "Ω",
-                        f"slope of vq over iq, locked rotor, iq = "
+                        f"slope of vq over iq, locked rotor, q axis on a phase axis, iq = "
                         f"{', '.join(f'{x:.2f}' for x in iq)} A (largest residual "
                         f"{resid:.3f} V)", nominal("rs_ohm"), truth(s, "rs_ohm")))
     r.quantity(Quantity("inverter_v", "inverter voltage error along the current", float(v0),
