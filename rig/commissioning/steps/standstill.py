@@ -169,8 +169,10 @@ def _align_q_with_a_phase(s: BenchSession, r: StepResult) -> None:
                     abs(phase_axis_offset_deg(theta)) <= cfg.rs_align_tolerance_deg:
                 break
         s.load.set_speed(0.0)
-    settled = measure(s, 0.05, polls=1)
-    theta_end = float(settled.window.values("TLM_POS", "theta_hat")[-1])
+    theta_end = _theta_hat_now(s, 0.05)  # after the lock has settled
+    if theta_end is None:
+        r.check("q axis on a phase axis for rs", False, "no TLM_POS from the drive")
+        return
     off = phase_axis_offset_deg(theta_end)
     share = smallest_phase_share(off)
     r.check("q axis on a phase axis for rs", abs(off) <= 2.0 * cfg.rs_align_tolerance_deg,
