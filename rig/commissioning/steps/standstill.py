@@ -143,11 +143,13 @@ def smallest_phase_share(offset_deg: float) -> float:
     return min(abs(math.cos(math.radians(offset_deg - k * 120.0))) for k in range(3))
 
 
-def _theta_hat_now(s: BenchSession, seconds: float) -> float | None:
+def _theta_hat_mean(s: BenchSession, seconds: float) -> float | None:
+    """θ̂ averaged (circularly) over the next ``seconds``: one telemetry sample scatters by about
+    a degree at standstill, enough to stop the rotor several degrees short of the target."""
     with Window(s.link, ("TLM_POS",)) as w:
         s.clock.advance(seconds)
     th = w.values("TLM_POS", "theta_hat")
-    return float(th[-1]) if th.size else None
+    return circular_mean_deg(th) % 360.0 if th.size else None
 
 
 def _align_q_with_a_phase(s: BenchSession, r: StepResult) -> None:
@@ -157,19 +159,19 @@ def _align_q_with_a_phase(s: BenchSession, r: StepResult) -> None:
     current and adds to the vq-over-iq slope (measured: up to +5 % on rs)."""
     cfg = s.config
     assert s.load is not None
-    poll_s = 0.002
-    theta = _theta_hat_now(s, poll_s)
+    poll_s = 0.01  # the rotor turns 0.6° (electrical) per poll at 5 r/min
+    theta = _theta_hat_mean(s, poll_s)
     waited = 0.0
     if theta is None or abs(phase_axis_offset_deg(theta)) > cfg.rs_align_tolerance_deg:
         s.load.set_speed(cfg.rs_align_speed_rpm)
         while waited < cfg.rs_align_timeout_s:
-            theta = _theta_hat_now(s, poll_s)
+            theta = _theta_hat_mean(s, poll_s)
             waited += poll_s
             if theta is not None and \
                     abs(phase_axis_offset_deg(theta)) <= cfg.rs_align_tolerance_deg:
                 break
         s.load.set_speed(0.0)
-    theta_end = _theta_hat_now(s, 0.05)  # after the lock has settled
+    theta_end = _theta_hat_mean(s, 0.05)  # after the lock has settled
     if theta_end is None:
         r.check("q axis on a phase axis for rs", False, "no TLM_POS from the drive")
         return
