@@ -374,7 +374,8 @@ static void handle_frame(const struct canfd_frame *f, int fd)
     const int64_t t_rx = fwh_now_ns();
     const uint32_t id = f->can_id & CAN_SFF_MASK;
     if (f->can_id & (CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG)) {
-        return; /* outside this protocol's 11-bit data frames */
+        app.cnt.non_data_frames++; /* outside this protocol's 11-bit data frames */
+        return;
     }
     if (fwh_bus_is_vio(id)) {
         fwh_bus_vio_frame(&app, f, fd, t_rx);
@@ -573,7 +574,9 @@ static void print_counters(void)
             "\"console_keepalive_lapses\": %llu, \"console_out_dropped\": %llu, "
             "\"state\": \"%s\", \"fault_code\": %u, \"fault_name\": \"%s\", "
             "\"core_overruns\": %u, \"tx_frames\": %llu, \"tx_drops\": %llu, "
-            "\"tx_errors\": %llu, \"rx_frames\": %llu, \"rx_overflows\": %llu, \"rt\": \"%s\"}\n",
+            "\"tx_errors\": %llu, \"rx_frames\": %llu, \"rx_overflows\": %llu, "
+            "\"rx_malformed\": %llu, \"rx_filtered\": %llu, \"non_data_frames\": %llu, "
+            "\"foreign_entries\": %llu, \"peers_beyond_limit\": %llu, \"rt\": \"%s\"}\n",
             (unsigned long long)c->resyncs, (unsigned long long)c->drive_cmds,
             (unsigned long long)c->cmds_refused, (unsigned long long)c->limits,
             (unsigned long long)c->param_reqs, (unsigned long long)c->status_frames,
@@ -587,6 +590,9 @@ static void print_counters(void)
             fwh_fault_name(s.fault_code), s.isr_overruns, (unsigned long long)bs.tx_frames,
             (unsigned long long)bs.tx_drops, (unsigned long long)bs.tx_errors,
             (unsigned long long)bs.rx_frames, (unsigned long long)bs.rx_overflows,
+            (unsigned long long)bs.rx_malformed, (unsigned long long)bs.rx_filtered,
+            (unsigned long long)c->non_data_frames, (unsigned long long)bs.foreign_entries,
+            (unsigned long long)bs.peers_beyond_limit,
             app.rt_note != NULL ? app.rt_note : "not requested (lockstep)");
     fflush(stderr);
 }
