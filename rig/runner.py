@@ -941,6 +941,13 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                     else f"stopped with exit status {rep.returncode}")
             failure = {"kind": "crash", "message": f"{rep.name}: {what}",
                        "log_tail": rep.log_tail, "child": rep.name}
+    resyncs = counters.get("firmware.resyncs", 0.0)
+    if failure is None and resyncs > 0:
+        # the firmware followed an ADC sequence that restarted at period 0: another plant
+        # on the channel, or ours restarted; the data after it is not this run's
+        failure = {"kind": "lockstep", "log_tail": "",
+                   "message": f"fw_host followed a restarted ADC sequence {resyncs:g} time(s) "
+                   "(another plant on the channel?)"}
     if mon is not None:
         counters.update(mon.counters())
         counters["rig.grants"] = float(len(clock.grants))
@@ -969,6 +976,9 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                 out / "capture", capture.default_specs(plant_trace, fw_trace),
                 expected=expected, pole_pairs=pole_pairs(profile_values(sc)[1]),
                 speed_reference=lambda t: sc.speed_reference(t, accel_step_limit()),
+                # memory per period is bounded by what the run can have produced: the
+                # scenario's periods and a minute (real time starts before the firmware)
+                max_span=plan.n_periods + int(60.0 / TS),
             )
         except (ValueError, OSError) as exc:
             if failure is None:

@@ -12,8 +12,10 @@
  *    rejected as incomplete, and every period between the last one the ISR ran and the new
  *    one is reported lost (the HAL runs the ISR without data for each, oldest first);
  *  - older data is stale, data more than FWH_ADC_MAX_GAP periods ahead is future: both are
- *    rejected. FWH_ADC_RESYNC consecutive periods of such data (a restarted plant) are taken
- *    as the new sequence; the core then counts one ADC loss and follows it;
+ *    rejected. A restarted plant (FWH_ADC_RESYNC consecutive periods 0, 1, 2, ... of such
+ *    data: its start-up period first) is taken as the new sequence; the core then counts
+ *    one ADC loss and follows it. No other run of rejected periods is ever followed (stray
+ *    frames of another node, delayed duplicates): only the plant itself starts at 0;
  *  - frames whose n_soc does not agree with the period's first frame, or that n_soc does not
  *    call for (VIO_ADC_1 with n_soc <= 7), are malformed and rejected.
  */

@@ -95,6 +95,29 @@ static void test_assembly(void)
         r = feed(0, FWH_ADC_RESYNC, 1);
         CHECK(r.complete && r.n_lost == 0 && !r.repeat, "follows the new sequence");
     }
+    /* Issue 16.1: stray frames never take the sequence over. Only a plant that restarted
+     * (its start-up period 0, then 1, 2, ...) is followed. Twenty consecutive far periods
+     * (injected), and delayed duplicates of older periods in order, are rejected. */
+    {
+        uint32_t k;
+        int taken = 0;
+        fwh_adc_init(&A);
+        for (k = 0; k < 40; k++) {
+            feed(0, 5000 + k, 1);
+        }
+        for (k = 0; k < 2 * FWH_ADC_RESYNC; k++) {
+            r = feed(0, 3000000000u + k, 1);
+            taken |= r.resynced || r.complete;
+        }
+        CHECK(!taken, "a far sequence was followed");
+        for (k = 0; k < 2 * FWH_ADC_RESYNC; k++) {
+            r = feed(0, 5010 + k, 1); /* duplicates of 5010..5029, delayed */
+            taken |= r.resynced || r.complete;
+        }
+        CHECK(!taken, "delayed duplicates were followed");
+        r = feed(0, 5040, 1);
+        CHECK(r.complete && r.n_lost == 0 && !r.resynced, "the paired plant goes on at 5040");
+    }
     /* period counter wrap-around */
     fwh_adc_init(&A);
     feed(0, 0xFFFFFFFFu, 1);
