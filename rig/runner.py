@@ -39,7 +39,7 @@ from typing import Any
 import can
 import numpy as np
 
-from rig import __version__, _paths, capture, metrics, protocols, recording, report
+from rig import __version__, _paths, capture, metrics, output, protocols, recording, report
 from rig.firmware_from_profile import firmware_settings
 from rig.frames import FrameDecoder
 from rig.progress import Progress
@@ -808,6 +808,9 @@ def _dir_size(path: Path) -> int:
 def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs one scenario into ``opts.out``; always writes result.json and report.md."""
     out = Path(opts.out)
+    # before anything starts: a folder that cannot take the results is exit 3, not a
+    # traceback or a truncated result.json at the end (output.OutputError)
+    output.prepare(out, round(sc.duration / TS))
     if out.exists():
         for name in ("capture", "recording.rrd", "result.json", "report.md", "plant.trace",
                      "fw.trace"):
@@ -1058,8 +1061,8 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             }
         except Exception as exc:  # the verdict stands without the recording
             result["recording"] = {"path": None, "error": f"{type(exc).__name__}: {exc}"}
-    (out / "result.json").write_text(json.dumps(result, indent=1, default=_json_default))
-    (out / "report.md").write_text(report.scenario_report(result))
+    output.write_text(out / "result.json", json.dumps(result, indent=1, default=_json_default))
+    output.write_text(out / "report.md", report.scenario_report(result))
     res = RunResult(out, result, cap)
     if interrupted is not None:
         raise interrupted
@@ -1076,7 +1079,8 @@ def _json_default(o: Any) -> Any:
 
 def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     out = Path(opts.out)
-    out.mkdir(parents=True, exist_ok=True)
+    # (each scenario checks its own room again before it starts)
+    output.prepare(out, max((round(sc.duration / TS) for sc in suite.scenarios), default=0))
     results: list[RunResult] = []
     entries: list[dict[str, Any]] = []
     summary: dict[str, Any] = {
@@ -1112,8 +1116,8 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
         and all(c["outcome"] in ("pass", "xfail") for c in summary["comparisons"])
     )
     summary["complete"] = len(results) == len(suite.scenarios)
-    (out / "result.json").write_text(json.dumps(summary, indent=1, default=_json_default))
-    (out / "report.md").write_text(report.suite_report(summary))
+    output.write_text(out / "result.json", json.dumps(summary, indent=1, default=_json_default))
+    output.write_text(out / "report.md", report.suite_report(summary))
     if interrupted is not None:
         raise interrupted
     return SuiteResult(out, summary, results)
