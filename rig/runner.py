@@ -805,6 +805,35 @@ def _dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else 0
 
 
+FOREIGN_LISTEN_S = 0.25  # how long the rig listens for other traffic before it starts
+
+
+def _refuse_foreign_nodes(bus: can.BusABC, transport: str, channel: str) -> None:
+    """Nobody else may be on the channel: a second run there paces or answers ours (a 180°
+    error, 300 000 periods of capture loss). unixcan: no other live socket in the channel
+    folder; both transports: no frame within FOREIGN_LISTEN_S."""
+    if transport == "unixcan":
+        from rig.bus import unixcan
+
+        own = {str(getattr(bus, "socket_path", ""))}
+        others = unixcan.live_nodes(channel, own)
+        if others:
+            pids = sorted({Path(p).name.split("-", 1)[0] for p in others})
+            raise EnvironmentProblem(
+                f"unixcan channel {channel!r} is in use: {len(others)} other node(s) in "
+                f"{unixcan.base_dir() / channel} (pids {', '.join(pids[:8])}"
+                f"{', ...' if len(pids) > 8 else ''}); another run on this channel? Use "
+                "--channel NAME (a unixcan node reaches at most HILBUS_MAX_PEERS others, hilbus.h)")
+    deadline = time.monotonic() + FOREIGN_LISTEN_S
+    while (left := deadline - time.monotonic()) > 0:
+        msg = bus.recv(timeout=left)
+        if msg is not None and not msg.is_error_frame:
+            raise EnvironmentProblem(
+                f"{transport} channel {channel!r} is in use: a frame 0x{msg.arbitration_id:03X} "
+                "arrived before the run started (another run or node on this channel?); use "
+                "--channel NAME")
+
+
 def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs one scenario into ``opts.out``; always writes result.json and report.md."""
     out = Path(opts.out)
@@ -875,6 +904,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
         except (can.CanError, OSError, ValueError) as exc:
             raise EnvironmentProblem(f"cannot open {transport} bus {channel!r}: {exc}") from exc
+        _refuse_foreign_nodes(bus, transport, channel)
         if opts.live:
             try:
                 stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)")
@@ -944,6 +974,12 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                     else f"stopped with exit status {rep.returncode}")
             failure = {"kind": "crash", "message": f"{rep.name}: {what}",
                        "log_tail": rep.log_tail, "child": rep.name}
+    beyond = max(counters.get("plant.peers_beyond_limit", 0.0),
+                 counters.get("firmware.peers_beyond_limit", 0.0))
+    if failure is None and beyond > 0:
+        failure = {"kind": "environment", "log_tail": "",
+                   "message": f"{beyond:g} node(s) on the channel beyond the HILBUS_MAX_PEERS "
+                   "(hilbus.h) a unixcan node reaches: frames were not delivered"}
     resyncs = counters.get("firmware.resyncs", 0.0)
     if failure is None and resyncs > 0:
         # the firmware followed an ADC sequence that restarted at period 0: another plant

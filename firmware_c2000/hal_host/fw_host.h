@@ -87,6 +87,8 @@ typedef struct fwh {
     int console_hup;           /* the line reported a hang-up: probed every 10 ms */
     int64_t console_retry_ns;
     int64_t console_last_ns;   /* last line received (keep-alive) */
+    char console_in[512];      /* input read but not taken yet (a reply was still queued) */
+    size_t console_in_off, console_in_len;
     /* the command both sources write (last writer wins) */
     fw_cmd_t cmd;
     int owner;
@@ -132,7 +134,10 @@ int16_t fwh_command(fwh_t *app, const fw_cmd_t *cmd, int owner);
 void fwh_command_refresh(fwh_t *app, int64_t now_ns);
 
 /* console.c */
-void fwh_console_input(fwh_t *app, const char *data, size_t len, int64_t now_ns);
+/* Takes console input line by line; stops after a line whose reply is still queued (the
+ * client has not read it yet) and returns the bytes taken: the caller keeps the rest and
+ * reads nothing more from the line until the reply is out (backpressure). */
+size_t fwh_console_input(fwh_t *app, const char *data, size_t len, int64_t now_ns);
 void fwh_console_hangup(fwh_t *app);
 
 #endif

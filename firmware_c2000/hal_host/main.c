@@ -415,17 +415,39 @@ static int drain_bus(void)
 }
 
 /* Reads what the client sent; a session starts with the first bytes after a hang-up. */
+static int console_input_pending(void)
+{
+    return app.console_in_off < app.console_in_len;
+}
+
+/* Lines are taken while their replies leave: input waits (first in console_in, then in the
+ * pty, then in the client's write) while a reply is still queued, so none is dropped. */
 static void console_read(int64_t now)
 {
-    char buf[512];
     int n;
-    while ((n = fwh_pty_read(&app.pty, buf, sizeof(buf))) > 0) {
+    for (;;) {
+        if (console_input_pending()) {
+            app.console_in_off += fwh_console_input(&app, app.console_in + app.console_in_off,
+                                                    app.console_in_len - app.console_in_off,
+                                                    now);
+            if (console_input_pending()) {
+                return; /* a reply waits for the client: POLLOUT resumes */
+            }
+        }
+        if (app.pty.out_len > 0) {
+            return;
+        }
+        n = fwh_pty_read(&app.pty, app.console_in, sizeof(app.console_in));
+        if (n <= 0) {
+            return;
+        }
+        app.console_in_off = 0;
+        app.console_in_len = (size_t)n;
         if (!app.console_connected) {
             app.console_connected = 1;
             app.console_last_ns = now;
             app.cnt.console_sessions++;
         }
-        fwh_console_input(&app, buf, (size_t)n, now);
     }
 }
 
@@ -434,6 +456,7 @@ static void console_read(int64_t now)
 static void console_hangup(int64_t now)
 {
     console_read(now); /* what it wrote before closing */
+    app.console_in_off = app.console_in_len = 0;
     if (app.console_connected) {
         app.console_connected = 0;
         fwh_console_hangup(&app);
@@ -492,7 +515,9 @@ static int run(int tfd)
         p[n].fd = tfd, p[n].events = POLLIN, p[n].revents = 0, i_tim = n++;
         if (app.pty_open && !app.console_hup) {
             p[n].fd = app.pty.master;
-            p[n].events = (short)(POLLIN | (app.pty.out_len > 0 ? POLLOUT : 0));
+            /* no reading while a reply waits for the client (backpressure) */
+            p[n].events = (short)(app.pty.out_len > 0 ? POLLOUT
+                                  : console_input_pending() ? 0 : POLLIN);
             p[n].revents = 0;
             i_pty = n++;
         }
@@ -518,6 +543,9 @@ static int run(int tfd)
                 }
                 if (p[i_pty].revents & POLLOUT) {
                     fwh_pty_flush(&app.pty);
+                    if (app.pty.out_len == 0) {
+                        console_read(now); /* the lines that waited for that reply */
+                    }
                 }
             }
         }

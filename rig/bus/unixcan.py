@@ -224,6 +224,30 @@ def unpack_frame(datagram: bytes, timestamp: float, channel: str) -> can.Message
     )
 
 
+def live_nodes(channel: str, exclude: set[str] | frozenset[str] = frozenset()) -> list[str]:
+    """Socket paths of the nodes on a channel that are alive (a socket a connection reaches;
+    a dead node's file refuses it), besides ``exclude``."""
+    folder = base_dir() / channel
+    try:
+        names = sorted(os.listdir(folder))
+    except OSError:
+        return []
+    alive = []
+    for n in names:
+        path = str(folder / n)
+        if not n.endswith(".sock") or path in exclude:
+            continue
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            probe.connect(path)
+            alive.append(path)
+        except OSError:
+            pass
+        finally:
+            probe.close()
+    return alive
+
+
 class UnixCanBus(can.BusABC):
     """A node on a unixcan channel (the userspace stand-in for a SocketCAN interface)."""
 
@@ -433,6 +457,11 @@ class UnixCanBus(can.BusABC):
                 return None, self._accept is not None
             self.stats["rx_frames"] += 1
             return self._rx.popleft(), self._accept is not None
+
+    @property
+    def socket_path(self) -> str:
+        """This node's socket in the channel folder."""
+        return str(self._path)
 
     def fileno(self) -> int:
         # The socket itself is drained by the reader thread; there is no pollable handle
