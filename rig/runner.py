@@ -560,6 +560,10 @@ def build_argv(
     plant_argv += list(opts.extra_plant_args)
     fw_argv = [fw, *common, "--trace", str(out / "fw.trace"),
                "--ready-file", str(out / "fw.ready")]
+    if not realtime:
+        # paired from the start: the plant's first ADC frame is its start-up period 0, so
+        # stray frames on the channel cannot become the firmware's first period
+        fw_argv += ["--first-period", "0"]
     for param, value in firmware_settings(values).items():
         fw_argv += ["--set", f"{param}={_fmt_value(value)}"]
     for k, v in sc.firmware.items():

@@ -16,6 +16,12 @@ void fwh_adc_init(fwh_adc_asm_t *a)
     memset(a, 0, sizeof(*a));
 }
 
+void fwh_adc_expect_first(fwh_adc_asm_t *a, uint32_t period)
+{
+    a->first_fixed = 1;
+    a->first = period;
+}
+
 static void start(fwh_adc_asm_t *a, uint32_t period, int16_t n_soc, int repeat)
 {
     a->building = 1;
@@ -59,6 +65,10 @@ void fwh_adc_feed(fwh_adc_asm_t *a, int index, uint32_t period, int16_t n_soc, i
         out->verdict = FWH_ADC_MALFORMED;
         return;
     }
+    if (!a->have_last && a->first_fixed && period != a->first) {
+        out->verdict = (int32_t)(period - a->first) < 0 ? FWH_ADC_STALE : FWH_ADC_FUTURE;
+        return; /* not the paired plant's first period */
+    }
     if (!a->have_last) {
         /* nothing ran yet: the newest period seen is the one to collect */
         if (a->building && period != a->period) {
@@ -88,6 +98,7 @@ void fwh_adc_feed(fwh_adc_asm_t *a, int index, uint32_t period, int16_t n_soc, i
             out->incomplete = a->building && !a->repeat;
             a->resync_count = 0;
             a->have_last = 0;
+            a->first = period; /* (with a fixed first period: this sequence's, from now) */
             start(a, period, n_soc, 0);
         } else {
             if (a->building && ahead > 0) {

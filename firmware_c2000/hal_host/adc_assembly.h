@@ -47,6 +47,8 @@ typedef struct {
     fw_adc_t adc;
     uint32_t resync_next; /* resynchronisation on a consistent stream of rejected periods */
     int resync_count;
+    int first_fixed;      /* the first period is known (fwh_adc_expect_first) */
+    uint32_t first;
 } fwh_adc_asm_t;
 
 /* What one frame led to. The HAL acts in this order: count `incomplete` rejections, run
@@ -64,6 +66,12 @@ typedef struct {
 } fwh_adc_result_t;
 
 void fwh_adc_init(fwh_adc_asm_t *a);
+
+/* The first period the paired plant sends (lockstep: its start-up period 0, fw_host
+ * --first-period): data of any other period before it is rejected (stale or future), so
+ * stray frames on the bus cannot become the first period. Without it the newest period
+ * seen is the first (real time: the plant runs before the firmware joins). */
+void fwh_adc_expect_first(fwh_adc_asm_t *a, uint32_t period);
 
 /* One received frame: index 0..2 (VIO_ADC_0..2), its period, n_soc (0..16, range-checked by
  * the caller), vdc code and the up to 7 current code pairs it carries. */

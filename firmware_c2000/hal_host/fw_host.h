@@ -55,6 +55,7 @@ typedef struct {
     int32_t spin_us;
     uint8_t node;
     int rt_priority;
+    int64_t first_period; /* --first-period, or -1: the first ADC period may be any */
 } fwh_options_t;
 
 typedef struct {

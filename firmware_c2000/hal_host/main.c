@@ -73,6 +73,8 @@ static void usage(FILE *out)
             "  --spin-us N                    busy-poll the bus N us before sleeping (default 0)\n"
             "  --node N                       HEARTBEAT node number (default 1)\n"
             "  --rt-priority N                real time: SCHED_FIFO priority (default 80; 0 off)\n"
+            "  --first-period N               the paired plant's first ADC period (lockstep: 0);\n"
+            "                                 ADC data of other periods before it is rejected\n"
             "  --help                         this text\n"
             "\n"
             "Exit: 0 on SIGTERM/SIGINT or after --max-periods (counters as one JSON line on\n"
@@ -100,7 +102,7 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
     enum {
         O_BUS = 256, O_CHANNEL, O_LOCKSTEP, O_REALTIME, O_TRACE, O_SEND_TRACE, O_TLM_DIV,
         O_PARAMS, O_SET, O_PTY_LINK, O_NO_CONSOLE, O_CONSOLE_TIMEOUT, O_READY, O_MAX_PERIODS,
-        O_SPIN, O_NODE, O_RT_PRIO, O_HELP
+        O_SPIN, O_NODE, O_RT_PRIO, O_FIRST_PERIOD, O_HELP
     };
     static const struct option longopts[] = {
         {"bus", required_argument, 0, O_BUS},
@@ -121,6 +123,7 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
         {"spin-us", required_argument, 0, O_SPIN},
         {"node", required_argument, 0, O_NODE},
         {"rt-priority", required_argument, 0, O_RT_PRIO},
+        {"first-period", required_argument, 0, O_FIRST_PERIOD},
         {"help", no_argument, 0, O_HELP},
         {0, 0, 0, 0},
     };
@@ -133,6 +136,7 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
     o->console_timeout_ns = 5000LL * 1000000LL;
     o->node = 1;
     o->rt_priority = 80;
+    o->first_period = -1; /* any */
     sets->n = 0;
     opterr = 0;
     while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
@@ -165,8 +169,10 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
         case O_MAX_PERIODS:
         case O_SPIN:
         case O_NODE:
+        case O_FIRST_PERIOD:
         case O_RT_PRIO: {
             const uint64_t max = c == O_NODE ? 255u : c == O_RT_PRIO ? 99u
+                               : c == O_FIRST_PERIOD ? UINT32_MAX
                                : c == O_MAX_PERIODS ? UINT64_MAX : c == O_SPIN ? 1000000u
                                : c == O_CONSOLE_TIMEOUT ? 86400000u : 1000000u;
             if (parse_u64(optarg, max, &v) != 0) {
@@ -184,6 +190,8 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
                 o->spin_us = (int32_t)v;
             } else if (c == O_NODE) {
                 o->node = (uint8_t)v;
+            } else if (c == O_FIRST_PERIOD) {
+                o->first_period = (int64_t)v;
             } else {
                 o->rt_priority = (int)v;
             }
@@ -571,6 +579,9 @@ int main(int argc, char **argv)
     app.owner = FWH_OWNER_NONE;
     app.pty.master = -1;
     fwh_adc_init(&app.adc);
+    if (app.opt.first_period >= 0) {
+        fwh_adc_expect_first(&app.adc, (uint32_t)app.opt.first_period);
+    }
     if (load_parameters(&sets) != 0) {
         return 2;
     }
