@@ -55,6 +55,15 @@ def frames() -> dict[str, bytes]:
     }
 
 
+def datagrams() -> dict[str, bytes]:
+    """Length-prefixed datagrams: the frames above, and sizes that are no frame."""
+    out = {}
+    for name, recs in frames().items():
+        out[name] = b"".join(bytes([72]) + recs[i:i + 72] for i in range(0, len(recs), 72))
+    out["sizes"] = b"".join(bytes([n]) + bytes(n) for n in (0, 1, 15, 16, 17, 71, 72, 73, 100))
+    return out
+
+
 def console() -> dict[str, bytes]:
     spec = json.loads((PROTOCOLS / "console.json").read_text())
     examples = {"param": "rs_ohm", "number": "1.5", "choice": None}
@@ -79,7 +88,8 @@ def profile() -> dict[str, bytes]:
 
 
 def main() -> None:
-    for harness, seeds in (("frames", frames()), ("console", console()),
+    for harness, seeds in (("frames", frames()), ("datagrams", datagrams()),
+                           ("console", console()),
                            ("param_file", param_file()), ("profile", profile())):
         folder = OUT / harness
         folder.mkdir(parents=True, exist_ok=True)
