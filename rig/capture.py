@@ -81,10 +81,12 @@ class MessageLoss:
     duplicates: int = 0  # records beyond the first for a period
     out_of_order: int = 0  # records whose period is lower than the one before
     bad_length: int = 0
+    outside: int = 0  # records of periods outside the expected range (stray, hijacked)
 
     @property
     def ok(self) -> bool:
-        return self.missing == 0 and self.duplicates == 0 and self.bad_length == 0
+        return (self.missing == 0 and self.duplicates == 0 and self.bad_length == 0
+                and self.outside == 0)
 
 
 @dataclass
@@ -124,11 +126,16 @@ class LossReport:
             parts.append(f"{self.lost} missing period records")
         if self.duplicates:
             parts.append(f"{self.duplicates} duplicate records")
+        outside = sum(m.outside for m in self.messages)
+        if outside:
+            parts.append(f"{outside} records outside the run's periods "
+                         f"[{self.expected[0] if self.expected else '?'}, "
+                         f"{self.expected[1] if self.expected else '?'}]")
         for m in self.messages:
             if not m.ok:
                 parts.append(
                     f"{m.trace}/{m.message}: missing {m.missing}, duplicates {m.duplicates}, "
-                    f"bad length {m.bad_length}, records {m.records} "
+                    f"bad length {m.bad_length}, outside {m.outside}, records {m.records} "
                     f"[{m.first}, {m.last}]"
                 )
         if self.short_end:
@@ -314,19 +321,26 @@ def _scan(
 
 def _counts(
     spec: TraceSpec, decoders: Mapping[str, MessageDecoder], chunk: int, lo: int, hi: int
-) -> dict[str, np.ndarray]:
-    """Records per period over [lo, hi] for each message (uint16, saturating)."""
+) -> tuple[dict[str, np.ndarray], dict[str, int]]:
+    """Records per period over [lo, hi] for each message (uint16, saturating), and the
+    number of records outside [lo, hi]. Memory: (hi - lo + 1) entries, bounded by the
+    caller (the run's periods)."""
     size = max(0, hi - lo + 1)
     counts = {m: np.zeros(size, dtype=np.uint16) for m in spec.messages}
-    if not size:
-        return counts
+    outside = dict.fromkeys(spec.messages, 0)
     for per in _message_periods(spec, decoders, chunk):
         for m, p in per.items():
-            p = p[(p >= lo) & (p <= hi)] - lo
-            if len(p):
+            inside = (p >= lo) & (p <= hi)
+            outside[m] += int(len(p) - np.count_nonzero(inside))
+            p = p[inside] - lo
+            if len(p) and size:
                 c = np.bincount(p, minlength=size)
                 counts[m] = np.minimum(counts[m] + c, 65535).astype(np.uint16)
-    return counts
+    return counts, outside
+
+
+class CaptureSpanError(ValueError):
+    """The traces span far more periods than the run can have produced."""
 
 
 def build(
@@ -337,11 +351,15 @@ def build(
     pole_pairs: int = DEFAULT_POLE_PAIRS,
     speed_reference: Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]] | None = None,
     chunk: int = DEFAULT_CHUNK,
+    max_span: int | None = None,
 ) -> tuple[Capture, LossReport]:
     """Merges the traces into ``folder`` and returns the capture and its loss report.
 
     ``expected`` is the inclusive period range the run should have produced (lockstep: 0 to
-    the last granted period). Without it the range is the overlap of all messages.
+    the last granted period); records outside it are counted as ``outside`` (a loss) and
+    memory stays bounded by its length. Without it the range is the overlap of all
+    messages, and a trace spanning more than ``max_span`` periods (the scenario's period
+    count and a margin) raises CaptureSpanError instead of allocating per period.
     """
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
@@ -383,8 +401,16 @@ def build(
             continue
         lo = min(int(ml.first or 0) for ml in spans)
         hi = max(int(ml.last or 0) for ml in spans)
-        counts = _counts(spec, decoders, chunk, lo, hi)
+        if expected is not None:
+            lo, hi = expected  # what lies outside is counted, never given an array entry
+        elif max_span is not None and hi - lo + 1 > max_span:
+            raise CaptureSpanError(
+                f"the {spec.role} trace spans periods {lo} .. {hi} ({hi - lo + 1} periods), "
+                f"more than the {max_span} this run can have produced: stray or corrupt "
+                "records")
+        counts, outside = _counts(spec, decoders, chunk, lo, hi)
         for ml in spans:
+            ml.outside = outside[ml.message]
             c = counts[ml.message]
             ml.duplicates = int(np.sum(np.maximum(c.astype(np.int64) - 1, 0)))
             if n:

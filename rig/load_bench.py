@@ -111,6 +111,7 @@ class RegisterMap:
     holding: Mapping[str, Field]
     input: Mapping[str, Field]
     path: Path
+    function_codes: tuple[int, ...]  # the Modbus function codes the device answers
 
     def table(self, table: Table) -> Mapping[str, Field]:
         return self.holding if table == "holding" else self.input
@@ -178,7 +179,8 @@ def register_map(path: Path | None = None) -> RegisterMap:
                 raise ValueError(f"{p}: {table} registers {a.name} and {b.name} overlap or "
                                  "leave a gap (the table must be contiguous)")
         tables[table] = {f.name: f for f in fs}
-    return RegisterMap(int(data["version"]), order, tables["holding"], tables["input"], p)
+    fcs = tuple(sorted(int(fc) for fc in data["function_codes"]))
+    return RegisterMap(int(data["version"]), order, tables["holding"], tables["input"], p, fcs)
 
 
 # --------------------------------------------------------------------------------------

@@ -8,8 +8,10 @@ Rules (the map's "exceptions" and "watchdog" sections):
 
 * an address outside a table, a write to a read-only register or to part of a multi-register
   field: exception 2; a value out of range, not in the enumeration or not finite: exception
-  3; coils / discrete inputs: exception 1; a setpoint that could not be sent, or a mode other
-  than off while a fault is latched: exception 4. A refused write changes nothing.
+  3 (also a register count of 0 or above 125); a function code the map does not list
+  (coils, discrete inputs, diagnostics, report server id, ...): exception 1; a setpoint
+  that could not be sent, or a mode other than off while a fault is latched: exception 4.
+  A refused write changes nothing.
 * a write that changes the load (mode, torque, speed, k_speed) is sent as LOAD_CMD before
   the write is acknowledged, so a lockstep grant the client sends after the answer sees it.
 * while the load is active the client refreshes the watchdog register (a new value) within
@@ -35,6 +37,8 @@ from pathlib import Path
 
 import can
 from pymodbus.constants import ExcCodes
+from pymodbus.pdu import ExceptionResponse, ModbusPDU
+from pymodbus.pdu.decoders import DecodePDU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -47,7 +51,6 @@ RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 MEASUREMENT_FRESH_S = 1.0
 WATCHDOG_POLL_S = 0.02
 LOAD_FIELDS = ("mode", "torque_setpoint", "speed_setpoint", "k_speed")
-NO_BITS = (1, 2, 5, 15)  # coils and discrete inputs: not on this device
 
 
 @dataclass(frozen=True)
@@ -280,7 +283,7 @@ def device(model: LoadBenchModel, send: Sender) -> SimDevice:
     async def action(function_code: int, start_address: int, address: int, count: int,
                      registers: list[int], set_values: list[int] | list[bool] | None
                      ) -> ExcCodes | None:
-        if function_code in NO_BITS:
+        if function_code not in model.map.function_codes:  # (MapDecoder refuses them first)
             return ExcCodes.ILLEGAL_FUNCTION
         if function_code == 4:
             image = model.input_registers()
@@ -307,6 +310,38 @@ def device(model: LoadBenchModel, send: Sender) -> SimDevice:
     )
 
 
+class _Refused(ModbusPDU):
+    """A request answered with an exception before it reaches the device."""
+
+    def __init__(self, function_code: int, code: ExcCodes) -> None:
+        super().__init__()
+        self.function_code = function_code
+        self.code = code
+
+    async def datastore_update(self, context: object, device_id: int) -> ModbusPDU:
+        return ExceptionResponse(self.function_code, self.code)
+
+
+class MapDecoder(DecodePDU):
+    """Requests as the register map allows them: a function code not in its
+    ``function_codes`` is exception 1 (the library would answer diagnostics, report server
+    id, ... on its own); a known one the library cannot decode (a register count of 0 or
+    above 125) is exception 3 with that function code (pymodbus sent a bare 0x80)."""
+
+    def __init__(self, function_codes: Sequence[int]) -> None:
+        super().__init__(True)
+        self.allowed = frozenset(function_codes)
+
+    def decode(self, frame: bytes) -> ModbusPDU | None:
+        if not frame:
+            return None
+        fc = int(frame[0])
+        if fc not in self.allowed:
+            return _Refused(fc, ExcCodes.ILLEGAL_FUNCTION)
+        pdu = super().decode(frame)
+        return pdu if pdu is not None else _Refused(fc, ExcCodes.ILLEGAL_VALUE)
+
+
 @dataclass
 class ServeOptions:
     host: str = "127.0.0.1"
@@ -328,6 +363,7 @@ async def _serve(opts: ServeOptions, stop: asyncio.Event) -> None:
     try:
         side.send(model.command())  # the load machine starts in the state the registers show
         server = ModbusTcpServer(device(model, side.send), address=(opts.host, opts.port))
+        server.decoder = MapDecoder(model.map.function_codes)  # before any connection
         await server.serve_forever(background=True)
         sockets = getattr(server.transport, "sockets", None) or []
         if not sockets:

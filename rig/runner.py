@@ -39,7 +39,7 @@ from typing import Any
 import can
 import numpy as np
 
-from rig import __version__, _paths, capture, metrics, protocols, recording, report
+from rig import __version__, _paths, capture, metrics, output, protocols, recording, report
 from rig.firmware_from_profile import firmware_settings
 from rig.frames import FrameDecoder
 from rig.progress import Progress
@@ -560,6 +560,10 @@ def build_argv(
     plant_argv += list(opts.extra_plant_args)
     fw_argv = [fw, *common, "--trace", str(out / "fw.trace"),
                "--ready-file", str(out / "fw.ready")]
+    if not realtime:
+        # paired from the start: the plant's first ADC frame is its start-up period 0, so
+        # stray frames on the channel cannot become the firmware's first period
+        fw_argv += ["--first-period", "0"]
     for param, value in firmware_settings(values).items():
         fw_argv += ["--set", f"{param}={_fmt_value(value)}"]
     for k, v in sc.firmware.items():
@@ -805,9 +809,41 @@ def _dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else 0
 
 
+FOREIGN_LISTEN_S = 0.25  # how long the rig listens for other traffic before it starts
+
+
+def _refuse_foreign_nodes(bus: can.BusABC, transport: str, channel: str) -> None:
+    """Nobody else may be on the channel: a second run there paces or answers ours (a 180°
+    error, 300 000 periods of capture loss). unixcan: no other live socket in the channel
+    folder; both transports: no frame within FOREIGN_LISTEN_S."""
+    if transport == "unixcan":
+        from rig.bus import unixcan
+
+        own = {str(getattr(bus, "socket_path", ""))}
+        others = unixcan.live_nodes(channel, own)
+        if others:
+            pids = sorted({Path(p).name.split("-", 1)[0] for p in others})
+            raise EnvironmentProblem(
+                f"unixcan channel {channel!r} is in use: {len(others)} other node(s) in "
+                f"{unixcan.base_dir() / channel} (pids {', '.join(pids[:8])}"
+                f"{', ...' if len(pids) > 8 else ''}); another run on this channel? Use "
+                "--channel NAME (a unixcan node reaches at most HILBUS_MAX_PEERS others, hilbus.h)")
+    deadline = time.monotonic() + FOREIGN_LISTEN_S
+    while (left := deadline - time.monotonic()) > 0:
+        msg = bus.recv(timeout=left)
+        if msg is not None and not msg.is_error_frame:
+            raise EnvironmentProblem(
+                f"{transport} channel {channel!r} is in use: a frame 0x{msg.arbitration_id:03X} "
+                "arrived before the run started (another run or node on this channel?); use "
+                "--channel NAME")
+
+
 def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs one scenario into ``opts.out``; always writes result.json and report.md."""
     out = Path(opts.out)
+    # before anything starts: a folder that cannot take the results is exit 3, not a
+    # traceback or a truncated result.json at the end (output.OutputError)
+    output.prepare(out, round(sc.duration / TS))
     if out.exists():
         for name in ("capture", "recording.rrd", "result.json", "report.md", "plant.trace",
                      "fw.trace"):
@@ -872,6 +908,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
         except (can.CanError, OSError, ValueError) as exc:
             raise EnvironmentProblem(f"cannot open {transport} bus {channel!r}: {exc}") from exc
+        _refuse_foreign_nodes(bus, transport, channel)
         if opts.live:
             try:
                 stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)")
@@ -941,6 +978,19 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                     else f"stopped with exit status {rep.returncode}")
             failure = {"kind": "crash", "message": f"{rep.name}: {what}",
                        "log_tail": rep.log_tail, "child": rep.name}
+    beyond = max(counters.get("plant.peers_beyond_limit", 0.0),
+                 counters.get("firmware.peers_beyond_limit", 0.0))
+    if failure is None and beyond > 0:
+        failure = {"kind": "environment", "log_tail": "",
+                   "message": f"{beyond:g} node(s) on the channel beyond the HILBUS_MAX_PEERS "
+                   "(hilbus.h) a unixcan node reaches: frames were not delivered"}
+    resyncs = counters.get("firmware.resyncs", 0.0)
+    if failure is None and resyncs > 0:
+        # the firmware followed an ADC sequence that restarted at period 0: another plant
+        # on the channel, or ours restarted; the data after it is not this run's
+        failure = {"kind": "lockstep", "log_tail": "",
+                   "message": f"fw_host followed a restarted ADC sequence {resyncs:g} time(s) "
+                   "(another plant on the channel?)"}
     if mon is not None:
         counters.update(mon.counters())
         counters["rig.grants"] = float(len(clock.grants))
@@ -969,6 +1019,9 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                 out / "capture", capture.default_specs(plant_trace, fw_trace),
                 expected=expected, pole_pairs=pole_pairs(profile_values(sc)[1]),
                 speed_reference=lambda t: sc.speed_reference(t, accel_step_limit()),
+                # memory per period is bounded by what the run can have produced: the
+                # scenario's periods and a minute (real time starts before the firmware)
+                max_span=plan.n_periods + int(60.0 / TS),
             )
         except (ValueError, OSError) as exc:
             if failure is None:
@@ -1048,8 +1101,8 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             }
         except Exception as exc:  # the verdict stands without the recording
             result["recording"] = {"path": None, "error": f"{type(exc).__name__}: {exc}"}
-    (out / "result.json").write_text(json.dumps(result, indent=1, default=_json_default))
-    (out / "report.md").write_text(report.scenario_report(result))
+    output.write_text(out / "result.json", json.dumps(result, indent=1, default=_json_default))
+    output.write_text(out / "report.md", report.scenario_report(result))
     res = RunResult(out, result, cap)
     if interrupted is not None:
         raise interrupted
@@ -1066,7 +1119,8 @@ def _json_default(o: Any) -> Any:
 
 def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     out = Path(opts.out)
-    out.mkdir(parents=True, exist_ok=True)
+    # (each scenario checks its own room again before it starts)
+    output.prepare(out, max((round(sc.duration / TS) for sc in suite.scenarios), default=0))
     results: list[RunResult] = []
     entries: list[dict[str, Any]] = []
     summary: dict[str, Any] = {
@@ -1102,8 +1156,8 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
         and all(c["outcome"] in ("pass", "xfail") for c in summary["comparisons"])
     )
     summary["complete"] = len(results) == len(suite.scenarios)
-    (out / "result.json").write_text(json.dumps(summary, indent=1, default=_json_default))
-    (out / "report.md").write_text(report.suite_report(summary))
+    output.write_text(out / "result.json", json.dumps(summary, indent=1, default=_json_default))
+    output.write_text(out / "report.md", report.suite_report(summary))
     if interrupted is not None:
         raise interrupted
     return SuiteResult(out, summary, results)

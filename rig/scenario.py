@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rig import metrics
+from rig import _paths, metrics, params, plant_schema
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 SUITE_DIR = SCENARIO_DIR / "suites"
@@ -361,6 +361,15 @@ class Scenario:
         the criteria that apply on that profile are kept."""
         if profile not in PROFILES:
             raise ValueError(f"unknown profile {profile!r} (one of: {', '.join(PROFILES)})")
+        if self.overrides and profile != self.profile:
+            try:
+                text = read_text(self.file)
+            except OSError:
+                text = ""
+            c = _Checker(self.file, text)
+            _check_overrides(c, profile, self.overrides)
+            if c.issues:
+                raise ScenarioError(c.issues)
         base = self.name.split("@", 1)[0]
         crits = tuple(c for c in self.criteria if c.applies_to(profile))
         return replace(self, name=f"{base}@{profile}", profile=profile, criteria=crits)
@@ -604,6 +613,52 @@ def _flatten(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+# Upper bounds of the run's own numbers: a duration that would make the grant plan and the
+# traces unbounded (1e7 s: MemoryError), and waits no run needs.
+MAX_DURATION_S = 3600.0
+MAX_TIMEOUT_S = 86400.0
+MAX_READY_TIMEOUT_S = 600.0
+
+
+def _key_path(section: str, key: str, text: str) -> Path_:
+    """Where a flattened key of a table is: a quoted dotted key, or nested tables."""
+    quoted: Path_ = (section, key)
+    return quoted if locate(text, quoted) is not None else (section, *key.split("."))
+
+
+def _check_overrides(c: _Checker, profile: str, overrides: Mapping[str, Any]) -> None:
+    """The plant's own loader judges the overrides on the profile (rig.plant_schema)."""
+    if not overrides or not plant_schema.available():
+        return  # not built: plant_rt reports it at start (exit 2, named field)
+    try:
+        path = _paths.data_dir("profiles") / f"{profile}.toml"
+    except FileNotFoundError:
+        return
+    for key, why in plant_schema.check(path, overrides).items():
+        c.err(_key_path("overrides", key, c.text) if key else ("overrides",),
+              why if key else f"on profile {profile!r}: {why}")
+
+
+def _check_firmware(c: _Checker, firmware: Mapping[str, Any]) -> None:
+    """Firmware parameters by name, in the ranges of protocols/parameters.csv."""
+    if not firmware:
+        return
+    table = params.table()
+    for key, value in firmware.items():
+        where = _key_path("firmware", key, c.text)
+        try:
+            info = table.lookup(key)
+        except params.ParamError:
+            c.err(where, "unknown parameter (rig param list, protocols/parameters.csv)")
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            c.err(where, f"must be a number, not {value!r}")
+            continue
+        problem = info.problem(float(value))
+        if problem is not None:
+            c.err(where, problem)
+
+
 TOP_KEYS = (
     "name", "description", "profile", "duration", "figure", "tags", "overrides", "firmware",
     "drive", "limits", "initial", "speed", "load", "criteria", "run",
@@ -749,7 +804,7 @@ def parse_scenario(file: Path, text: str) -> Scenario:
         c.err(("description",), "must be one line")
     profile = c.string(data, root, "profile", choices=PROFILES)
     n_issues = len(c.issues)
-    duration = c.number(data, root, "duration", positive=True)
+    duration = c.number(data, root, "duration", positive=True, maximum=MAX_DURATION_S)
     if len(c.issues) > n_issues:
         duration = math.inf  # reported once; checks that depend on it stay quiet
     figure = c.string(data, root, "figure", "")
@@ -762,6 +817,9 @@ def parse_scenario(file: Path, text: str) -> Scenario:
             tags = tuple(t)
     overrides = _scalars(c, data.get("overrides", {}), ("overrides",))
     firmware = _scalars(c, data.get("firmware", {}), ("firmware",))
+    if profile:
+        _check_overrides(c, profile, overrides)
+    _check_firmware(c, firmware)
 
     drive = c.table(data.get("drive", {}), ("drive",),
                     ("ctrl_mode", "fw_mode", "enable_at", "iq_ref"))
@@ -839,8 +897,9 @@ def parse_scenario(file: Path, text: str) -> Scenario:
     run = c.table(data.get("run", {}), ("run",),
                   ("grant_max_s", "timeout_s", "ready_timeout_s", "realtime_ok"))
     grant = c.number(run, ("run",), "grant_max_s", 0.1, positive=True, maximum=0.1)
-    timeout = c.number(run, ("run",), "timeout_s", 0.0, minimum=0.0)
-    ready_timeout = c.number(run, ("run",), "ready_timeout_s", 10.0, positive=True)
+    timeout = c.number(run, ("run",), "timeout_s", 0.0, minimum=0.0, maximum=MAX_TIMEOUT_S)
+    ready_timeout = c.number(run, ("run",), "ready_timeout_s", 10.0, positive=True,
+                             maximum=MAX_READY_TIMEOUT_S)
     realtime_ok = run.get("realtime_ok", True)
     if not isinstance(realtime_ok, bool):
         c.err(("run", "realtime_ok"), "must be true or false")
@@ -979,8 +1038,20 @@ def _scenario_path(entry: str, base: Path) -> Path | None:
     return None
 
 
+def read_text(path: Path) -> str:
+    """A scenario or suite file as text; not UTF-8 is a schema error at its line."""
+    raw = path.read_bytes()
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise ScenarioError([Issue(str(path), line, "",
+                                   f"not UTF-8 (byte 0x{raw[exc.start]:02x}): TOML files "
+                                   "are UTF-8")]) from None
+
+
 def _parse_file(path: Path) -> Scenario:
-    return parse_scenario(path, path.read_text(encoding="utf-8"))
+    return parse_scenario(path, read_text(path))
 
 
 def _own_profile(sc: Scenario) -> Scenario:
@@ -997,14 +1068,14 @@ def load_scenario(path: str | Path) -> Scenario:
 
 def load_suite(path: str | Path) -> Suite:
     p = Path(path)
-    return parse_suite(p, p.read_text(encoding="utf-8"))
+    return parse_suite(p, read_text(p))
 
 
 def is_suite_file(path: Path) -> bool:
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(read_text(path))
         return "scenarios" in data or "include" in data
-    except (OSError, tomllib.TOMLDecodeError):
+    except (OSError, tomllib.TOMLDecodeError, ScenarioError):
         return False
 
 

@@ -16,6 +16,12 @@ void fwh_adc_init(fwh_adc_asm_t *a)
     memset(a, 0, sizeof(*a));
 }
 
+void fwh_adc_expect_first(fwh_adc_asm_t *a, uint32_t period)
+{
+    a->first_fixed = 1;
+    a->first = period;
+}
+
 static void start(fwh_adc_asm_t *a, uint32_t period, int16_t n_soc, int repeat)
 {
     a->building = 1;
@@ -28,7 +34,11 @@ static void start(fwh_adc_asm_t *a, uint32_t period, int16_t n_soc, int repeat)
     a->adc.n_soc = n_soc;
 }
 
-/* a rejected (stale/future) frame: several consecutive periods of them start a new sequence */
+/* a rejected (stale/future) frame: a restarted plant starts again at its start-up period 0
+ * (docs/interfaces.md), so only a sequence 0, 1, 2, ... of FWH_ADC_RESYNC periods is
+ * followed. Any other run of rejected periods (frames of another node, delayed duplicates
+ * of older periods) never takes the sequence over: the plant the firmware is paired with
+ * goes on and those frames stay rejected. */
 static int resync_candidate(fwh_adc_asm_t *a, int index, uint32_t period)
 {
     if (index != 0) {
@@ -36,8 +46,10 @@ static int resync_candidate(fwh_adc_asm_t *a, int index, uint32_t period)
     }
     if (a->resync_count > 0 && period == a->resync_next) {
         a->resync_count++;
-    } else if (a->resync_count == 0 || period != a->resync_next - 1u) {
-        a->resync_count = 1; /* (a re-sent copy of the same period does not count twice) */
+    } else if (a->resync_count > 0 && period == a->resync_next - 1u) {
+        /* a re-sent copy of the same period does not count twice */
+    } else {
+        a->resync_count = period == 0u ? 1 : 0;
     }
     a->resync_next = period + 1u;
     return a->resync_count >= FWH_ADC_RESYNC;
@@ -52,6 +64,10 @@ void fwh_adc_feed(fwh_adc_asm_t *a, int index, uint32_t period, int16_t n_soc, i
         index >= fwh_adc_frames_for(n_soc)) {
         out->verdict = FWH_ADC_MALFORMED;
         return;
+    }
+    if (!a->have_last && a->first_fixed && period != a->first) {
+        out->verdict = (int32_t)(period - a->first) < 0 ? FWH_ADC_STALE : FWH_ADC_FUTURE;
+        return; /* not the paired plant's first period */
     }
     if (!a->have_last) {
         /* nothing ran yet: the newest period seen is the one to collect */
@@ -82,6 +98,7 @@ void fwh_adc_feed(fwh_adc_asm_t *a, int index, uint32_t period, int16_t n_soc, i
             out->incomplete = a->building && !a->repeat;
             a->resync_count = 0;
             a->have_last = 0;
+            a->first = period; /* (with a fixed first period: this sequence's, from now) */
             start(a, period, n_soc, 0);
         } else {
             if (a->building && ahead > 0) {

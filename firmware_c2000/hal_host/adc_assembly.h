@@ -12,8 +12,10 @@
  *    rejected as incomplete, and every period between the last one the ISR ran and the new
  *    one is reported lost (the HAL runs the ISR without data for each, oldest first);
  *  - older data is stale, data more than FWH_ADC_MAX_GAP periods ahead is future: both are
- *    rejected. FWH_ADC_RESYNC consecutive periods of such data (a restarted plant) are taken
- *    as the new sequence; the core then counts one ADC loss and follows it;
+ *    rejected. A restarted plant (FWH_ADC_RESYNC consecutive periods 0, 1, 2, ... of such
+ *    data: its start-up period first) is taken as the new sequence; the core then counts
+ *    one ADC loss and follows it. No other run of rejected periods is ever followed (stray
+ *    frames of another node, delayed duplicates): only the plant itself starts at 0;
  *  - frames whose n_soc does not agree with the period's first frame, or that n_soc does not
  *    call for (VIO_ADC_1 with n_soc <= 7), are malformed and rejected.
  */
@@ -45,6 +47,8 @@ typedef struct {
     fw_adc_t adc;
     uint32_t resync_next; /* resynchronisation on a consistent stream of rejected periods */
     int resync_count;
+    int first_fixed;      /* the first period is known (fwh_adc_expect_first) */
+    uint32_t first;
 } fwh_adc_asm_t;
 
 /* What one frame led to. The HAL acts in this order: count `incomplete` rejections, run
@@ -62,6 +66,12 @@ typedef struct {
 } fwh_adc_result_t;
 
 void fwh_adc_init(fwh_adc_asm_t *a);
+
+/* The first period the paired plant sends (lockstep: its start-up period 0, fw_host
+ * --first-period): data of any other period before it is rejected (stale or future), so
+ * stray frames on the bus cannot become the first period. Without it the newest period
+ * seen is the first (real time: the plant runs before the firmware joins). */
+void fwh_adc_expect_first(fwh_adc_asm_t *a, uint32_t period);
 
 /* One received frame: index 0..2 (VIO_ADC_0..2), its period, n_soc (0..16, range-checked by
  * the caller), vdc code and the up to 7 current code pairs it carries. */

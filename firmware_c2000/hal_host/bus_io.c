@@ -13,6 +13,7 @@
 #include "codec_util.h"
 #include "fw_host.h"
 #include "hil_vio.h"
+#include "param_file.h"
 
 #define VIO_RANGE_LO 0x10u
 #define VIO_RANGE_HI 0x2Fu
@@ -192,6 +193,31 @@ static void run_isr(fwh_t *app, const fw_adc_t *adc, int repeat, int64_t t_rx_ns
 
 /* ------------------------------------------------------------------------ receive */
 
+/* Every current code of a frame within the converter's range, 0 .. 2^N - 1 with N the
+ * adc_bits parameter (docs/interfaces.md, ADC codes); unused slots are 0. */
+static int codes_in_range(fwh_t *app, const int32_t *ia, const int32_t *ib)
+{
+    static const fw_param_info_t *adc_bits; /* looked up by name once */
+    real_t bits = FW_REAL(0.0);
+    int32_t top;
+    int k;
+    if (adc_bits == NULL) {
+        adc_bits = fwh_param_by_name("adc_bits");
+    }
+    if (adc_bits == NULL || fw_param_get(&app->core, adc_bits->id, &bits) != FW_STATUS_OK ||
+        !(bits >= 1.0f) ||
+        !(bits <= 30.0f)) {
+        return 1; /* the core checks the codes again in any case */
+    }
+    top = (int32_t)(((int64_t)1 << (int)bits) - 1);
+    for (k = 0; k < 7; k++) {
+        if (ia[k] < 0 || ia[k] > top || ib[k] < 0 || ib[k] > top) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
 static void feed(fwh_t *app, int index, uint32_t period, uint8_t n_soc, int32_t vdc,
                  const int32_t *ia, const int32_t *ib, int64_t t_rx_ns)
 {
@@ -200,6 +226,12 @@ static void feed(fwh_t *app, int index, uint32_t period, uint8_t n_soc, int32_t 
     if (!hil_vio_vio_adc_0_n_soc_is_in_range(n_soc)) {
         fwh_reject(app, FWH_REJ_OUT_OF_RANGE, "VIO_ADC_%d period %lu: n_soc %u outside [0, 16]",
                    index, (unsigned long)period, n_soc);
+        return;
+    }
+    if (!codes_in_range(app, ia, ib)) {
+        fwh_reject(app, FWH_REJ_OUT_OF_RANGE,
+                   "VIO_ADC_%d period %lu: a current code outside the converter's 0 .. 2^N-1",
+                   index, (unsigned long)period);
         return;
     }
     fwh_adc_feed(&app->adc, index, period, (int16_t)n_soc, vdc, ia, ib, &r);

@@ -396,10 +396,15 @@ static void process_line(fwh_t *app, char *text)
     err_line(app, CON_ERR_UNKNOWN_COMMAND, "unknown command '%.32s' (try help)", tok[0]);
 }
 
-void fwh_console_input(fwh_t *app, const char *data, size_t len, int64_t now_ns)
+size_t fwh_console_input(fwh_t *app, const char *data, size_t len, int64_t now_ns)
 {
     size_t i;
     for (i = 0; i < len; i++) {
+        if (app->pty.out_len > 0 && i > 0 && (data[i - 1] == '\r' || data[i - 1] == '\n')) {
+            /* a reply is still queued: the next line waits until the client has read it
+             * (backpressure; a reply is never dropped, protocols/console.md) */
+            return i;
+        }
         const unsigned char ch = (unsigned char)data[i];
         if (ch == '\r' || ch == '\n') {
             int had = line.len > 0 || line.overflow || line.bad_char;
@@ -435,6 +440,7 @@ void fwh_console_input(fwh_t *app, const char *data, size_t len, int64_t now_ns)
         }
         line.buf[line.len++] = (char)ch;
     }
+    return len;
 }
 
 void fwh_console_hangup(fwh_t *app)

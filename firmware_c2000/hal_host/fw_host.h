@@ -55,11 +55,13 @@ typedef struct {
     int32_t spin_us;
     uint8_t node;
     int rt_priority;
+    int64_t first_period; /* --first-period, or -1: the first ADC period may be any */
 } fwh_options_t;
 
 typedef struct {
     uint64_t rejects[FWH_REJ_COUNT];
     uint64_t isr, isr_no_data, repeats, pwm_sent, pwm_invalid, overruns, resyncs;
+    uint64_t non_data_frames; /* extended, remote or error frames: not this protocol's */
     int64_t max_latency_ns;
     uint64_t drive_cmds, cmds_refused, limits, param_reqs, status_frames, heartbeats;
     uint64_t tlm_frames, trace_records, trace_sent, trace_errors;
@@ -86,6 +88,8 @@ typedef struct fwh {
     int console_hup;           /* the line reported a hang-up: probed every 10 ms */
     int64_t console_retry_ns;
     int64_t console_last_ns;   /* last line received (keep-alive) */
+    char console_in[512];      /* input read but not taken yet (a reply was still queued) */
+    size_t console_in_off, console_in_len;
     /* the command both sources write (last writer wins) */
     fw_cmd_t cmd;
     int owner;
@@ -131,7 +135,10 @@ int16_t fwh_command(fwh_t *app, const fw_cmd_t *cmd, int owner);
 void fwh_command_refresh(fwh_t *app, int64_t now_ns);
 
 /* console.c */
-void fwh_console_input(fwh_t *app, const char *data, size_t len, int64_t now_ns);
+/* Takes console input line by line; stops after a line whose reply is still queued (the
+ * client has not read it yet) and returns the bytes taken: the caller keeps the rest and
+ * reads nothing more from the line until the reply is out (backpressure). */
+size_t fwh_console_input(fwh_t *app, const char *data, size_t len, int64_t now_ns);
 void fwh_console_hangup(fwh_t *app);
 
 #endif

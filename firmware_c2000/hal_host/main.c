@@ -40,81 +40,6 @@ static void on_signal(int sig)
     app.stop = 1;
 }
 
-/* ------------------------------------------------------------------------ helpers */
-
-int64_t fwh_now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * FWH_NS_PER_S + ts.tv_nsec;
-}
-
-static const char *const reject_names[FWH_REJ_COUNT] = {
-    "unknown_id", "bad_length", "wrong_frame_type", "out_of_range", "malformed",
-    "stale_period", "future_period", "incomplete", "refused"};
-
-const char *fwh_reject_name(int reason)
-{
-    return reason >= 0 && reason < FWH_REJ_COUNT ? reject_names[reason] : "?";
-}
-
-const char *fwh_state_name(int16_t state)
-{
-    static const char *const n[] = {"INIT", "IDLE", "POLARITY", "RUN", "FAULT"};
-    return state >= 0 && state <= 4 ? n[state] : "?";
-}
-
-const char *fwh_fault_name(uint16_t code)
-{
-    static const char *const n[] = {"NONE",       "OVERCURRENT",     "DC_OVERVOLTAGE",
-                                    "DC_UNDERVOLTAGE", "ESTIMATOR",  "CMD_TIMEOUT",
-                                    "ADC_LOSS",   "POLARITY",        "POLARITY_LOST",
-                                    "OVERSPEED",  "PARAMS"};
-    return code < sizeof(n) / sizeof(n[0]) ? n[code] : "UNKNOWN";
-}
-
-uint64_t fwh_rejected_total(const fwh_t *a)
-{
-    uint64_t n = 0;
-    int k;
-    for (k = 0; k < FWH_REJ_COUNT; k++) {
-        n += a->cnt.rejects[k];
-    }
-    return n;
-}
-
-static int log_allowed(fwh_t *a)
-{
-    return hil_log_limit_allow(&a->log_limit, fwh_now_ns());
-}
-
-void fwh_reject(fwh_t *a, int reason, const char *fmt, ...)
-{
-    va_list ap;
-    a->cnt.rejects[reason]++;
-    if (!log_allowed(a)) {
-        return;
-    }
-    fprintf(stderr, "fw_host: rejected (%s): ", fwh_reject_name(reason));
-    va_start(ap, fmt);
-    vfprintf(stderr, fmt, ap);
-    va_end(ap);
-    fputc('\n', stderr);
-}
-
-void fwh_log(fwh_t *a, const char *fmt, ...)
-{
-    va_list ap;
-    if (!log_allowed(a)) {
-        return;
-    }
-    fputs("fw_host: ", stderr);
-    va_start(ap, fmt);
-    vfprintf(stderr, fmt, ap);
-    va_end(ap);
-    fputc('\n', stderr);
-}
-
 /* ------------------------------------------------------------------------ options */
 
 static void usage(FILE *out)
@@ -148,6 +73,8 @@ static void usage(FILE *out)
             "  --spin-us N                    busy-poll the bus N us before sleeping (default 0)\n"
             "  --node N                       HEARTBEAT node number (default 1)\n"
             "  --rt-priority N                real time: SCHED_FIFO priority (default 80; 0 off)\n"
+            "  --first-period N               the paired plant's first ADC period (lockstep: 0);\n"
+            "                                 ADC data of other periods before it is rejected\n"
             "  --help                         this text\n"
             "\n"
             "Exit: 0 on SIGTERM/SIGINT or after --max-periods (counters as one JSON line on\n"
@@ -175,7 +102,7 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
     enum {
         O_BUS = 256, O_CHANNEL, O_LOCKSTEP, O_REALTIME, O_TRACE, O_SEND_TRACE, O_TLM_DIV,
         O_PARAMS, O_SET, O_PTY_LINK, O_NO_CONSOLE, O_CONSOLE_TIMEOUT, O_READY, O_MAX_PERIODS,
-        O_SPIN, O_NODE, O_RT_PRIO, O_HELP
+        O_SPIN, O_NODE, O_RT_PRIO, O_FIRST_PERIOD, O_HELP
     };
     static const struct option longopts[] = {
         {"bus", required_argument, 0, O_BUS},
@@ -196,6 +123,7 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
         {"spin-us", required_argument, 0, O_SPIN},
         {"node", required_argument, 0, O_NODE},
         {"rt-priority", required_argument, 0, O_RT_PRIO},
+        {"first-period", required_argument, 0, O_FIRST_PERIOD},
         {"help", no_argument, 0, O_HELP},
         {0, 0, 0, 0},
     };
@@ -208,6 +136,7 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
     o->console_timeout_ns = 5000LL * 1000000LL;
     o->node = 1;
     o->rt_priority = 80;
+    o->first_period = -1; /* any */
     sets->n = 0;
     opterr = 0;
     while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
@@ -240,8 +169,10 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
         case O_MAX_PERIODS:
         case O_SPIN:
         case O_NODE:
+        case O_FIRST_PERIOD:
         case O_RT_PRIO: {
             const uint64_t max = c == O_NODE ? 255u : c == O_RT_PRIO ? 99u
+                               : c == O_FIRST_PERIOD ? UINT32_MAX
                                : c == O_MAX_PERIODS ? UINT64_MAX : c == O_SPIN ? 1000000u
                                : c == O_CONSOLE_TIMEOUT ? 86400000u : 1000000u;
             if (parse_u64(optarg, max, &v) != 0) {
@@ -259,6 +190,8 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
                 o->spin_us = (int32_t)v;
             } else if (c == O_NODE) {
                 o->node = (uint8_t)v;
+            } else if (c == O_FIRST_PERIOD) {
+                o->first_period = (int64_t)v;
             } else {
                 o->rt_priority = (int)v;
             }
@@ -374,7 +307,8 @@ static void handle_frame(const struct canfd_frame *f, int fd)
     const int64_t t_rx = fwh_now_ns();
     const uint32_t id = f->can_id & CAN_SFF_MASK;
     if (f->can_id & (CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG)) {
-        return; /* outside this protocol's 11-bit data frames */
+        app.cnt.non_data_frames++; /* outside this protocol's 11-bit data frames */
+        return;
     }
     if (fwh_bus_is_vio(id)) {
         fwh_bus_vio_frame(&app, f, fd, t_rx);
@@ -414,17 +348,39 @@ static int drain_bus(void)
 }
 
 /* Reads what the client sent; a session starts with the first bytes after a hang-up. */
+static int console_input_pending(void)
+{
+    return app.console_in_off < app.console_in_len;
+}
+
+/* Lines are taken while their replies leave: input waits (first in console_in, then in the
+ * pty, then in the client's write) while a reply is still queued, so none is dropped. */
 static void console_read(int64_t now)
 {
-    char buf[512];
     int n;
-    while ((n = fwh_pty_read(&app.pty, buf, sizeof(buf))) > 0) {
+    for (;;) {
+        if (console_input_pending()) {
+            app.console_in_off += fwh_console_input(&app, app.console_in + app.console_in_off,
+                                                    app.console_in_len - app.console_in_off,
+                                                    now);
+            if (console_input_pending()) {
+                return; /* a reply waits for the client: POLLOUT resumes */
+            }
+        }
+        if (app.pty.out_len > 0) {
+            return;
+        }
+        n = fwh_pty_read(&app.pty, app.console_in, sizeof(app.console_in));
+        if (n <= 0) {
+            return;
+        }
+        app.console_in_off = 0;
+        app.console_in_len = (size_t)n;
         if (!app.console_connected) {
             app.console_connected = 1;
             app.console_last_ns = now;
             app.cnt.console_sessions++;
         }
-        fwh_console_input(&app, buf, (size_t)n, now);
     }
 }
 
@@ -433,6 +389,7 @@ static void console_read(int64_t now)
 static void console_hangup(int64_t now)
 {
     console_read(now); /* what it wrote before closing */
+    app.console_in_off = app.console_in_len = 0;
     if (app.console_connected) {
         app.console_connected = 0;
         fwh_console_hangup(&app);
@@ -477,8 +434,7 @@ static void housekeeping(int64_t now)
             app.next_heartbeat_ns = now + FWH_STATUS_PERIOD_NS;
         }
     }
-    console_probe(now);
-    (void)log_allowed; /* the log window rolls over on the next message */
+    console_probe(now); /* (the log window rolls over on the next message) */
 }
 
 static int run(int tfd)
@@ -491,7 +447,9 @@ static int run(int tfd)
         p[n].fd = tfd, p[n].events = POLLIN, p[n].revents = 0, i_tim = n++;
         if (app.pty_open && !app.console_hup) {
             p[n].fd = app.pty.master;
-            p[n].events = (short)(POLLIN | (app.pty.out_len > 0 ? POLLOUT : 0));
+            /* no reading while a reply waits for the client (backpressure) */
+            p[n].events = (short)(app.pty.out_len > 0 ? POLLOUT
+                                  : console_input_pending() ? 0 : POLLIN);
             p[n].revents = 0;
             i_pty = n++;
         }
@@ -517,6 +475,9 @@ static int run(int tfd)
                 }
                 if (p[i_pty].revents & POLLOUT) {
                     fwh_pty_flush(&app.pty);
+                    if (app.pty.out_len == 0) {
+                        console_read(now); /* the lines that waited for that reply */
+                    }
                 }
             }
         }
@@ -573,7 +534,9 @@ static void print_counters(void)
             "\"console_keepalive_lapses\": %llu, \"console_out_dropped\": %llu, "
             "\"state\": \"%s\", \"fault_code\": %u, \"fault_name\": \"%s\", "
             "\"core_overruns\": %u, \"tx_frames\": %llu, \"tx_drops\": %llu, "
-            "\"tx_errors\": %llu, \"rx_frames\": %llu, \"rx_overflows\": %llu, \"rt\": \"%s\"}\n",
+            "\"tx_errors\": %llu, \"rx_frames\": %llu, \"rx_overflows\": %llu, "
+            "\"rx_malformed\": %llu, \"rx_filtered\": %llu, \"non_data_frames\": %llu, "
+            "\"foreign_entries\": %llu, \"peers_beyond_limit\": %llu, \"rt\": \"%s\"}\n",
             (unsigned long long)c->resyncs, (unsigned long long)c->drive_cmds,
             (unsigned long long)c->cmds_refused, (unsigned long long)c->limits,
             (unsigned long long)c->param_reqs, (unsigned long long)c->status_frames,
@@ -587,6 +550,9 @@ static void print_counters(void)
             fwh_fault_name(s.fault_code), s.isr_overruns, (unsigned long long)bs.tx_frames,
             (unsigned long long)bs.tx_drops, (unsigned long long)bs.tx_errors,
             (unsigned long long)bs.rx_frames, (unsigned long long)bs.rx_overflows,
+            (unsigned long long)bs.rx_malformed, (unsigned long long)bs.rx_filtered,
+            (unsigned long long)c->non_data_frames, (unsigned long long)bs.foreign_entries,
+            (unsigned long long)bs.peers_beyond_limit,
             app.rt_note != NULL ? app.rt_note : "not requested (lockstep)");
     fflush(stderr);
 }
@@ -613,6 +579,9 @@ int main(int argc, char **argv)
     app.owner = FWH_OWNER_NONE;
     app.pty.master = -1;
     fwh_adc_init(&app.adc);
+    if (app.opt.first_period >= 0) {
+        fwh_adc_expect_first(&app.adc, (uint32_t)app.opt.first_period);
+    }
     if (load_parameters(&sets) != 0) {
         return 2;
     }

@@ -4,7 +4,8 @@
  * found through an optional symbolic link. The line is set to raw mode, 115200 8N1 with
  * termios exactly as the DSP's SCI is configured (the rate means nothing on a pty). Output
  * is queued (FWH_PTY_OUT_MAX bytes) and written as the client reads; what does not fit is
- * dropped and counted. A client hanging up is reported so the console can end its session.
+ * dropped and counted (the console queues one reply at a time, far less: main.c takes the
+ * next line only when the last reply is out). A client hanging up is reported so the console can end its session.
  */
 #ifndef PTY_H
 #define PTY_H

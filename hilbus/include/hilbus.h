@@ -30,6 +30,9 @@ typedef struct {
     uint64_t rx_overflows;  /* frames the kernel dropped on our socket (SO_RXQ_OVFL), socketcan only */
     uint64_t rx_filtered;   /* frames received but not matching the filters (unixcan) */
     uint64_t peers_removed; /* unixcan: dead peers removed */
+    uint64_t rx_malformed;  /* unixcan: datagrams that are no valid CAN / CAN FD frame (size, len) */
+    uint64_t foreign_entries;    /* unixcan: folder entries that are no socket of this user: ignored */
+    uint64_t peers_beyond_limit; /* unixcan: most nodes seen beyond HILBUS_MAX_PEERS (not reached) */
 } hilbus_stats_t;
 
 /* transport: "socketcan", "unixcan" or "auto" (socketcan when the kernel has the
@@ -62,6 +65,15 @@ void hilbus_set_spin(hilbus_t *bus, int32_t spin_us);
 int hilbus_fileno(const hilbus_t *bus);
 
 void hilbus_get_stats(const hilbus_t *bus, hilbus_stats_t *stats);
+
+/* Channel names are plain names: 1..HILBUS_MAX_CHANNEL of [A-Za-z0-9_.-], not starting
+ * with '.' or '-' (no path, no "..", no option). */
+#define HILBUS_MAX_CHANNEL 63
+#define HILBUS_MAX_PEERS 64 /* unixcan: nodes a node sends to; more are counted, not reached */
+
+/* unixcan: the folder holding one sub-folder per channel ($UNIXCAN_DIR, else
+ * $XDG_RUNTIME_DIR/unixcan, else /tmp/unixcan-<uid>). 0, or -1 (path too long). */
+int hilbus_unixcan_base(char *out, size_t outlen);
 
 /* Rounds a payload length up to the next valid CAN FD length (0..8, 12, 16, 20, 24, 32, 48, 64). */
 uint8_t hilbus_fd_len(size_t len);

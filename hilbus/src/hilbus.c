@@ -28,8 +28,9 @@ static int valid_frame(const struct canfd_frame *frame, int fd)
 
 hilbus_t *hilbus_open(const char *transport, const char *channel, char *err, size_t errlen)
 {
-    if (channel == NULL || channel[0] == '\0' || strlen(channel) >= 64 || strchr(channel, '/')) {
-        snprintf(err, errlen, "invalid channel name '%s'", channel ? channel : "");
+    if (!hilbus_channel_name_ok(channel)) {
+        snprintf(err, errlen, "invalid channel name '%.80s': a plain name of 1 to %d letters, digits, "
+                 "'_', '-' or '.', not starting with '.' or '-'", channel ? channel : "", HILBUS_MAX_CHANNEL);
         return NULL;
     }
     struct hilbus *bus = calloc(1, sizeof *bus);

@@ -3,13 +3,13 @@
 #define HILBUS_INTERNAL_H
 
 #include <limits.h>
+#include <sys/types.h>
 #include <sys/un.h>
 #include <time.h>
 
 #include "hilbus.h"
 
 #define HILBUS_MAX_FILTERS 32
-#define HILBUS_MAX_PEERS 64
 
 enum hilbus_kind { HILBUS_SOCKETCAN = 1, HILBUS_UNIXCAN = 2 };
 
@@ -25,6 +25,8 @@ struct hilbus {
     struct can_filter filters[HILBUS_MAX_FILTERS];
     char dir[sizeof(((struct sockaddr_un *)0)->sun_path)];
     struct sockaddr_un self;
+    int have_group; /* UNIXCAN_GROUP: folder 0770 and sockets 0660 of that group */
+    gid_t group;
     int n_peers;
     struct sockaddr_un peers[HILBUS_MAX_PEERS];
     unsigned char congested[HILBUS_MAX_PEERS]; /* peer was still full after the grace wait */
@@ -41,6 +43,7 @@ int hilbus_socketcan_recv(struct hilbus *bus, struct canfd_frame *frame, int *fd
 void hilbus_socketcan_drops(const struct hilbus *bus, hilbus_stats_t *stats);
 int hilbus_socketcan_set_filters(struct hilbus *bus, const struct can_filter *filters, int n);
 
+int hilbus_channel_name_ok(const char *channel);
 int hilbus_unixcan_open(struct hilbus *bus, const char *channel, char *err, size_t errlen);
 void hilbus_unixcan_close(struct hilbus *bus);
 int hilbus_unixcan_send(struct hilbus *bus, const struct canfd_frame *frame, int fd);

@@ -7,6 +7,7 @@
 #include <dirent.h>
 #include <sched.h>
 #include <errno.h>
+#include <grp.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -31,24 +32,165 @@ static int serial_counter;
 
 static int64_t ts_ns(struct timespec t) { return (int64_t)t.tv_sec * 1000000000LL + t.tv_nsec; }
 
-static int mkdir_p(const char *path)
+/* The directory rule (docs/interfaces.md, the same in rig/bus/unixcan.py):
+ *  - base: $UNIXCAN_DIR, else $XDG_RUNTIME_DIR/unixcan (an absolute XDG_RUNTIME_DIR), else
+ *    /tmp/unixcan-<uid>; the channel folder is base/<channel>, <channel> a plain name;
+ *  - what is missing is created mode 0700 (0770 and group G with UNIXCAN_GROUP=G);
+ *  - the base and the channel folder must be real directories (a symlink is refused),
+ *    owned by this user and writable by nobody else (the group only with UNIXCAN_GROUP);
+ *    the channel folder's mode is then set to 0700 (0770): it holds only the bus's sockets;
+ *  - sockets are 0600 (0660 with the group); only sockets owned by this user (or, with
+ *    UNIXCAN_GROUP, of that group) are peers, and nothing else is ever removed. */
+int hilbus_channel_name_ok(const char *channel)
 {
-    char tmp[sizeof(((struct sockaddr_un *)0)->sun_path)];
-    size_t len = strlen(path);
-    if (len >= sizeof tmp) {
+    size_t n = channel ? strlen(channel) : 0;
+    if (n == 0 || n > HILBUS_MAX_CHANNEL || channel[0] == '.' || channel[0] == '-') return 0;
+    for (size_t i = 0; i < n; i++) {
+        char c = channel[i];
+        if (!((c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+              c == '_' || c == '-' || c == '.'))
+            return 0;
+    }
+    return 1;
+}
+
+static int lookup_group(gid_t *gid, char *err, size_t errlen)
+{
+    const char *name = getenv("UNIXCAN_GROUP");
+    if (name == NULL || name[0] == '\0') return 0;
+    struct group *g = getgrnam(name);
+    if (g == NULL) {
+        char *end = NULL;
+        unsigned long v = strtoul(name, &end, 10);
+        if (end == name || *end != '\0') {
+            snprintf(err, errlen, "unixcan: UNIXCAN_GROUP=%s: no such group", name);
+            return -1;
+        }
+        *gid = (gid_t)v;
+        return 1;
+    }
+    *gid = g->gr_gid;
+    return 1;
+}
+
+int hilbus_unixcan_base(char *out, size_t outlen)
+{
+    const char *base = getenv("UNIXCAN_DIR");
+    int w;
+    if (base != NULL && base[0] != '\0') {
+        w = snprintf(out, outlen, "%s", base);
+    } else {
+        const char *xdg = getenv("XDG_RUNTIME_DIR");
+        struct stat st;
+        if (xdg != NULL && xdg[0] == '/' && stat(xdg, &st) == 0 && S_ISDIR(st.st_mode))
+            w = snprintf(out, outlen, "%s/unixcan", xdg);
+        else
+            w = snprintf(out, outlen, "/tmp/unixcan-%lu", (unsigned long)geteuid());
+    }
+    if (w < 0 || (size_t)w >= outlen) {
         errno = ENAMETOOLONG;
         return -1;
     }
-    memcpy(tmp, path, len + 1);
+    /* no trailing slashes: the socket paths are compared as strings */
+    for (size_t n = strlen(out); n > 1 && out[n - 1] == '/'; n--) out[n - 1] = '\0';
+    return 0;
+}
+
+/* Creates `path` if missing (mode `mode`), then checks it is ours (see the rule above). */
+static int own_directory(const char *path, mode_t mode, int have_group, gid_t gid, int tighten,
+                         char *err, size_t errlen)
+{
+    if (mkdir(path, mode) == 0) {
+        if (have_group && chown(path, (uid_t)-1, gid) != 0) {
+            snprintf(err, errlen, "unixcan: cannot give %s to group %lu: %s", path,
+                     (unsigned long)gid, strerror(errno));
+            return -1;
+        }
+        (void)chmod(path, mode); /* mkdir applies the umask */
+    } else if (errno != EEXIST) {
+        snprintf(err, errlen, "unixcan: cannot create %s: %s", path, strerror(errno));
+        return -1;
+    }
+    struct stat st;
+    if (lstat(path, &st) != 0) {
+        snprintf(err, errlen, "unixcan: %s: %s", path, strerror(errno));
+        return -1;
+    }
+    if (S_ISLNK(st.st_mode)) {
+        snprintf(err, errlen, "unixcan: %s is a symbolic link; refused (the bus folder must be a "
+                              "real directory)", path);
+        return -1;
+    }
+    if (!S_ISDIR(st.st_mode)) {
+        snprintf(err, errlen, "unixcan: %s is not a directory", path);
+        return -1;
+    }
+    if (st.st_uid != geteuid()) {
+        snprintf(err, errlen, "unixcan: %s belongs to uid %lu, not to this user (uid %lu); "
+                              "refused (set UNIXCAN_DIR to a folder of your own)",
+                 path, (unsigned long)st.st_uid, (unsigned long)geteuid());
+        return -1;
+    }
+    mode_t foreign_write = have_group ? S_IWOTH : (S_IWGRP | S_IWOTH);
+    if (have_group && st.st_gid != gid) foreign_write = S_IWGRP | S_IWOTH;
+    if (tighten) {
+        if ((st.st_mode & 07777) != mode && chmod(path, mode) != 0) {
+            snprintf(err, errlen, "unixcan: cannot set mode %o on %s: %s", (unsigned)mode, path,
+                     strerror(errno));
+            return -1;
+        }
+        if (have_group && st.st_gid != gid && chown(path, (uid_t)-1, gid) != 0) {
+            snprintf(err, errlen, "unixcan: cannot give %s to group %lu: %s", path,
+                     (unsigned long)gid, strerror(errno));
+            return -1;
+        }
+    } else if (st.st_mode & foreign_write) {
+        snprintf(err, errlen, "unixcan: %s is writable by other users (mode %03o); refused "
+                              "(chmod go-w it, or set UNIXCAN_DIR to a folder of your own)",
+                 path, (unsigned)(st.st_mode & 0777));
+        return -1;
+    }
+    return 0;
+}
+
+/* mkdir -p for the parents of the base (mode 0700), then the base and channel checks. */
+static int make_bus_dir(struct hilbus *bus, const char *base, char *err, size_t errlen)
+{
+    gid_t gid = 0;
+    int have_group = lookup_group(&gid, err, errlen);
+    if (have_group < 0) return -1;
+    const mode_t mode = have_group ? 0770 : 0700;
+    char tmp[sizeof bus->dir];
+    size_t len = strlen(base);
+    if (len >= sizeof tmp) {
+        snprintf(err, errlen, "unixcan: path %s too long", base);
+        return -1;
+    }
+    memcpy(tmp, base, len + 1);
     for (char *p = tmp + 1; *p; p++) {
         if (*p == '/') {
             *p = '\0';
-            if (mkdir(tmp, 0777) != 0 && errno != EEXIST) return -1;
+            if (mkdir(tmp, 0700) != 0 && errno != EEXIST) {
+                snprintf(err, errlen, "unixcan: cannot create %s: %s", tmp, strerror(errno));
+                return -1;
+            }
             *p = '/';
         }
     }
-    if (mkdir(tmp, 0777) != 0 && errno != EEXIST) return -1;
+    if (own_directory(base, mode, have_group, gid, 0, err, errlen) != 0) return -1;
+    if (own_directory(bus->dir, mode, have_group, gid, 1, err, errlen) != 0) return -1;
+    bus->have_group = have_group;
+    bus->group = gid;
     return 0;
+}
+
+/* A directory entry that may be a peer: a socket of ours (or of the bus's group). */
+static int peer_entry_ok(const struct hilbus *bus, const char *path)
+{
+    struct stat st;
+    if (lstat(path, &st) != 0 || !S_ISSOCK(st.st_mode)) return 0;
+    if (st.st_uid == geteuid()) return 1;
+    return bus->have_group && st.st_gid == bus->group;
 }
 
 static int connect_peer(const struct sockaddr_un *addr)
@@ -74,18 +216,28 @@ static void scan_peers(struct hilbus *bus)
     struct sockaddr_un found[HILBUS_MAX_PEERS];
     int n = 0;
     struct dirent *e;
-    while ((e = readdir(d)) != NULL && n < HILBUS_MAX_PEERS) {
+    int beyond = 0;
+    while ((e = readdir(d)) != NULL) {
         size_t len = strlen(e->d_name);
         if (len < 6 || strcmp(e->d_name + len - 5, ".sock") != 0) continue;
-        struct sockaddr_un *peer = &found[n];
-        memset(peer, 0, sizeof *peer);
-        peer->sun_family = AF_UNIX;
-        int w = snprintf(peer->sun_path, sizeof peer->sun_path, "%s/%s", bus->dir, e->d_name);
-        if (w < 0 || (size_t)w >= sizeof peer->sun_path) continue;
-        if (strcmp(peer->sun_path, bus->self.sun_path) == 0) continue;
-        n++;
+        struct sockaddr_un cand;
+        memset(&cand, 0, sizeof cand);
+        cand.sun_family = AF_UNIX;
+        int w = snprintf(cand.sun_path, sizeof cand.sun_path, "%s/%s", bus->dir, e->d_name);
+        if (w < 0 || (size_t)w >= sizeof cand.sun_path) continue;
+        if (strcmp(cand.sun_path, bus->self.sun_path) == 0) continue;
+        if (!peer_entry_ok(bus, cand.sun_path)) {
+            bus->stats.foreign_entries++;
+            continue;
+        }
+        if (n == HILBUS_MAX_PEERS) {
+            beyond++; /* more nodes than a node can address: counted, reported by the programs */
+            continue;
+        }
+        found[n++] = cand;
     }
     closedir(d);
+    if ((uint64_t)beyond > bus->stats.peers_beyond_limit) bus->stats.peers_beyond_limit = (uint64_t)beyond;
     /* Keep the connected sockets of peers still present; connect to new ones. */
     int fds[HILBUS_MAX_PEERS];
     unsigned char congested[HILBUS_MAX_PEERS];
@@ -153,17 +305,17 @@ static void refresh_peers(struct hilbus *bus)
 
 int hilbus_unixcan_open(struct hilbus *bus, const char *channel, char *err, size_t errlen)
 {
-    const char *base = getenv("UNIXCAN_DIR");
-    if (base == NULL || base[0] == '\0') base = "/tmp/unixcan";
+    char base[sizeof bus->dir];
+    if (hilbus_unixcan_base(base, sizeof base) != 0) {
+        snprintf(err, errlen, "unixcan: UNIXCAN_DIR too long for a socket address");
+        return -1;
+    }
     int w = snprintf(bus->dir, sizeof bus->dir, "%s/%s", base, channel);
     if (w < 0 || (size_t)w >= sizeof bus->dir - 32) {
         snprintf(err, errlen, "unixcan: directory path '%s/%s' too long for a socket address", base, channel);
         return -1;
     }
-    if (mkdir_p(bus->dir) != 0) {
-        snprintf(err, errlen, "unixcan: cannot create %s: %s", bus->dir, strerror(errno));
-        return -1;
-    }
+    if (make_bus_dir(bus, base, err, errlen) != 0) return -1;
     int s = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
     if (s < 0) {
         snprintf(err, errlen, "unixcan: socket: %s", strerror(errno));
@@ -191,7 +343,15 @@ int hilbus_unixcan_open(struct hilbus *bus, const char *channel, char *err, size
         close(s);
         return -1;
     }
-    chmod(bus->self.sun_path, 0666);
+    /* The folder is 0700 already; the socket's own mode says the same to whoever looks. */
+    if (chmod(bus->self.sun_path, bus->have_group ? 0660 : 0600) != 0 ||
+        (bus->have_group && chown(bus->self.sun_path, (uid_t)-1, bus->group) != 0)) {
+        snprintf(err, errlen, "unixcan: cannot set the mode of %s: %s", bus->self.sun_path,
+                 strerror(errno));
+        close(s);
+        unlink(bus->self.sun_path);
+        return -1;
+    }
     bus->kind = HILBUS_UNIXCAN;
     bus->sock = s;
     scan_peers(bus);
@@ -267,7 +427,8 @@ static int filters_pass(const struct hilbus *bus, canid_t id)
 
 int hilbus_unixcan_recv(struct hilbus *bus, struct canfd_frame *frame, int *fd)
 {
-    ssize_t n = recv(bus->sock, frame, sizeof *frame, MSG_DONTWAIT);
+    /* MSG_TRUNC: the datagram's real size, so a longer one is not taken for a frame */
+    ssize_t n = recv(bus->sock, frame, sizeof *frame, MSG_DONTWAIT | MSG_TRUNC);
     if (n < 0) return (errno == EAGAIN || errno == EINTR) ? 0 : -1;
     if (n == CANFD_MTU) {
         *fd = 1;
@@ -275,7 +436,13 @@ int hilbus_unixcan_recv(struct hilbus *bus, struct canfd_frame *frame, int *fd)
         *fd = 0;
         frame->flags = 0;
     } else {
-        return 0; /* not a frame: ignore */
+        bus->stats.rx_malformed++; /* neither a struct can_frame nor a struct canfd_frame */
+        return 0;
+    }
+    if (frame->len > (*fd ? CANFD_MAX_DLEN : CAN_MAX_DLEN) ||
+        (*fd && hilbus_fd_len(frame->len) != frame->len)) {
+        bus->stats.rx_malformed++; /* a length no CAN controller sends: never handed on */
+        return 0;
     }
     if (!filters_pass(bus, frame->can_id)) {
         bus->stats.rx_filtered++;

@@ -26,6 +26,7 @@ static void usage(FILE *out)
             "  recv   print frames:      [--filter ID:MASK]... [--count N] [--timeout-ms T]\n"
             "  echo   answer pings:      frames with id 0x7A0 are sent back as 0x7A1\n"
             "  ping   round-trip timing: [--count N] [--fd] [--window W] [--timeout-ms T]\n"
+            "  dir    open the bus and print its unixcan folder: {\"dir\": PATH}\n"
             "common:  --bus socketcan|unixcan|auto (default auto)  --channel NAME (default vcan0)\n"
             "         --ready-file PATH (written once the bus is open)\n"
             "Output: one JSON object per line on stdout; errors on stderr, exit 1.\n");
@@ -64,10 +65,13 @@ static void print_stats(const hilbus_t *bus)
     hilbus_stats_t s;
     hilbus_get_stats(bus, &s);
     printf("{\"stats\": {\"transport\": \"%s\", \"tx_frames\": %llu, \"tx_drops\": %llu, \"tx_errors\": %llu, "
-           "\"rx_frames\": %llu, \"rx_overflows\": %llu, \"rx_filtered\": %llu, \"peers_removed\": %llu}}\n",
+           "\"rx_frames\": %llu, \"rx_overflows\": %llu, \"rx_filtered\": %llu, \"peers_removed\": %llu, "
+           "\"rx_malformed\": %llu, \"foreign_entries\": %llu, \"peers_beyond_limit\": %llu}}\n",
            hilbus_transport(bus), (unsigned long long)s.tx_frames, (unsigned long long)s.tx_drops,
            (unsigned long long)s.tx_errors, (unsigned long long)s.rx_frames, (unsigned long long)s.rx_overflows,
-           (unsigned long long)s.rx_filtered, (unsigned long long)s.peers_removed);
+           (unsigned long long)s.rx_filtered, (unsigned long long)s.peers_removed,
+           (unsigned long long)s.rx_malformed, (unsigned long long)s.foreign_entries,
+           (unsigned long long)s.peers_beyond_limit);
     fflush(stdout);
 }
 
@@ -210,7 +214,15 @@ int main(int argc, char **argv)
         }
     }
     int rc = 0;
-    if (strcmp(mode, "send") == 0) {
+    if (strcmp(mode, "dir") == 0) {
+        char base[108];
+        if (strcmp(hilbus_transport(bus), "unixcan") != 0 || hilbus_unixcan_base(base, sizeof base) != 0) {
+            fprintf(stderr, "hilbus_tool: dir: not a unixcan bus\n");
+            rc = 1;
+        } else {
+            printf("{\"dir\": \"%s/%s\"}\n", base, channel);
+        }
+    } else if (strcmp(mode, "send") == 0) {
         struct canfd_frame f;
         memset(&f, 0, sizeof f);
         int len = parse_hex(data_hex, f.data, fd ? 64 : 8);

@@ -112,6 +112,9 @@ int plant_config_set(plant_config_t *cfg, const char *assignment, char *err, siz
  * Returns 0 or -1 with a message. plant_new calls it too. */
 int plant_config_check(const plant_config_t *cfg, char *err, size_t errlen);
 /* Number of configuration keys and the i-th "section.key" (for --help and tests). */
+/* sizeof(plant_config_t), for callers through a foreign-function interface (the rig checks a
+ * scenario's overrides with this very loader: one schema for C and Python). */
+size_t plant_config_size(void);
 int plant_config_key_count(void);
 const char *plant_config_key_name(int index);
 

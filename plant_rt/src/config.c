@@ -111,6 +111,11 @@ void plant_config_defaults(plant_config_t *c)
     c->solver.max_step_s = 10e-6;
 }
 
+size_t plant_config_size(void)
+{
+    return sizeof(plant_config_t);
+}
+
 int plant_config_key_count(void)
 {
     return N_FIELDS;

@@ -70,6 +70,7 @@ typedef struct counters {
     uint64_t rejects[PLANT_REJ_COUNT];
     uint64_t max_late_us;
     uint64_t load_cmds, steps;
+    uint64_t non_data_frames; /* extended, remote or error frames: not this protocol's */
     const char *rt_note;
     /* real time: wake-up lateness after clock_nanosleep, and periods slipped on overruns */
     uint64_t wake_n, wake_sum_ns, wake_max_ns, slipped_periods;
@@ -140,14 +141,21 @@ static void send_frame(app_t *a, uint32_t id, const uint8_t *data, uint8_t len, 
 static void trace_frame(app_t *a, uint32_t id, const uint8_t *data, uint8_t len)
 {
     struct canfd_frame f;
-    if (!a->trace) {
-        return;
+    if (!a->trace || len > CANFD_MAX_DLEN) {
+        return; /* (hilbus hands on no longer frame; a record holds 64 data bytes) */
     }
     memset(&f, 0, sizeof(f));
     f.can_id = id;
     f.len = len;
     memcpy(f.data, data, len);
     hiltrace_write(a->trace, &f);
+}
+
+/* The one comparison rule of grants: periods are uint32 and wrap, so "k is before
+ * run_until" is a signed difference. A grant is open while the next period is before it. */
+static int grant_open(const app_t *a, uint32_t k)
+{
+    return (int32_t)(a->run_until - k) > 0;
 }
 
 static uint64_t total_rejects(const counters_t *c)
@@ -377,7 +385,12 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
 {
     const uint32_t id = f->can_id & CAN_SFF_MASK;
     if (f->can_id & (CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG)) {
-        return; /* not from this protocol's 11-bit data frame space */
+        a->cnt.non_data_frames++; /* not from this protocol's 11-bit data frame space */
+        return;
+    }
+    if (f->len > (fd ? CANFD_MAX_DLEN : CAN_MAX_DLEN)) {
+        reject(a, PLANT_REJ_BAD_LENGTH, id, 0); /* hilbus passes none: checked where used */
+        return;
     }
     if (id == HIL_VIO_VIO_PWM_FRAME_ID) {
         plant_pwm_cmd_t cmd;
@@ -440,10 +453,16 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
             return;
         }
         hil_bench_bench_step_unpack(&m, f->data, f->len);
+        if ((int32_t)(m.run_until - plant_next_period(a->plant)) < 0) {
+            /* behind the plant (or 2^31 periods or more ahead: the same thing with wrapping
+             * periods): no rig grants that; keep the grant in force */
+            reject(a, PLANT_REJ_STALE_PERIOD, id, m.run_until);
+            return;
+        }
         a->run_until = m.run_until;
         a->step_seq = m.seq;
         a->cnt.steps++;
-        if (!a->opt.realtime && (int32_t)(plant_next_period(a->plant) - m.run_until) >= 0) {
+        if (!a->opt.realtime && !grant_open(a, plant_next_period(a->plant))) {
             /* Nothing to simulate (a repeated grant, or one already reached): the grant is
              * used up on arrival, so say so now rather than at the next housekeeping. */
             send_progress(a, 0);
@@ -499,10 +518,10 @@ static int lockstep(app_t *a)
             break;
         }
         if (t >= next_housekeeping) {
-            send_housekeeping(a, k < a->run_until ? 1 : 0);
+            send_housekeeping(a, grant_open(a, k));
             next_housekeeping = t + HOUSEKEEPING_NS;
         }
-        if (in.have_pwm && (int32_t)(k - a->run_until) < 0) {
+        if (in.have_pwm && grant_open(a, k)) {
             run_period(a, &in.pwm);
             in.have_pwm = 0;
             waiting_pwm = 1;
@@ -782,13 +801,17 @@ static void print_counters(app_t *a)
     fprintf(stderr,
             "}, \"adc_clipped\": %llu, \"resends\": %llu, \"tx_frames\": %llu, "
             "\"tx_drops\": %llu, \"tx_errors\": %llu, \"rx_frames\": %llu, "
-            "\"rx_overflows\": %llu, \"load_cmds\": %llu, \"steps\": %llu, "
+            "\"rx_overflows\": %llu, \"rx_malformed\": %llu, \"non_data_frames\": %llu, "
+            "\"foreign_entries\": %llu, \"peers_beyond_limit\": %llu, "
+            "\"load_cmds\": %llu, \"steps\": %llu, "
             "\"conduction_events\": %llu, \"newton_failures\": %llu, \"mode_loops_cut\": %llu, "
             "\"rt\": \"%s\"",
             (unsigned long long)a->cnt.adc_clipped, (unsigned long long)a->cnt.resends,
             (unsigned long long)bs.tx_frames, (unsigned long long)bs.tx_drops,
             (unsigned long long)bs.tx_errors, (unsigned long long)bs.rx_frames,
-            (unsigned long long)bs.rx_overflows, (unsigned long long)a->cnt.load_cmds,
+            (unsigned long long)bs.rx_overflows, (unsigned long long)bs.rx_malformed,
+            (unsigned long long)a->cnt.non_data_frames, (unsigned long long)bs.foreign_entries,
+            (unsigned long long)bs.peers_beyond_limit, (unsigned long long)a->cnt.load_cmds,
             (unsigned long long)a->cnt.steps, (unsigned long long)ps.conduction_events,
             (unsigned long long)ps.newton_failures, (unsigned long long)ps.mode_loops_cut,
             a->cnt.rt_note ? a->cnt.rt_note : "not requested (lockstep)");

@@ -120,7 +120,7 @@ int main(int argc, char **argv)
     int64_t deferred_at[MAX_DEFERRED];
     int n_deferred = 0;
 
-    for (k = 1; k < argc; ++k) {
+    for (k = 1; k < argc; k += 2) { /* every option takes one value (--help aside) */
         const char *a = argv[k];
         const char *v = k + 1 < argc ? argv[k + 1] : NULL;
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
@@ -168,7 +168,6 @@ int main(int argc, char **argv)
             usage(stderr);
             return 2;
         }
-        ++k;
     }
 
     memset(&sa, 0, sizeof(sa));

@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import collections
 import errno
+import grp
 import itertools
 import os
+import re
 import select
 import socket
+import stat
 import struct
 import threading
 import time
@@ -52,9 +55,113 @@ _FULL_PEER_GRACE_S = 0.002
 _serial = itertools.count()
 
 
+_CHANNEL_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,62}")
+
+
+class UnixCanDirError(OSError):
+    """The bus folder breaks the directory rule (not ours, a symlink, writable by others)."""
+
+
 def base_dir() -> Path:
-    """Folder holding one sub-folder per channel."""
-    return Path(os.environ.get("UNIXCAN_DIR") or "/tmp/unixcan")
+    """Folder holding one sub-folder per channel: ``$UNIXCAN_DIR``, else
+    ``$XDG_RUNTIME_DIR/unixcan`` (an absolute, existing XDG_RUNTIME_DIR), else
+    ``/tmp/unixcan-<uid>`` (the same rule as hilbus/src/unixcan.c)."""
+    explicit = os.environ.get("UNIXCAN_DIR")
+    if explicit:
+        path = explicit
+    else:
+        xdg = os.environ.get("XDG_RUNTIME_DIR", "")
+        if xdg.startswith("/") and os.path.isdir(xdg):
+            path = os.path.join(xdg, "unixcan")
+        else:
+            path = f"/tmp/unixcan-{os.geteuid()}"
+    return Path(path.rstrip("/") or "/")
+
+
+def channel_name_ok(channel: str) -> bool:
+    """A plain name: 1..63 of ``[A-Za-z0-9_.-]``, not starting with '.' or '-'."""
+    return _CHANNEL_RE.fullmatch(channel) is not None
+
+
+def bus_group() -> int | None:
+    """The group of ``UNIXCAN_GROUP`` (a name or a number), or None."""
+    name = os.environ.get("UNIXCAN_GROUP")
+    if not name:
+        return None
+    try:
+        return grp.getgrnam(name).gr_gid
+    except KeyError:
+        if name.isdigit():
+            return int(name)
+        raise UnixCanDirError(f"unixcan: UNIXCAN_GROUP={name}: no such group") from None
+
+
+def _own_directory(path: Path, mode: int, group: int | None, tighten: bool) -> None:
+    try:
+        path.mkdir(mode=mode)
+        if group is not None:
+            os.chown(path, -1, group)
+        os.chmod(path, mode)  # mkdir applies the umask
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        raise UnixCanDirError(f"unixcan: cannot create {path}: {exc.strerror}") from exc
+    st = os.lstat(path)
+    if stat.S_ISLNK(st.st_mode):
+        raise UnixCanDirError(f"unixcan: {path} is a symbolic link; refused (the bus folder "
+                              "must be a real directory)")
+    if not stat.S_ISDIR(st.st_mode):
+        raise UnixCanDirError(f"unixcan: {path} is not a directory")
+    if st.st_uid != os.geteuid():
+        raise UnixCanDirError(
+            f"unixcan: {path} belongs to uid {st.st_uid}, not to this user (uid "
+            f"{os.geteuid()}); refused (set UNIXCAN_DIR to a folder of your own)")
+    foreign_write = stat.S_IWOTH if group is not None and st.st_gid == group else (
+        stat.S_IWGRP | stat.S_IWOTH)
+    if tighten:
+        if stat.S_IMODE(st.st_mode) != mode:
+            os.chmod(path, mode)
+        if group is not None and st.st_gid != group:
+            os.chown(path, -1, group)
+    elif st.st_mode & foreign_write:
+        raise UnixCanDirError(
+            f"unixcan: {path} is writable by other users (mode {stat.S_IMODE(st.st_mode):03o}); "
+            "refused (chmod go-w it, or set UNIXCAN_DIR to a folder of your own)")
+
+
+def channel_dir(channel: str) -> Path:
+    """The channel's folder, created and checked by the directory rule (docs/interfaces.md):
+    missing folders are made 0700 (0770 of ``UNIXCAN_GROUP``); the base and the channel
+    folder must be real directories of this user that nobody else can write; the channel
+    folder's mode is set to 0700 (0770)."""
+    if not channel_name_ok(channel):
+        raise UnixCanDirError(
+            f"invalid channel name {channel!r}: a plain name of 1 to 63 letters, digits, '_', "
+            "'-' or '.', not starting with '.' or '-'")
+    group = bus_group()
+    mode = 0o770 if group is not None else 0o700
+    base = base_dir()
+    for parent in reversed(base.parents):
+        if not parent.exists():
+            try:
+                parent.mkdir(mode=0o700)
+            except FileExistsError:
+                pass
+    _own_directory(base, mode, group, tighten=False)
+    folder = base / channel
+    _own_directory(folder, mode, group, tighten=True)
+    return folder
+
+
+def peer_socket_ok(path: str, group: int | None) -> bool:
+    """A folder entry that may be a peer: a socket of this user (or of the bus's group)."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return False
+    if not stat.S_ISSOCK(st.st_mode):
+        return False
+    return st.st_uid == os.geteuid() or (group is not None and st.st_gid == group)
 
 
 def fd_length(n: int) -> int:
@@ -88,7 +195,8 @@ def pack_frame(msg: can.Message) -> bytes:
 
 
 def unpack_frame(datagram: bytes, timestamp: float, channel: str) -> can.Message | None:
-    """The message in a datagram, or None for a datagram that is not a frame."""
+    """The message in a datagram, or None for a datagram that is not a frame: a size other
+    than 16 or 72 bytes, or a length no controller sends (> 8 classic, not an FD length)."""
     if len(datagram) == CANFD_MTU:
         is_fd = True
     elif len(datagram) == CAN_MTU:
@@ -97,7 +205,7 @@ def unpack_frame(datagram: bytes, timestamp: float, channel: str) -> can.Message
     else:
         return None
     can_id, length, flags, _, _, data = _FRAME.unpack(datagram)
-    if length > (64 if is_fd else 8):
+    if length > (64 if is_fd else 8) or (is_fd and length not in _FD_LENGTHS):
         return None
     is_remote = bool(can_id & CAN_RTR_FLAG)
     return can.Message(
@@ -116,6 +224,30 @@ def unpack_frame(datagram: bytes, timestamp: float, channel: str) -> can.Message
     )
 
 
+def live_nodes(channel: str, exclude: set[str] | frozenset[str] = frozenset()) -> list[str]:
+    """Socket paths of the nodes on a channel that are alive (a socket a connection reaches;
+    a dead node's file refuses it), besides ``exclude``."""
+    folder = base_dir() / channel
+    try:
+        names = sorted(os.listdir(folder))
+    except OSError:
+        return []
+    alive = []
+    for n in names:
+        path = str(folder / n)
+        if not n.endswith(".sock") or path in exclude:
+            continue
+        probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            probe.connect(path)
+            alive.append(path)
+        except OSError:
+            pass
+        finally:
+            probe.close()
+    return alive
+
+
 class UnixCanBus(can.BusABC):
     """A node on a unixcan channel (the userspace stand-in for a SocketCAN interface)."""
 
@@ -127,15 +259,13 @@ class UnixCanBus(can.BusABC):
         receive_buffer: int = 1_000_000,
         **kwargs: Any,
     ) -> None:
-        if not channel or "/" in str(channel):
-            raise can.CanInitializationError(f"invalid unixcan channel name {channel!r}")
         self.channel = str(channel)
         self.channel_info = f"unixcan channel {self.channel}"
-        self._dir = base_dir() / self.channel
         try:
-            self._dir.mkdir(parents=True, exist_ok=True)
+            self._group = bus_group()
+            self._dir = channel_dir(self.channel)
         except OSError as exc:
-            raise can.CanInitializationError(f"unixcan: cannot create {self._dir}: {exc}") from exc
+            raise can.CanInitializationError(str(exc)) from exc
         self._path = self._dir / f"{os.getpid()}-py{next(_serial)}.sock"
         if len(os.fsencode(self._path)) >= 108:
             raise can.CanInitializationError(f"unixcan: socket path {self._path} is too long")
@@ -144,7 +274,10 @@ class UnixCanBus(can.BusABC):
             self._sock.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
         self._path.unlink(missing_ok=True)
         self._sock.bind(str(self._path))
-        os.chmod(self._path, 0o666)
+        # The folder is 0700 already; the socket's own mode says the same to whoever looks.
+        os.chmod(self._path, 0o660 if self._group is not None else 0o600)
+        if self._group is not None:
+            os.chown(self._path, -1, self._group)
         self._sock.setblocking(False)
         self._peers: list[str] = []
         self._congested: set[str] = set()
@@ -152,7 +285,8 @@ class UnixCanBus(can.BusABC):
         self._last_scan = 0.0
         self._lock = threading.Lock()
         self.stats = {"tx_frames": 0, "tx_drops": 0, "tx_errors": 0, "rx_frames": 0,
-                      "rx_overflows": 0, "rx_filtered": 0, "peers_removed": 0}
+                      "rx_overflows": 0, "rx_filtered": 0, "peers_removed": 0,
+                      "rx_malformed": 0, "foreign_entries": 0}
         self._accept: Callable[[int], bool] | None = None
         self._rx: collections.deque[can.Message] = collections.deque()
         self._rx_limit = receive_buffer
@@ -176,7 +310,16 @@ class UnixCanBus(can.BusABC):
             self._peers = []
             return
         own = self._path.name
-        self._peers = [str(self._dir / n) for n in names if n.endswith(".sock") and n != own]
+        peers = []
+        for n in names:
+            if not n.endswith(".sock") or n == own:
+                continue
+            path = str(self._dir / n)
+            if peer_socket_ok(path, self._group):
+                peers.append(path)
+            else:
+                self.stats["foreign_entries"] += 1
+        self._peers = peers
         self._congested.intersection_update(self._peers)
 
     def _refresh_peers(self) -> None:
@@ -255,21 +398,27 @@ class UnixCanBus(can.BusABC):
             accept = self._accept
             while True:
                 try:
-                    datagram = self._sock.recv(CANFD_MTU)
+                    # one byte more than a frame: a longer datagram shows as malformed
+                    datagram = self._sock.recv(CANFD_MTU + 1)
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError:
                     return
+                if len(datagram) not in (CAN_MTU, CANFD_MTU):
+                    self.stats["rx_malformed"] += 1  # no struct can_frame / canfd_frame
+                    continue
                 # Filter on the raw id before building a Message: a node that listens to a
                 # few IDs must not pay for every frame of the bus (it has to keep up with
                 # the 10 kHz virtual I/O traffic it ignores).
-                if accept is not None and len(datagram) >= 4:
+                if accept is not None:
                     (raw_id,) = _ID.unpack_from(datagram)
                     if not accept(raw_id):
                         self.stats["rx_filtered"] += 1
                         continue
                 msg = unpack_frame(datagram, time.time(), self.channel)
-                if msg is not None:
+                if msg is None:
+                    self.stats["rx_malformed"] += 1
+                else:
                     batch.append(msg)
             if batch:
                 with self._rx_ready:
@@ -309,6 +458,11 @@ class UnixCanBus(can.BusABC):
             self.stats["rx_frames"] += 1
             return self._rx.popleft(), self._accept is not None
 
+    @property
+    def socket_path(self) -> str:
+        """This node's socket in the channel folder."""
+        return str(self._path)
+
     def fileno(self) -> int:
         # The socket itself is drained by the reader thread; there is no pollable handle
         # whose readability means "recv() will not block".
@@ -331,10 +485,10 @@ class UnixCanBus(can.BusABC):
     @staticmethod
     def _detect_available_configs() -> list[AutoDetectedConfig]:
         base = base_dir()
-        if not base.is_dir():
+        if base.is_symlink() or not base.is_dir():
             return []
         return [
             {"interface": "unixcan", "channel": d.name}
             for d in sorted(base.iterdir())
-            if d.is_dir()
+            if d.is_dir() and not d.is_symlink() and channel_name_ok(d.name)
         ]

@@ -46,8 +46,11 @@ def _up(args: argparse.Namespace) -> int:
         print("rig bus up: this kernel has no CAN support; use --bus unixcan or `rig vm`",
               file=sys.stderr)
         return 1
-    folder = unixcan.base_dir() / args.channel
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder = unixcan.channel_dir(args.channel)
+    except OSError as exc:
+        print(f"rig bus up: {exc}", file=sys.stderr)
+        return 3
     print(f"unixcan {args.channel} ready ({folder})")
     return 0
 

@@ -69,7 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from rig import runner, scenario
+    from rig import output, runner, scenario
     from rig.supervisor import Terminated, terminate_as_exception
 
     try:
@@ -109,6 +109,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     except (KeyboardInterrupt, Terminated):
         print(f"rig run: interrupted; partial results in {out}", file=sys.stderr)
         return runner.EXIT_INTERRUPTED
+    except output.OutputError as exc:
+        print(f"rig run: {exc}", file=sys.stderr)
+        return runner.EXIT_ENV
     _print_verdict(result.data)
     print(f"  -> {out}/report.md", file=sys.stderr)
     return runner.exit_code(result.passed, result.status)

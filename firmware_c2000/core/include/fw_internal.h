@@ -105,6 +105,8 @@ real_t fw_ramp(real_t y, real_t target, real_t step);
 real_t fw_speed_ctrl(fw_pi_t *pi, real_t ref_rpm, real_t speed_rpm, real_t iq_lim, real_t ts);
 
 /* ---- protection.c ------------------------------------------------------------------------- */
+real_t fw_adc_offset(int32_t code, int32_t adc_half); /* code - adc_half, no int overflow */
+int16_t fw_adc_codes_in_range(const fw_adc_t *adc, int32_t adc_half); /* all in 0..2^N-1 */
 uint16_t fw_protect_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb, real_t oc_trip,
                             real_t *i_peak);
 uint16_t fw_protect_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);

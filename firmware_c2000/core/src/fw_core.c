@@ -170,8 +170,8 @@ static void reconstruct_current(fw_core_t *c, const fw_adc_t *adc)
         fw_cplx_t sum = fw_c(FW_REAL(0.0), FW_REAL(0.0));
         int16_t k;
         for (k = 0; k < adc->n_soc && k < FW_MAX_SOC; k++) {
-            real_t ia = (real_t)(adc->ia[k] - c->adc_half) * c->adc_i_lsb;
-            real_t ib = (real_t)(adc->ib[k] - c->adc_half) * c->adc_i_lsb;
+            real_t ia = fw_adc_offset(adc->ia[k], c->adc_half) * c->adc_i_lsb;
+            real_t ib = fw_adc_offset(adc->ib[k], c->adc_half) * c->adc_i_lsb;
             sum = fw_cadd(sum, fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_INV_SQRT3_R));
         }
         c->i_avg = (adc->n_soc > 0) ? fw_cscale(sum, FW_REAL(1.0) / (real_t)adc->n_soc) : sum;
@@ -578,7 +578,8 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     } else {
         k = adc->period;
         data_ok = (int16_t)(adc->period == c->period + 1u && adc->n_soc == c->plan_next.n_soc &&
-                            adc->n_soc >= 0 && adc->n_soc <= FW_MAX_SOC);
+                            adc->n_soc >= 0 && adc->n_soc <= FW_MAX_SOC &&
+                            fw_adc_codes_in_range(adc, c->adc_half));
     }
     if (c->have_period && c->pll.init) {
         uint32_t gap = k - c->period;

@@ -283,6 +283,50 @@ static void trips(void)
           s->core.fault_code);
 }
 
+/* Codes outside the converter's range (the adversarial campaign sent INT32_MIN): no
+ * arithmetic overflow (the sanitized build aborts on one), no false over-current; the
+ * period counts as lost data, as a frame with the wrong n_soc does. */
+static void out_of_range_codes(void)
+{
+    sim_t *s = &S;
+    const int32_t bad[] = {INT32_MIN, INT32_MIN + 1, -1, 65536, INT32_MAX};
+    size_t i;
+    reach_run(s); /* 24-bit converter */
+    for (i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        uint32_t lost = s->core.adc_loss_count;
+        mp_period(&s->plant, &s->pwm, &s->adc);
+        s->adc.ia[i % (size_t)s->adc.n_soc] = bad[i] == 65536 ? (int32_t)1 << 24 : bad[i];
+        s->adc.ib[0] = bad[i] == INT32_MAX ? INT32_MIN : s->adc.ib[0];
+        fw_core_isr(&s->core, &s->adc, &s->pwm);
+        CHECK(s->core.fault_code != FW_FAULT_OVERCURRENT, "code %ld: false over-current",
+              (long)bad[i]);
+        CHECK(s->core.adc_loss_count == lost + 1u, "code %ld: not counted as lost data",
+              (long)bad[i]);
+        sim_step(s); /* a good period between (consecutive losses fault: adc_loss_max) */
+    }
+    CHECK(s->core.state == FW_STATE_RUN, "a few bad periods stopped the drive (state %d)",
+          s->core.state);
+    /* the same samples with in-range codes still trip at the limit */
+    mp_period(&s->plant, &s->pwm, &s->adc);
+    s->adc.ia[0] = (int32_t)(((int32_t)1 << 24) - 1); /* full scale: above the trip */
+    fw_core_isr(&s->core, &s->adc, &s->pwm);
+    CHECK(s->core.fault_code == FW_FAULT_OVERCURRENT, "full-scale code did not trip (%u)",
+          s->core.fault_code);
+    /* fw_protect_samples on its own: any code, no overflow */
+    {
+        fw_adc_t a;
+        real_t peak = 0.0f;
+        memset(&a, 0, sizeof a);
+        a.n_soc = 2;
+        a.ia[0] = INT32_MIN;
+        a.ib[0] = INT32_MAX;
+        a.ia[1] = INT32_MAX;
+        a.ib[1] = INT32_MIN;
+        (void)fw_protect_samples(&a, (int32_t)1 << 23, 1e-6f, 10.0f, &peak);
+        CHECK(peak > 0.0f, "peak %g", (double)peak);
+    }
+}
+
 static void idle_outputs_off(void)
 {
     sim_t *s = &S;
@@ -307,6 +351,7 @@ int main(void)
     command_timeout();
     repeated_frame();
     trips();
+    out_of_range_codes();
     idle_outputs_off();
     TEST_DONE();
 }

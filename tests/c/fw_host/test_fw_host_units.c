@@ -95,6 +95,48 @@ static void test_assembly(void)
         r = feed(0, FWH_ADC_RESYNC, 1);
         CHECK(r.complete && r.n_lost == 0 && !r.repeat, "follows the new sequence");
     }
+    /* Issue 16.1: stray frames never take the sequence over. Only a plant that restarted
+     * (its start-up period 0, then 1, 2, ...) is followed. Twenty consecutive far periods
+     * (injected), and delayed duplicates of older periods in order, are rejected. */
+    {
+        uint32_t k;
+        int taken = 0;
+        fwh_adc_init(&A);
+        for (k = 0; k < 40; k++) {
+            feed(0, 5000 + k, 1);
+        }
+        for (k = 0; k < 2 * FWH_ADC_RESYNC; k++) {
+            r = feed(0, 3000000000u + k, 1);
+            taken |= r.resynced || r.complete;
+        }
+        CHECK(!taken, "a far sequence was followed");
+        for (k = 0; k < 2 * FWH_ADC_RESYNC; k++) {
+            r = feed(0, 5010 + k, 1); /* duplicates of 5010..5029, delayed */
+            taken |= r.resynced || r.complete;
+        }
+        CHECK(!taken, "delayed duplicates were followed");
+        r = feed(0, 5040, 1);
+        CHECK(r.complete && r.n_lost == 0 && !r.resynced, "the paired plant goes on at 5040");
+    }
+    /* Paired from the start (lockstep: the plant's first ADC is its start-up period 0, and
+     * the rig says so with --first-period 0): stray frames before it never become the
+     * first period; the plant's period 0 does. */
+    {
+        uint32_t k;
+        int taken = 0;
+        fwh_adc_init(&A);
+        fwh_adc_expect_first(&A, 0u);
+        for (k = 0; k < 20; k++) {
+            r = feed(0, 3000000000u + k, 1);
+            taken |= r.complete || r.resynced;
+            CHECK(r.verdict != FWH_ADC_OK, "stray first frame %lu accepted", (unsigned long)k);
+        }
+        CHECK(!taken, "a stray frame became the first period");
+        r = feed(0, 0u, 1);
+        CHECK(r.complete && r.verdict == FWH_ADC_OK && r.adc->period == 0u, "period 0 first");
+        r = feed(0, 1u, 1);
+        CHECK(r.complete && r.n_lost == 0, "then 1");
+    }
     /* period counter wrap-around */
     fwh_adc_init(&A);
     feed(0, 0xFFFFFFFFu, 1);

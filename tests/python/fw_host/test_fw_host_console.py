@@ -286,3 +286,26 @@ def test_client_hangup_ends_the_console_session(start_fw: StartFw, peer: Peer,
     con.close()
     assert fw.stop() == 0
     assert fw.counters()["console_sessions"] == 2
+
+
+def test_a_flood_of_lines_gets_every_reply(console_fw: tuple[FwProcess, Console]) -> None:
+    """Issue 16.9: 20 000 pings from a client that reads slowly at first get 20 000 replies
+    (the console stops reading lines while a reply waits: backpressure), none dropped."""
+    import threading
+
+    fw, con = console_fw
+    n = 20_000
+    lines = b"ping\r\n" * n
+    writer = threading.Thread(target=con.write, args=(lines,), daemon=True)
+    writer.start()
+    time.sleep(1.0)  # the client reads nothing for a while: the replies back up
+    got = b""
+    deadline = time.monotonic() + 120  # a bound for the failing case only
+    while got.count(b"\r\n") < n and time.monotonic() < deadline:
+        got += con.port.read(max(1, con.port.in_waiting))
+    writer.join(timeout=60)
+    replies = got.split(b"\r\n")[:-1]
+    assert len(replies) == n and all(r.startswith(b"OK") for r in replies), len(replies)
+    assert fw.stop() == 0
+    c = fw.counters()
+    assert c["console_out_dropped"] == 0 and c["console_lines"] == n

@@ -17,7 +17,8 @@ COUNTER_KEYS = {
     "tlm_frames", "trace_records", "trace_sent", "trace_errors", "console_sessions",
     "console_lines", "console_errors", "console_keepalive_lapses", "console_out_dropped",
     "state", "fault_code", "fault_name", "core_overruns", "tx_frames", "tx_drops", "tx_errors",
-    "rx_frames", "rx_overflows", "rt",
+    "rx_frames", "rx_overflows", "rx_malformed", "rx_filtered", "non_data_frames",
+    "foreign_entries", "peers_beyond_limit", "rt",
 }
 
 

@@ -123,3 +123,22 @@ def test_restarted_plant_is_followed_after_a_few_periods(start_fw: StartFw,
     assert fw.stop() == 0
     c = fw.counters()
     assert c["resyncs"] == 1 and c["rejects"]["stale_period"] == 9
+
+
+def test_current_codes_outside_the_converter_are_rejected(start_fw: StartFw,
+                                                          peer: Peer) -> None:
+    """Issue 16.5: codes beyond 2^adc_bits - 1 (the default 16-bit converter) or below 0
+    never reach the core (INT32_MIN overflowed its arithmetic): rejected and counted, no
+    fault; the next good period runs as if the bad ones never came."""
+    fw = start_fw()
+    pwms = peer.run(0, 3)
+    n_soc = pwms[-1]["n_soc"]
+    for codes in ({"ia": -2**31}, {"ib": 2**31 - 1}, {"ia": 65536}, {"ib": -1}):
+        peer.send_adc(3, n_soc, **codes)
+    check_pwm(peer.step(3, n_soc), 4)
+    st = peer.status()
+    assert st["state"] != STATE["FAULT"]
+    assert fw.stop() == 0
+    c = fw.counters()
+    assert c["rejects"]["out_of_range"] == 4
+    assert c["isr_no_data"] == 0 and c["fault_name"] == "NONE"

@@ -175,3 +175,44 @@ def test_capture_on_a_file_system_that_cannot_map_files(
         f"{c}.npy" for c in reference.keys())
     for col in ("period", "fw.theta_hat", "pos_err_deg", "speed_true_rpm"):
         np.testing.assert_array_equal(np.asarray(cap[col]), np.asarray(reference[col]))
+
+
+def _append_fw_records(fw: Path, periods: list[int]) -> None:
+    """Raw FW_TRACE records at the end of a trace (what a hijacked firmware wrote)."""
+    import struct
+
+    from rig import protocols
+
+    m = protocols.database("vio").get_message_by_name("FW_TRACE")
+    with fw.open("ab") as f:
+        for p in periods:
+            vals = {s.name: 0 for s in m.signals} | {"period": p}
+            data = m.encode(vals, strict=False)
+            f.write(struct.pack("<IBBBB", m.frame_id, len(data), 4, 0, 0)
+                    + data.ljust(64, b"\0"))
+
+
+def test_records_far_outside_the_run_are_counted_in_bounded_memory(tmp_path: Path) -> None:
+    """Issue 16.1: the counts per period cover the expected range only; a record 3e9
+    periods away is a loss that fails the run, not a 3e9-entry array (23 GiB)."""
+    syn = Synthetic(n=800)
+    plant, fw = syn.write(tmp_path)
+    _append_fw_records(fw, [3_000_000_000 + k for k in range(20)])
+    cap, loss = capture.build(tmp_path / "cap", capture.default_specs(plant, fw),
+                              expected=(0, syn.n - 1), pole_pairs=syn.pole_pairs, chunk=512,
+                              max_span=10 * syn.n)
+    assert not loss.ok
+    by = {m.message: m for m in loss.messages}
+    assert by["FW_TRACE"].outside == 20 and by["FW_TRACE"].missing == 0
+    assert by["BENCH_TRUTH"].outside == 0
+    assert "20 records outside" in loss.summary()
+    assert cap.n == syn.n
+
+
+def test_an_absurd_span_without_an_expected_range_fails_cleanly(tmp_path: Path) -> None:
+    syn = Synthetic(n=500)
+    plant, fw = syn.write(tmp_path)
+    _append_fw_records(fw, [3_000_000_000])
+    with pytest.raises(capture.CaptureSpanError, match="3000000000"):
+        capture.build(tmp_path / "cap", capture.default_specs(plant, fw), expected=None,
+                      pole_pairs=syn.pole_pairs, chunk=512, max_span=10 * syn.n)

@@ -67,6 +67,7 @@ def _args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--config")
     p.add_argument("--set", action="append", default=[])
     p.add_argument("--max-periods", type=int, default=0)
+    p.add_argument("--first-period", type=int)  # fw_host's pairing (the stand-in has none)
     return p.parse_args(argv)
 
 

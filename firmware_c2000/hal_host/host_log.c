@@ -1,0 +1,82 @@
+/* host_log.c - fw_host's names (rejections, states, faults), its clock and its rate-limited
+ * rejection and log lines on stderr. Apart from main.c so that everything linking the host
+ * HAL (the unit tests, the fuzz harnesses) has them. */
+#define _POSIX_C_SOURCE 200809L /* clock_gettime */
+#include <stdarg.h>
+#include <stdio.h>
+#include <time.h>
+
+#include "fw_host.h"
+
+int64_t fwh_now_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * FWH_NS_PER_S + ts.tv_nsec;
+}
+
+static const char *const reject_names[FWH_REJ_COUNT] = {
+    "unknown_id", "bad_length", "wrong_frame_type", "out_of_range", "malformed",
+    "stale_period", "future_period", "incomplete", "refused"};
+
+const char *fwh_reject_name(int reason)
+{
+    return reason >= 0 && reason < FWH_REJ_COUNT ? reject_names[reason] : "?";
+}
+
+const char *fwh_state_name(int16_t state)
+{
+    static const char *const n[] = {"INIT", "IDLE", "POLARITY", "RUN", "FAULT"};
+    return state >= 0 && state <= 4 ? n[state] : "?";
+}
+
+const char *fwh_fault_name(uint16_t code)
+{
+    static const char *const n[] = {"NONE",       "OVERCURRENT",     "DC_OVERVOLTAGE",
+                                    "DC_UNDERVOLTAGE", "ESTIMATOR",  "CMD_TIMEOUT",
+                                    "ADC_LOSS",   "POLARITY",        "POLARITY_LOST",
+                                    "OVERSPEED",  "PARAMS"};
+    return code < sizeof(n) / sizeof(n[0]) ? n[code] : "UNKNOWN";
+}
+
+uint64_t fwh_rejected_total(const fwh_t *a)
+{
+    uint64_t n = 0;
+    int k;
+    for (k = 0; k < FWH_REJ_COUNT; k++) {
+        n += a->cnt.rejects[k];
+    }
+    return n;
+}
+
+static int log_allowed(fwh_t *a)
+{
+    return hil_log_limit_allow(&a->log_limit, fwh_now_ns());
+}
+
+void fwh_reject(fwh_t *a, int reason, const char *fmt, ...)
+{
+    va_list ap;
+    a->cnt.rejects[reason]++;
+    if (!log_allowed(a)) {
+        return;
+    }
+    fprintf(stderr, "fw_host: rejected (%s): ", fwh_reject_name(reason));
+    va_start(ap, fmt);
+    vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    fputc('\n', stderr);
+}
+
+void fwh_log(fwh_t *a, const char *fmt, ...)
+{
+    va_list ap;
+    if (!log_allowed(a)) {
+        return;
+    }
+    fputs("fw_host: ", stderr);
+    va_start(ap, fmt);
+    vfprintf(stderr, fmt, ap);
+    va_end(ap);
+    fputc('\n', stderr);
+}
