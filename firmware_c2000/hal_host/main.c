@@ -49,15 +49,6 @@ int64_t fwh_now_ns(void)
     return (int64_t)ts.tv_sec * FWH_NS_PER_S + ts.tv_nsec;
 }
 
-static const char *const reject_names[FWH_REJ_COUNT] = {
-    "unknown_id", "bad_length", "wrong_frame_type", "out_of_range", "malformed",
-    "stale_period", "future_period", "incomplete", "refused"};
-
-const char *fwh_reject_name(int reason)
-{
-    return reason >= 0 && reason < FWH_REJ_COUNT ? reject_names[reason] : "?";
-}
-
 const char *fwh_state_name(int16_t state)
 {
     static const char *const n[] = {"INIT", "IDLE", "POLARITY", "RUN", "FAULT"};
