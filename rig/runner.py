@@ -614,6 +614,7 @@ class _Clock:
     def __init__(self) -> None:
         self.t0 = time.monotonic()
         self.grants: list[tuple[int, float, float]] = []  # (run_until, wall_s, grant wall)
+        self.cpu_s: float | None = None  # in-process runs: CPU time of the closed loop
 
     def wall(self) -> float:
         return time.monotonic() - self.t0
@@ -1058,6 +1059,9 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
         "grant_wall_ms_mean": 1e3 * float(np.mean(grant_walls)) if grant_walls else None,
         "grant_wall_ms_max": 1e3 * float(np.max(grant_walls)) if grant_walls else None,
     }
+    if clock.cpu_s:
+        result["timing"]["cpu_s"] = clock.cpu_s
+        result["timing"]["speed_x_cpu"] = sim_s / clock.cpu_s if sim_s > 0 else None
     result["finished"] = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
 
     # recording
@@ -1134,8 +1138,10 @@ def _run_inproc(sc: Scenario, plan: Plan, out: Path, opts: RunOptions, result: d
     try:
         clock.t0 = time.monotonic()
         cmd = Commander(sil.BenchPort(bench))
+        cpu0 = time.process_time()
         try:
             periods = execute_inproc(sc, plan, bench, cmd, prog, clock, clock.t0 + timeout)
+            clock.cpu_s = time.process_time() - cpu0
         finally:
             prog.finish()
             bench_counters = bench.counters()

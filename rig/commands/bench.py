@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rig import _paths, bench_plant
+from rig import _paths, bench_plant, bench_sil
 from rig import bus as rigbus
 
 
@@ -56,9 +56,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     bench_plant.add_arguments(pl)
     pl.set_defaults(func=_bench_plant)
 
+    si = bsub.add_parser(
+        "sil", help="closed loop in one process (--bus inproc) against the bus, same run",
+        description=bench_sil.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    bench_sil.add_arguments(si)
+    si.set_defaults(func=_bench_sil)
+
 
 def _bench_plant(args: argparse.Namespace) -> int:
     bench_plant.bench_plant(args)  # prints its JSON object
+    return 0
+
+
+def _bench_sil(args: argparse.Namespace) -> int:
+    print(json.dumps(bench_sil.bench_sil(args)))
     return 0
 
 
