@@ -69,6 +69,7 @@ def _window(text: str | None) -> tuple[float, float] | None:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from rig import metrics, runner, scenario
+    from rig.supervisor import Terminated, terminate_as_exception
     from rig.sweep import engine, spec, summary, table
     from rig.sweep import point as sweep_point
 
@@ -103,14 +104,24 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     (out / "sweep.json").write_text(json.dumps(info, indent=1))
     print(f"rig sweep: {len(tasks)} points of {sc.name} on {info['engine']} -> {out}",
           file=sys.stderr)
+    done: list[dict[str, Any]] = []
     try:
-        with engine.client(args.scheduler, args.workers) as c:
-            rows = engine.run_tasks(c, tasks, retries=args.retries, progress=not args.quiet)
+        with terminate_as_exception(), engine.client(args.scheduler, args.workers) as c:
+            rows = engine.run_tasks(c, tasks, retries=args.retries, progress=not args.quiet,
+                                    on_row=done.append)
     except (OSError, TimeoutError) as exc:
         print(f"rig sweep: cannot reach the cluster: {exc}", file=sys.stderr)
         return runner.EXIT_ENV
-    except KeyboardInterrupt:
-        print("rig sweep: interrupted", file=sys.stderr)
+    except (KeyboardInterrupt, Terminated):
+        # the points that finished are kept: the table of what there is
+        if done:
+            info["interrupted_after"] = len(done)
+            (out / "sweep.json").write_text(json.dumps(info, indent=1))
+            rows = sorted(done, key=lambda r: int(r["point"]))
+            table.write(rows, out)
+            summary.write(rows, [a.name for a in axes], info, out)
+        print(f"rig sweep: interrupted after {len(done)} of {len(tasks)} points; "
+              f"their rows are in {out}", file=sys.stderr)
         return runner.EXIT_INTERRUPTED
     csv_path, parquet_path = table.write(rows, out)
     report = summary.write(rows, [a.name for a in axes], info, out)
