@@ -65,8 +65,8 @@ int sil_bench_close(sil_bench_t *b);
 
 /* A frame to the bench (drive protocol: DRIVE_CMD, DRIVE_LIMITS; bench: LOAD_CMD), as the
  * bus would carry it (can_id without flags, fd = CAN FD frame). Returns 0 when taken, 1 when
- * the frame is not for a bench node (ignored, as on the bus), -1 when rejected (counted,
- * reason in err when err is not NULL). */
+ * ignored (not for a bench node, as on the bus; or a PARAM_REQ: parameters are set at open,
+ * reason in err), -1 when rejected (counted, reason in err when err is not NULL). */
 int sil_bench_frame(sil_bench_t *b, uint32_t can_id, int fd, const uint8_t *data, uint8_t len,
                     char *err, size_t errlen);
 

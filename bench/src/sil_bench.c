@@ -4,6 +4,7 @@
 #include "sil_bench.h"
 
 #include <errno.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -95,11 +96,19 @@ static double now_ns(void)
     return (double)ts.tv_sec * 1e9 + (double)ts.tv_nsec;
 }
 
-static void fail(char *err, size_t errlen, const char *fmt, const char *a, const char *b)
+static void fail(char *err, size_t errlen, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+
+/* The reason of a refusal, for a caller that asked for one (err may be NULL). */
+static void fail(char *err, size_t errlen, const char *fmt, ...)
 {
-    if (err != NULL && errlen > 0) {
-        snprintf(err, errlen, fmt, a, b);
+    va_list ap;
+    if (err == NULL || errlen == 0) {
+        return;
     }
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
 }
 
 static int open_plant(sil_bench_t *b, const sil_bench_config_t *cfg, char *err, size_t errlen)
@@ -110,18 +119,18 @@ static int open_plant(sil_bench_t *b, const sil_bench_config_t *cfg, char *err, 
     plant_config_defaults(&pc);
     if (cfg->profile_path != NULL &&
         plant_config_load(&pc, cfg->profile_path, msg, sizeof(msg)) != 0) {
-        fail(err, errlen, "plant: %s%s", msg, "");
+        fail(err, errlen, "plant: %s", msg);
         return -1;
     }
     for (k = 0; k < cfg->n_plant_sets; k++) {
         if (plant_config_set(&pc, cfg->plant_sets[k], msg, sizeof(msg)) != 0) {
-            fail(err, errlen, "plant: %s%s", msg, "");
+            fail(err, errlen, "plant: %s", msg);
             return -1;
         }
     }
     b->plant = plant_new(&pc, msg, sizeof(msg));
     if (b->plant == NULL) {
-        fail(err, errlen, "plant: %s (after the overrides)%s", msg, "");
+        fail(err, errlen, "plant: %s (after the overrides)", msg);
         return -1;
     }
     return 0;
@@ -136,7 +145,7 @@ static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *er
     fw_core_init(&b->core);
     fwh_adc_init(&b->adc);
     if (cfg->n_fw_sets + N_HARDWARE > FWH_PARAM_ITEMS_MAX) {
-        fail(err, errlen, "firmware: more than %s parameters%s", "256", "");
+        fail(err, errlen, "firmware: more than %d parameters", FWH_PARAM_ITEMS_MAX - N_HARDWARE);
         return -1;
     }
     fw_sets.n = 0;
@@ -148,7 +157,7 @@ static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *er
             snprintf(text, sizeof(text), "%s=%.9g", HARDWARE[k].param, v);
             if (fwh_params_parse_assignment(text, &fw_sets.items[fw_sets.n], msg,
                                             sizeof(msg)) != 0) {
-                fail(err, errlen, "firmware (from the plant): %s%s", msg, "");
+                fail(err, errlen, "firmware (from the plant): %s", msg);
                 return -1;
             }
             fw_sets.items[fw_sets.n].line = fw_sets.n + 1;
@@ -158,7 +167,7 @@ static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *er
     for (k = 0; k < cfg->n_fw_sets; k++) {
         if (fwh_params_parse_assignment(cfg->fw_sets[k], &fw_sets.items[fw_sets.n], msg,
                                         sizeof(msg)) != 0) {
-            fail(err, errlen, "firmware: %s%s", msg, "");
+            fail(err, errlen, "firmware: %s", msg);
             return -1;
         }
         fw_sets.items[fw_sets.n].line = fw_sets.n + 1;
@@ -166,11 +175,10 @@ static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *er
     }
     st = fw_sets.n > 0 ? fwh_params_apply(&b->core, &fw_sets, &failed, &changed) : FW_STATUS_OK;
     if (st != FW_STATUS_OK) {
-        snprintf(msg, sizeof(msg), "%d", st);
         fail(err, errlen,
-             "firmware: %s: rejected by the control core (status %s: not a whole number, or "
+             "firmware: %s: rejected by the control core (status %d: not a whole number, or "
              "inconsistent with other parameters)",
-             fw_sets.items[failed].name, msg);
+             fw_sets.items[failed].name, (int)st);
         return -1;
     }
     b->st.param_sets = (uint64_t)changed;
@@ -181,7 +189,7 @@ sil_bench_t *sil_bench_open(const sil_bench_config_t *cfg, char *err, size_t err
 {
     sil_bench_t *b = (sil_bench_t *)calloc(1, sizeof(*b));
     if (b == NULL) {
-        fail(err, errlen, "out of memory%s%s", "", "");
+        fail(err, errlen, "out of memory");
         return NULL;
     }
     if (open_plant(b, cfg, err, errlen) != 0 || open_firmware(b, cfg, err, errlen) != 0) {
@@ -265,7 +273,7 @@ static int drive_frame(sil_bench_t *b, const struct canfd_frame *f, int fd, char
     }
     case FWH_DRIVE_PARAM_REQ:
         fail(err, errlen, "PARAM_REQ: not served by the in-process bench (parameters are set "
-                          "at open)%s%s", "", "");
+                          "at open)");
         return 1;
     default:
         return 1; /* what a drive sends */
@@ -278,7 +286,7 @@ int sil_bench_frame(sil_bench_t *b, uint32_t can_id, int fd, const uint8_t *data
     struct canfd_frame f;
     const uint32_t id = can_id & CAN_SFF_MASK;
     if (len > sizeof(f.data)) {
-        fail(err, errlen, "frame longer than 64 bytes%s%s", "", "");
+        fail(err, errlen, "frame of %u bytes: longer than 64", (unsigned)len);
         return -1;
     }
     memset(&f, 0, sizeof(f));
@@ -291,7 +299,7 @@ int sil_bench_frame(sil_bench_t *b, uint32_t can_id, int fd, const uint8_t *data
         if (r != PLANT_REJ_NONE) {
             b->plant_rejects[r]++;
             b->st.plant_rejected++;
-            fail(err, errlen, "plant rejected LOAD_CMD: %s%s", plant_reject_name(r), "");
+            fail(err, errlen, "plant rejected LOAD_CMD: %s", plant_reject_name(r));
             return -1;
         }
         plant_set_load(b->plant, m.mode, m.torque_nm, m.speed_rpm, m.k_speed_nms);
