@@ -11,6 +11,7 @@ from rig import __version__
 
 COMMAND_MODULES = (
     "rig.commands.run",
+    "rig.commands.sweep",
     "rig.commands.bus",
     "rig.commands.bench",
     "rig.commands.vm",

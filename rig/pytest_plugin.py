@@ -40,8 +40,8 @@ DEFAULT_SUITE = "paper"
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("hil", "hardware-in-the-loop rig")
     group.addoption("--hil-bus", default=None,
-                    help="transport for scenario runs: auto, socketcan or unixcan "
-                    "(default: $HIL_BUS, else auto)")
+                    help="transport for scenario runs: auto, socketcan, unixcan or inproc "
+                    "(the in-process bench; default: $HIL_BUS, else auto)")
     group.addoption("--hil-out", default=None,
                     help="keep every run's output (result.json, report.md, recording.rrd) "
                     "under this folder instead of pytest's temporary folders")
@@ -104,6 +104,8 @@ def hil_bus(request: pytest.FixtureRequest) -> tuple[str, str]:
 
     wanted = _opt(request.config, "--hil-bus") or os.environ.get("HIL_BUS") or "auto"
     worker = worker_id(request.config)
+    if wanted == "inproc":  # the in-process bench (rig.sil): no bus, no channel
+        return "inproc", ""
     if wanted in ("auto", "socketcan"):
         chan = channel_for(worker, "socketcan")
         if rigbus.kernel_has_can() and os.geteuid() == 0:
@@ -157,7 +159,8 @@ def hil_run(
     """``hil_run(scenario, *, realtime=None, **options) -> RunResult``.
 
     ``scenario``: a name, a path or a ``Scenario``. Options are ``rig.runner.RunOptions``
-    fields (``timeout_s``, ``record``, ...). Each call writes to its own sub-folder."""
+    fields (``timeout_s``, ``record``, ``bus="inproc"`` for the in-process bench, ...). Each
+    call writes to its own sub-folder."""
     from rig import runner
     from rig import scenario as sc
 
@@ -172,8 +175,9 @@ def hil_run(
             raise TypeError("hil_run runs one scenario; parametrize over a suite instead")
         counter[0] += 1
         out = hil_out / (scen.name if counter[0] == 1 else f"{scen.name}-{counter[0]}")
+        bus = options.pop("bus", transport)
         opts = runner.RunOptions(
-            out=out, bus=transport, channel=channel,
+            out=out, bus=bus, channel=channel,
             realtime=default_rt if realtime is None else realtime, progress=False,
             **options,
         )

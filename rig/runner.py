@@ -13,6 +13,10 @@ which also keeps the firmware's command time-out alive.
 Real-time: the same commands on the wall clock against the plant's period counter
 (estimated from BENCH_PROGRESS), DRIVE_CMD every 10 ms.
 
+In process (``--bus inproc``, ``rig.sil``): no programs and no bus; the same frames go into the
+in-process bench before each of the same grants, and a grant runs the bench to its
+``run_until`` (lockstep only). The traces are the same files.
+
 Afterwards the traces are merged (``rig.capture``), the criteria evaluated
 (``rig.metrics``), and ``result.json``, ``report.md`` and ``recording.rrd`` written.
 """
@@ -39,7 +43,7 @@ from typing import Any
 import can
 import numpy as np
 
-from rig import __version__, _paths, capture, metrics, output, protocols, recording, report
+from rig import __version__, _paths, capture, metrics, output, protocols, recording, report, sil
 from rig.firmware_from_profile import firmware_settings
 from rig.frames import FrameDecoder
 from rig.progress import Progress
@@ -272,7 +276,7 @@ class Plan:
 class Commander:
     """Encodes and sends the rig's frames (cantools; layouts only from the DBC)."""
 
-    def __init__(self, bus: can.BusABC) -> None:
+    def __init__(self, bus: can.BusABC | sil.BenchPort) -> None:
         self.bus = bus
         self.alive = 0
         self.load_seq = 0
@@ -538,6 +542,23 @@ def _fmt_value(v: Any) -> str:
     return str(v)
 
 
+def plant_sets(sc: Scenario) -> list[str]:
+    """The plant's ``section.key=value`` settings over its profile (plant_rt ``--set``)."""
+    sets = [f"{k}={_fmt_value(v)}" for k, v in sc.overrides.items()]
+    if sc.initial_theta_deg:
+        sets.append(f"{PLANT_INITIAL['theta_e_deg']}={sc.initial_theta_deg!r}")
+    if sc.initial_speed_rpm:
+        sets.append(f"{PLANT_INITIAL['speed_rpm']}={sc.initial_speed_rpm!r}")
+    return sets
+
+
+def firmware_sets(sc: Scenario, values: Mapping[str, Any]) -> list[str]:
+    """The firmware's ``name=value`` parameters (fw_host ``--set``): the hardware from the
+    profile values, then the scenario's own."""
+    sets = [f"{k}={_fmt_value(v)}" for k, v in firmware_settings(values).items()]
+    return sets + [f"{k}={_fmt_value(v)}" for k, v in sc.firmware.items()]
+
+
 def build_argv(
     sc: Scenario, transport: str, channel: str, out: Path, realtime: bool,
     opts: RunOptions,
@@ -551,12 +572,8 @@ def build_argv(
                   "--ready-file", str(out / "plant.ready")]
     # the file the rig read (pole pairs, ADC scaling for the firmware) is the one the plant uses
     plant_argv += ["--config", str(profile_path)] if profile_path else ["--profile", sc.profile]
-    for k, v in sc.overrides.items():
-        plant_argv += ["--set", f"{k}={_fmt_value(v)}"]
-    if sc.initial_theta_deg:
-        plant_argv += ["--set", f"{PLANT_INITIAL['theta_e_deg']}={sc.initial_theta_deg!r}"]
-    if sc.initial_speed_rpm:
-        plant_argv += ["--set", f"{PLANT_INITIAL['speed_rpm']}={sc.initial_speed_rpm!r}"]
+    for assignment in plant_sets(sc):
+        plant_argv += ["--set", assignment]
     plant_argv += list(opts.extra_plant_args)
     fw_argv = [fw, *common, "--trace", str(out / "fw.trace"),
                "--ready-file", str(out / "fw.ready")]
@@ -564,10 +581,8 @@ def build_argv(
         # paired from the start: the plant's first ADC frame is its start-up period 0, so
         # stray frames on the channel cannot become the firmware's first period
         fw_argv += ["--first-period", "0"]
-    for param, value in firmware_settings(values).items():
-        fw_argv += ["--set", f"{param}={_fmt_value(value)}"]
-    for k, v in sc.firmware.items():
-        fw_argv += ["--set", f"{k}={_fmt_value(v)}"]
+    for assignment in firmware_sets(sc, values):
+        fw_argv += ["--set", assignment]
     fw_argv += list(opts.extra_fw_args)
     return plant_argv, fw_argv, values
 
@@ -603,6 +618,7 @@ class _Clock:
     def __init__(self) -> None:
         self.t0 = time.monotonic()
         self.grants: list[tuple[int, float, float]] = []  # (run_until, wall_s, grant wall)
+        self.cpu_s: float | None = None  # in-process runs: CPU time of the closed loop
 
     def wall(self) -> float:
         return time.monotonic() - self.t0
@@ -628,14 +644,43 @@ def _recv_until(
             tick()
 
 
+def initial_drive(sc: Scenario) -> DriveState:
+    """The drive command before the scenario's first event."""
+    return DriveState(ctrl_mode=sc.ctrl_mode, fw_mode=sc.fw_mode, iq_ref=sc.iq_ref,
+                      i_max=sc.i_max, speed_max=sc.speed_max, accel=_step_accel())
+
+
+def execute_inproc(sc: Scenario, plan: Plan, bench: sil.SilBench, cmd: Commander,
+                   prog: Progress, clock: _Clock, deadline: float) -> int:
+    """The lockstep grants on the in-process bench: the same frames before each grant, then
+    the bench runs to the grant's end. Returns the number of periods simulated."""
+    drive = initial_drive(sc)
+    load = LoadState()
+    for start, until in plan.grants():
+        for fn in plan.drive_events.get(start, []):
+            fn(drive)
+        if start in plan.load_events:
+            load = plan.load_events[start]
+        t_grant = time.monotonic()
+        cmd.drive(drive)
+        cmd.load(load)
+        try:
+            bench.run_until(until)
+        except sil.BenchError as exc:
+            raise RunError("stall", str(exc)) from exc
+        clock.grants.append((until, clock.wall(), time.monotonic() - t_grant))
+        prog.update(until * TS, None, None)
+        if time.monotonic() > deadline:
+            raise RunError("timeout", f"run time-out at period {until}")
+    return plan.n_periods
+
+
 def execute_lockstep(
     sc: Scenario, plan: Plan, bus: can.BusABC, sup: Supervisor, mon: Monitor,
     cmd: Commander, prog: Progress, clock: _Clock, deadline: float, stall_s: float = STALL_S,
 ) -> int:
     """Runs every grant; returns the number of periods simulated."""
-    drive = DriveState(ctrl_mode=sc.ctrl_mode, fw_mode=sc.fw_mode, iq_ref=sc.iq_ref,
-                       i_max=sc.i_max, speed_max=sc.speed_max,
-                       accel=_step_accel())
+    drive = initial_drive(sc)
     load = LoadState()
     for start, until in plan.grants():
         for fn in plan.drive_events.get(start, []):
@@ -697,9 +742,7 @@ def execute_realtime(
     cmd: Commander, prog: Progress, clock: _Clock, deadline: float, stall_s: float = STALL_S,
 ) -> int:
     """Sends the plan's commands on the wall clock; returns the last period commanded."""
-    drive = DriveState(ctrl_mode=sc.ctrl_mode, fw_mode=sc.fw_mode, iq_ref=sc.iq_ref,
-                       i_max=sc.i_max, speed_max=sc.speed_max,
-                       accel=_step_accel())
+    drive = initial_drive(sc)
     load = LoadState()
     events = sorted(set(plan.drive_events) | set(plan.load_events))
     t_origin = time.monotonic()
@@ -894,66 +937,70 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     periods_done = 0
     live: recording.LiveView | None = None
     try:
-        try:
-            from rig import bus as rigbus
-
-            transport, channel = rigbus.select_transport(opts.bus, opts.channel)
-            plant_argv, fw_argv, _values = build_argv(sc, transport, channel, out, realtime, opts)
-        except FileNotFoundError as exc:
-            raise EnvironmentProblem(str(exc)) from exc
-        result.update(bus=transport, channel=channel)
-        result["versions"] = versions(plant_argv[0], fw_argv[0])
-        result["command_lines"] = {"plant": plant_argv, "firmware": fw_argv}
-        try:
-            bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
-        except (can.CanError, OSError, ValueError) as exc:
-            raise EnvironmentProblem(f"cannot open {transport} bus {channel!r}: {exc}") from exc
-        _refuse_foreign_nodes(bus, transport, channel)
-        if opts.live:
+        if opts.bus == sil.INPROC:
+            periods_done = _run_inproc(sc, plan, out, opts, result, clock, counters)
+        else:
             try:
-                stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)")
-                live = recording.LiveView(stream)
-            except Exception as exc:  # no display, no viewer binary: run without live view
-                print(f"rig: live view unavailable ({exc}); running without it",
-                      file=sys.stderr)
-        mon = Monitor(live)
-        # the bus reader thread (unixcan) must get the GIL within a sender's patience (2 ms)
-        switch = sys.getswitchinterval()
-        sys.setswitchinterval(min(switch, 0.0005))
-        env = {"HIL_BUS": transport, "HIL_CHANNEL": channel, **opts.env}
-        prog = Progress(sc.name, sc.duration, enabled=opts.progress)
-        timeout = opts.timeout_s or sc.timeout_s or (
-            sc.duration + 30.0 if realtime else 60.0 + 300.0 * sc.duration
-        )
-        try:
-            with Supervisor(out, grace_s=opts.grace_s) as sup:
-                sup.start("plant_rt", plant_argv, ready_file=out / "plant.ready", env=env)
-                sup.start("fw_host", fw_argv, ready_file=out / "fw.ready", env=env)
-                sup.wait_ready(sc.ready_timeout_s)
-                clock.t0 = time.monotonic()
-                deadline = clock.t0 + timeout
-                cmd = Commander(bus)
-                runner = execute_realtime if realtime else execute_lockstep
-                grace = opts.grace_s
+                from rig import bus as rigbus
+
+                transport, channel = rigbus.select_transport(opts.bus, opts.channel)
+                plant_argv, fw_argv, _values = build_argv(sc, transport, channel, out, realtime,
+                                                          opts)
+            except FileNotFoundError as exc:
+                raise EnvironmentProblem(str(exc)) from exc
+            result.update(bus=transport, channel=channel)
+            result["versions"] = versions(plant_argv[0], fw_argv[0])
+            result["command_lines"] = {"plant": plant_argv, "firmware": fw_argv}
+            try:
+                bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
+            except (can.CanError, OSError, ValueError) as exc:
+                raise EnvironmentProblem(f"cannot open {transport} bus {channel!r}: {exc}") from exc
+            _refuse_foreign_nodes(bus, transport, channel)
+            if opts.live:
                 try:
-                    periods_done = runner(sc, plan, bus, sup, mon, cmd, prog, clock, deadline,
-                                          opts.stall_s)
-                    if not realtime:
-                        # let the firmware finish the last period before the stop signal
-                        sup.sleep(0.05)
-                except BaseException:
-                    grace = min(grace, 1.0)  # failing: end quickly
-                    raise
-                finally:
-                    prog.finish()
-                    stops = sup.stop(grace_s=grace)
-                counters["rig.tx_frames"] = float(cmd.tx)
-        finally:
-            sys.setswitchinterval(switch)
-            bus.shutdown()
-            stats = getattr(bus, "stats", None)
-            if isinstance(stats, Mapping):
-                _flatten("rig.bus", stats, counters)
+                    stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)")
+                    live = recording.LiveView(stream)
+                except Exception as exc:  # no display, no viewer binary: run without live view
+                    print(f"rig: live view unavailable ({exc}); running without it",
+                          file=sys.stderr)
+            mon = Monitor(live)
+            # the bus reader thread (unixcan) must get the GIL within a sender's patience (2 ms)
+            switch = sys.getswitchinterval()
+            sys.setswitchinterval(min(switch, 0.0005))
+            env = {"HIL_BUS": transport, "HIL_CHANNEL": channel, **opts.env}
+            prog = Progress(sc.name, sc.duration, enabled=opts.progress)
+            timeout = opts.timeout_s or sc.timeout_s or (
+                sc.duration + 30.0 if realtime else 60.0 + 300.0 * sc.duration
+            )
+            try:
+                with Supervisor(out, grace_s=opts.grace_s) as sup:
+                    sup.start("plant_rt", plant_argv, ready_file=out / "plant.ready", env=env)
+                    sup.start("fw_host", fw_argv, ready_file=out / "fw.ready", env=env)
+                    sup.wait_ready(sc.ready_timeout_s)
+                    clock.t0 = time.monotonic()
+                    deadline = clock.t0 + timeout
+                    cmd = Commander(bus)
+                    runner = execute_realtime if realtime else execute_lockstep
+                    grace = opts.grace_s
+                    try:
+                        periods_done = runner(sc, plan, bus, sup, mon, cmd, prog, clock, deadline,
+                                              opts.stall_s)
+                        if not realtime:
+                            # let the firmware finish the last period before the stop signal
+                            sup.sleep(0.05)
+                    except BaseException:
+                        grace = min(grace, 1.0)  # failing: end quickly
+                        raise
+                    finally:
+                        prog.finish()
+                        stops = sup.stop(grace_s=grace)
+                    counters["rig.tx_frames"] = float(cmd.tx)
+            finally:
+                sys.setswitchinterval(switch)
+                bus.shutdown()
+                stats = getattr(bus, "stats", None)
+                if isinstance(stats, Mapping):
+                    _flatten("rig.bus", stats, counters)
     except ChildFailed as exc:
         failure = {"kind": "crash", "message": f"{exc.name}: {exc.what}",
                    "log_tail": exc.log_tail, "child": exc.name}
@@ -966,7 +1013,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
         failure = {"kind": "interrupted", "message": f"interrupted ({type(exc).__name__})",
                    "log_tail": ""}
     wall = clock.wall()
-    if failure is None and not stops:
+    if failure is None and not stops and opts.bus != sil.INPROC:
         failure = {"kind": "error", "message": "run ended without stopping its programs",
                    "log_tail": ""}
     # a program that did not stop cleanly is a failure too (after a good run)
@@ -1065,6 +1112,9 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
         "grant_wall_ms_mean": 1e3 * float(np.mean(grant_walls)) if grant_walls else None,
         "grant_wall_ms_max": 1e3 * float(np.max(grant_walls)) if grant_walls else None,
     }
+    if clock.cpu_s:
+        result["timing"]["cpu_s"] = clock.cpu_s
+        result["timing"]["speed_x_cpu"] = sim_s / clock.cpu_s if sim_s > 0 else None
     result["finished"] = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
 
     # recording
@@ -1107,6 +1157,60 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     if interrupted is not None:
         raise interrupted
     return res
+
+
+def _run_inproc(sc: Scenario, plan: Plan, out: Path, opts: RunOptions, result: dict[str, Any],
+                clock: _Clock, counters: dict[str, float]) -> int:
+    """The run on the in-process bench: the plant_rt/fw_host configuration of ``build_argv``
+    handed to the bench, the lockstep grants, the programs' counters from the bench."""
+    if opts.realtime:
+        raise RunError("usage", "--realtime needs the bus: the in-process bench runs in "
+                       "lockstep only")
+    try:
+        lib = _paths.library(sil.LIBRARY)
+        profile_path, values = profile_values(sc)
+    except FileNotFoundError as exc:
+        raise EnvironmentProblem(str(exc)) from exc
+    psets, fsets = plant_sets(sc), firmware_sets(sc, values)
+    result.update(bus=sil.INPROC, channel=None)
+    result["versions"] = {**versions(), "silbench.sha256": _sha(str(lib))}
+    result["command_lines"] = {"bench": {
+        "library": str(lib), "profile": str(profile_path) if profile_path else sc.profile,
+        "plant_sets": psets, "fw_sets": fsets}}
+    if profile_path is None:
+        raise EnvironmentProblem(f"profile {sc.profile!r} not found")
+    if opts.live:
+        print("rig: no live view on the in-process bench (no telemetry frames); running "
+              "without it", file=sys.stderr)
+    prog = Progress(sc.name, sc.duration, enabled=opts.progress)
+    timeout = opts.timeout_s or sc.timeout_s or 60.0 + 300.0 * sc.duration
+    try:
+        bench = sil.SilBench(profile_path, psets, fsets, out / "plant.trace", out / "fw.trace")
+    except sil.BenchError as exc:
+        raise RunError("config", f"in-process bench: {exc}") from exc
+    try:
+        clock.t0 = time.monotonic()
+        cmd = Commander(sil.BenchPort(bench))
+        cpu0 = time.process_time()
+        try:
+            periods = execute_inproc(sc, plan, bench, cmd, prog, clock, clock.t0 + timeout)
+            clock.cpu_s = time.process_time() - cpu0
+        finally:
+            prog.finish()
+            bench_counters = bench.counters()
+            for name in ("plant", "firmware"):
+                _flatten(name, bench_counters.get(name, {}), counters)
+            counters["rig.tx_frames"] = float(cmd.tx)
+            counters["rig.bench_rejected"] = float(len(bench.rejected))
+    finally:
+        try:
+            bench.close()
+        except sil.BenchError as exc:
+            raise RunError("capture", f"in-process bench: {exc}") from exc
+    if bench.rejected:
+        raise RunError("rejected", "the bench rejected frames of the rig: "
+                       + "; ".join(bench.rejected[:3]))
+    return periods
 
 
 def _json_default(o: Any) -> Any:

@@ -16,6 +16,7 @@
 
 #include "codec_util.h"
 #include "fw_host.h"
+#include "drive_codec.h"
 #include "hil_drive.h"
 #include "param_file.h"
 
@@ -77,30 +78,13 @@ void fwh_command_refresh(fwh_t *app, int64_t now_ns)
 
 static void on_drive_cmd(fwh_t *app, const uint8_t *data, uint8_t len)
 {
-    struct hil_drive_drive_cmd_t m;
     fw_cmd_t cmd;
+    char why[200];
     int16_t st;
-    hil_drive_drive_cmd_unpack(&m, data, len);
-    if (!hil_drive_drive_cmd_enable_is_in_range(m.enable) ||
-        !hil_drive_drive_cmd_fault_reset_is_in_range(m.fault_reset) ||
-        !hil_drive_drive_cmd_ctrl_mode_is_in_range(m.ctrl_mode) ||
-        !hil_drive_drive_cmd_fw_mode_is_in_range(m.fw_mode) ||
-        !hil_drive_drive_cmd_alive_is_in_range(m.alive) ||
-        !hil_drive_drive_cmd_speed_ref_is_in_range(m.speed_ref) ||
-        !hil_drive_drive_cmd_iq_ref_is_in_range(m.iq_ref)) {
-        fwh_reject(app, FWH_REJ_OUT_OF_RANGE,
-                   "DRIVE_CMD: signal outside its DBC range (enable %u, fault_reset %u, "
-                   "ctrl_mode %u, fw_mode %u, speed_ref raw %ld, iq_ref raw %d)",
-                   m.enable, m.fault_reset, m.ctrl_mode, m.fw_mode, (long)m.speed_ref,
-                   m.iq_ref);
+    if (fwh_drive_cmd_decode(data, len, &cmd, why, sizeof(why)) != 0) {
+        fwh_reject(app, FWH_REJ_OUT_OF_RANGE, "%s", why);
         return;
     }
-    cmd.enable = (int16_t)m.enable;
-    cmd.fault_reset = (int16_t)m.fault_reset;
-    cmd.ctrl_mode = (int16_t)m.ctrl_mode;
-    cmd.fw_mode = (int16_t)m.fw_mode;
-    cmd.speed_ref_rpm = (real_t)hil_drive_drive_cmd_speed_ref_decode(m.speed_ref);
-    cmd.iq_ref = (real_t)hil_drive_drive_cmd_iq_ref_decode(m.iq_ref);
     app->cnt.drive_cmds++;
     st = fwh_command(app, &cmd, FWH_OWNER_CAN);
     if (st != FW_STATUS_OK) {
@@ -114,28 +98,19 @@ static void on_drive_cmd(fwh_t *app, const uint8_t *data, uint8_t len)
 
 static void on_drive_limits(fwh_t *app, const uint8_t *data, uint8_t len)
 {
-    struct hil_drive_drive_limits_t m;
-    double i_max, speed_max, accel;
-    hil_drive_drive_limits_unpack(&m, data, len);
-    if (!hil_drive_drive_limits_i_max_is_in_range(m.i_max) ||
-        !hil_drive_drive_limits_speed_max_is_in_range(m.speed_max) ||
-        !hil_drive_drive_limits_accel_max_is_in_range(m.accel_max)) {
-        fwh_reject(app, FWH_REJ_OUT_OF_RANGE,
-                   "DRIVE_LIMITS: signal outside its DBC range (raw i_max %u, speed_max %u, "
-                   "accel_max %lu)",
-                   m.i_max, m.speed_max, (unsigned long)m.accel_max);
+    fwh_limits_t lim;
+    char why[200];
+    if (fwh_drive_limits_decode(data, len, &lim, why, sizeof(why)) != 0) {
+        fwh_reject(app, FWH_REJ_OUT_OF_RANGE, "%s", why);
         return;
     }
-    i_max = hil_drive_drive_limits_i_max_decode(m.i_max);
-    speed_max = hil_drive_drive_limits_speed_max_decode(m.speed_max);
-    accel = hil_drive_drive_limits_accel_max_decode(m.accel_max);
     app->cnt.limits++;
-    if (fw_core_set_limits(&app->core, (real_t)i_max, (real_t)speed_max, (real_t)accel) !=
-        FW_STATUS_OK) {
+    if (fw_core_set_limits(&app->core, (real_t)lim.i_max_a, (real_t)lim.speed_max_rpm,
+                           (real_t)lim.accel_rpm_s) != FW_STATUS_OK) {
         fwh_reject(app, FWH_REJ_REFUSED,
                    "DRIVE_LIMITS refused by the control core: i_max %.3f A (must stay below "
                    "oc_trip_a), speed_max %.0f r/min, accel %.1f r/min/s",
-                   i_max, speed_max, accel);
+                   lim.i_max_a, lim.speed_max_rpm, lim.accel_rpm_s);
     }
 }
 
@@ -261,44 +236,23 @@ static void on_param_req(fwh_t *app, const uint8_t *data, uint8_t len)
 
 void fwh_drive_frame(fwh_t *app, const struct canfd_frame *f, int fd)
 {
-    const uint32_t id = f->can_id & CAN_SFF_MASK;
-    uint8_t len;
-    switch (id) {
-    case HIL_DRIVE_DRIVE_CMD_FRAME_ID:
-    case HIL_DRIVE_DRIVE_LIMITS_FRAME_ID:
-    case HIL_DRIVE_PARAM_REQ_FRAME_ID:
+    char why[160];
+    int reason = 0;
+    switch (fwh_drive_classify(f, fd, &reason, why, sizeof(why))) {
+    case FWH_DRIVE_REJECTED:
+        fwh_reject(app, reason, "%s", why);
         break;
-    case HIL_DRIVE_PARAM_RESP_FRAME_ID:
-    case HIL_DRIVE_DRIVE_STATUS_FRAME_ID:
-    case HIL_DRIVE_HEARTBEAT_FRAME_ID:
-    case HIL_DRIVE_TLM_POS_FRAME_ID:
-    case HIL_DRIVE_TLM_CUR_FRAME_ID:
-    case HIL_DRIVE_TLM_REF_FRAME_ID:
-    case HIL_DRIVE_TLM_PARAM_FRAME_ID:
-    case HIL_DRIVE_TLM_VOLT_FRAME_ID:
-        return; /* what a drive sends: not for us */
+    case FWH_DRIVE_CMD:
+        on_drive_cmd(app, f->data, f->len);
+        break;
+    case FWH_DRIVE_LIMITS:
+        on_drive_limits(app, f->data, f->len);
+        break;
+    case FWH_DRIVE_PARAM_REQ:
+        on_param_req(app, f->data, f->len);
+        break;
     default:
-        fwh_reject(app, FWH_REJ_UNKNOWN_ID, "id 0x%03X: no such drive-protocol message",
-                   (unsigned)id);
-        return;
-    }
-    if (fd) {
-        fwh_reject(app, FWH_REJ_WRONG_FRAME_TYPE,
-                   "id 0x%03X: CAN FD frame, the drive protocol is classic CAN", (unsigned)id);
-        return;
-    }
-    len = f->len;
-    if (len != 8u) { /* all three are 8 bytes long in drive.dbc */
-        fwh_reject(app, FWH_REJ_BAD_LENGTH, "id 0x%03X: length %u, expected 8", (unsigned)id,
-                   len);
-        return;
-    }
-    if (id == HIL_DRIVE_DRIVE_CMD_FRAME_ID) {
-        on_drive_cmd(app, f->data, len);
-    } else if (id == HIL_DRIVE_DRIVE_LIMITS_FRAME_ID) {
-        on_drive_limits(app, f->data, len);
-    } else {
-        on_param_req(app, f->data, len);
+        break; /* what a drive sends: not for us */
     }
 }
 

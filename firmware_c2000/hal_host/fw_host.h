@@ -16,26 +16,13 @@
 #include "hilbus.h"
 #include "hiltrace.h"
 #include "pty.h"
+#include "rx_reject.h"
 
 #define FWH_VERSION "1.0"
 #define FWH_NS_PER_S 1000000000LL
 #define FWH_STATUS_PERIOD_NS (100LL * 1000000LL) /* DRIVE_STATUS, HEARTBEAT */
 #define FWH_TICK_NS (10LL * 1000000LL)           /* housekeeping timer */
 #define FWH_OVERRUN_NS (100LL * 1000LL)          /* ADC received -> PWM sent, real time */
-
-/* Reasons a received frame (or a period's data) is rejected. */
-enum {
-    FWH_REJ_UNKNOWN_ID,       /* no such message in the drive / virtual-I/O id range */
-    FWH_REJ_BAD_LENGTH,       /* length differs from the DBC */
-    FWH_REJ_WRONG_FRAME_TYPE, /* CAN FD where classic is defined or the reverse */
-    FWH_REJ_OUT_OF_RANGE,     /* a signal outside its DBC range */
-    FWH_REJ_MALFORMED,        /* inconsistent n_soc, a frame n_soc does not call for */
-    FWH_REJ_STALE_PERIOD,     /* ADC data of a period older than the last ISR */
-    FWH_REJ_FUTURE_PERIOD,    /* ADC data too far ahead */
-    FWH_REJ_INCOMPLETE,       /* a period's ADC data that never completed */
-    FWH_REJ_REFUSED,          /* DRIVE_LIMITS the control core refused */
-    FWH_REJ_COUNT
-};
 
 enum { FWH_OWNER_NONE, FWH_OWNER_CAN, FWH_OWNER_CONSOLE };
 
@@ -104,7 +91,6 @@ typedef struct fwh {
 } fwh_t;
 
 int64_t fwh_now_ns(void);
-const char *fwh_reject_name(int reason);
 const char *fwh_state_name(int16_t state);
 const char *fwh_fault_name(uint16_t code);
 uint64_t fwh_rejected_total(const fwh_t *app);

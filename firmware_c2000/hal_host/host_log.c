@@ -1,4 +1,4 @@
-/* host_log.c - fw_host's names (rejections, states, faults), its clock and its rate-limited
+/* host_log.c - fw_host's names (states, faults; rejections are in rx_reject.c), its clock and its rate-limited
  * rejection and log lines on stderr. Apart from main.c so that everything linking the host
  * HAL (the unit tests, the fuzz harnesses) has them. */
 #define _POSIX_C_SOURCE 200809L /* clock_gettime */
@@ -13,15 +13,6 @@ int64_t fwh_now_ns(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (int64_t)ts.tv_sec * FWH_NS_PER_S + ts.tv_nsec;
-}
-
-static const char *const reject_names[FWH_REJ_COUNT] = {
-    "unknown_id", "bad_length", "wrong_frame_type", "out_of_range", "malformed",
-    "stale_period", "future_period", "incomplete", "refused"};
-
-const char *fwh_reject_name(int reason)
-{
-    return reason >= 0 && reason < FWH_REJ_COUNT ? reject_names[reason] : "?";
 }
 
 const char *fwh_state_name(int16_t state)

@@ -47,6 +47,7 @@ int plant_mag_init(plant_mag_t *mag, const plant_config_t *cfg, char *err, size_
     mag->ld_sat = ld_sat;
     mag->ld_knee = knee;
     mag->ld_width = width;
+    mag->ld_inv_width = 1.0 / width;
     mag->ld_sp0 = softplus(-knee / width);
     sig0 = 1.0 / (1.0 + exp(-knee / width)); /* logistic factor at id = 0 */
     mag->ld_delta = (ld - ld_sat) / sig0;
@@ -113,7 +114,7 @@ void plant_mag_flux(const plant_mag_t *mag, double id, double iq, double psi[2],
      *   u <= 0: sigma = 1/(1 + e), softplus(u) = log1p(e)
      *   u > 0:  sigma = e/(1 + e), softplus(u) = u + log1p(e)                          */
     if (mag->ld_delta != 0.0) {
-        const double u = (id - mag->ld_knee) / mag->ld_width;
+        const double u = (id - mag->ld_knee) * mag->ld_inv_width;
         const double e = exp(-fabs(u));
         const double sig = (u > 0.0 ? e : 1.0) / (1.0 + e); /* logistic of (knee - id)/width */
         const double sp = (u > 0.0 ? u : 0.0) + log1p(e);
@@ -182,9 +183,9 @@ int plant_mag_invert(const plant_mag_t *mag, double psi_d, double psi_q, double 
     f1 = psi[1] - psi_q;
     res2 = f0 * f0 + f1 * f1;
     for (it = 1; it <= MAX_ITER; ++it) {
-        const double det = l[0] * l[1] - l[2] * l[2];
-        const double d0 = (l[1] * f0 - l[2] * f1) / det;
-        const double d1 = (l[0] * f1 - l[2] * f0) / det;
+        const double inv_det = 1.0 / (l[0] * l[1] - l[2] * l[2]);
+        const double d0 = (l[1] * f0 - l[2] * f1) * inv_det;
+        const double d1 = (l[0] * f1 - l[2] * f0) * inv_det;
         const double step = fabs(d0) + fabs(d1);
         double alpha = 1.0, n0, n1, g0, g1, res2_new;
         double psi_new[2], l_new[3];

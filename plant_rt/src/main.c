@@ -31,6 +31,7 @@
 #include "hilbus.h"
 #include "hiltrace.h"
 #include "plant_core.h"
+#include "plant_vio.h"
 
 #define NS_PER_S 1000000000LL
 #define HOUSEKEEPING_NS (100LL * 1000000LL) /* counters, progress: every 100 ms */
@@ -88,7 +89,7 @@ typedef struct app {
     uint8_t step_seq;
     hil_log_limit_t log_limit; /* rejection lines on stderr */
     /* last period's ADC frames, for the lockstep re-send */
-    struct canfd_frame adc_frames[3];
+    struct canfd_frame adc_frames[PLANT_VIO_ADC_FRAMES_MAX];
     int n_adc_frames;
 } app_t;
 
@@ -232,60 +233,12 @@ static void send_progress(app_t *a, int state)
 
 static void send_adc(app_t *a, const plant_samples_t *s)
 {
-    uint8_t buf[64];
-    const uint32_t n = s->n_soc;
-    a->n_adc_frames = 0;
-    if (n > 0) {
-        struct hil_vio_vio_adc_0_t m;
-        memset(&m, 0, sizeof(m));
-        m.period = s->period;
-        m.n_soc = (uint8_t)n;
-        m.vdc_code = s->vdc_code[0];
-        m.ia_0 = s->ia_code[0], m.ib_0 = s->ib_code[0];
-        m.ia_1 = s->ia_code[1], m.ib_1 = s->ib_code[1];
-        m.ia_2 = s->ia_code[2], m.ib_2 = s->ib_code[2];
-        m.ia_3 = s->ia_code[3], m.ib_3 = s->ib_code[3];
-        m.ia_4 = s->ia_code[4], m.ib_4 = s->ib_code[4];
-        m.ia_5 = s->ia_code[5], m.ib_5 = s->ib_code[5];
-        m.ia_6 = s->ia_code[6], m.ib_6 = s->ib_code[6];
-        hil_vio_vio_adc_0_pack(buf, &m, sizeof(buf));
-        send_frame(a, HIL_VIO_VIO_ADC_0_FRAME_ID, buf, 64, 0);
-        a->adc_frames[a->n_adc_frames].can_id = HIL_VIO_VIO_ADC_0_FRAME_ID;
-        memcpy(a->adc_frames[a->n_adc_frames++].data, buf, 64);
-    }
-    if (n > 7) {
-        struct hil_vio_vio_adc_1_t m;
-        memset(&m, 0, sizeof(m));
-        m.period = s->period;
-        m.n_soc = (uint8_t)n;
-        m.vdc_code = s->vdc_code[7];
-        m.ia_7 = s->ia_code[7], m.ib_7 = s->ib_code[7];
-        m.ia_8 = s->ia_code[8], m.ib_8 = s->ib_code[8];
-        m.ia_9 = s->ia_code[9], m.ib_9 = s->ib_code[9];
-        m.ia_10 = s->ia_code[10], m.ib_10 = s->ib_code[10];
-        m.ia_11 = s->ia_code[11], m.ib_11 = s->ib_code[11];
-        m.ia_12 = s->ia_code[12], m.ib_12 = s->ib_code[12];
-        m.ia_13 = s->ia_code[13], m.ib_13 = s->ib_code[13];
-        hil_vio_vio_adc_1_pack(buf, &m, sizeof(buf));
-        send_frame(a, HIL_VIO_VIO_ADC_1_FRAME_ID, buf, 64, 0);
-        a->adc_frames[a->n_adc_frames].can_id = HIL_VIO_VIO_ADC_1_FRAME_ID;
-        memcpy(a->adc_frames[a->n_adc_frames++].data, buf, 64);
-    }
-    if (n > 14) {
-        struct hil_vio_vio_adc_2_t m;
-        memset(&m, 0, sizeof(m));
-        m.period = s->period;
-        m.n_soc = (uint8_t)n;
-        m.vdc_code = s->vdc_code[14];
-        m.ia_14 = s->ia_code[14], m.ib_14 = s->ib_code[14];
-        m.ia_15 = s->ia_code[15], m.ib_15 = s->ib_code[15];
-        hil_vio_vio_adc_2_pack(buf, &m, sizeof(buf));
-        send_frame(a, HIL_VIO_VIO_ADC_2_FRAME_ID, buf, 64, 0);
-        a->adc_frames[a->n_adc_frames].can_id = HIL_VIO_VIO_ADC_2_FRAME_ID;
-        memcpy(a->adc_frames[a->n_adc_frames++].data, buf, 64);
+    int k;
+    a->n_adc_frames = plant_pack_adc(s, a->adc_frames);
+    for (k = 0; k < a->n_adc_frames; ++k) {
+        send_frame(a, a->adc_frames[k].can_id, a->adc_frames[k].data, 64, 0);
     }
     if (a->opt.trace_vio) {
-        int k;
         for (k = 0; k < a->n_adc_frames; ++k) {
             trace_frame(a, a->adc_frames[k].can_id, a->adc_frames[k].data, 64);
         }
@@ -305,48 +258,15 @@ static void resend_adc(app_t *a)
 
 static void send_truth(app_t *a, const plant_truth_t *t)
 {
-    uint8_t buf[64];
     const int on_bus = a->opt.truth_every > 0 && (t->period % a->opt.truth_every) == 0;
-    {
-        struct hil_bench_bench_truth_t m;
-        m.period = t->period;
-        m.theta_e = (float)t->theta_e;
-        m.omega_m = (float)t->omega_m;
-        m.id = (float)t->id;
-        m.iq = (float)t->iq;
-        m.te = (float)t->te;
-        m.tl = (float)t->tl;
-        m.t_shaft = (float)t->t_shaft;
-        m.ia = (float)t->ia;
-        m.ib = (float)t->ib;
-        m.vdc = (float)t->vdc;
-        m.psi_d = (float)t->psi_d;
-        m.psi_q = (float)t->psi_q;
-        m.ua = (float)t->ua;
-        m.ub = (float)t->ub;
-        m.uc = (float)t->uc;
-        hil_bench_bench_truth_pack(buf, &m, sizeof(buf));
+    struct canfd_frame f[2];
+    int k;
+    plant_pack_truth(t, f);
+    for (k = 0; k < 2; ++k) {
         if (on_bus) {
-            send_frame(a, HIL_BENCH_BENCH_TRUTH_FRAME_ID, buf, 64, 0);
+            send_frame(a, f[k].can_id, f[k].data, 64, 0);
         }
-        trace_frame(a, HIL_BENCH_BENCH_TRUTH_FRAME_ID, buf, 64);
-    }
-    {
-        struct hil_bench_bench_truth_mag_t m;
-        memset(&m, 0, sizeof(m));
-        m.period = t->period;
-        m.ld_inc = (float)t->ld_inc;
-        m.lq_inc = (float)t->lq_inc;
-        m.ldq_inc = (float)t->ldq_inc;
-        m.ld_app = (float)t->ld_app;
-        m.lq_app = (float)t->lq_app;
-        m.lambda_m = (float)t->lambda_m;
-        m.rs = (float)t->rs;
-        hil_bench_bench_truth_mag_pack(buf, &m, sizeof(buf));
-        if (on_bus) {
-            send_frame(a, HIL_BENCH_BENCH_TRUTH_MAG_FRAME_ID, buf, 64, 0);
-        }
-        trace_frame(a, HIL_BENCH_BENCH_TRUTH_MAG_FRAME_ID, buf, 64);
+        trace_frame(a, f[k].can_id, f[k].data, 64);
     }
 }
 
@@ -423,22 +343,13 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
         return;
     }
     if (id == HIL_BENCH_LOAD_CMD_FRAME_ID) {
-        struct hil_bench_load_cmd_t m;
-        if (!fd) {
-            reject(a, PLANT_REJ_MALFORMED, id, 0); /* LOAD_CMD is a CAN FD frame */
+        plant_load_cmd_t m;
+        const int r = plant_decode_load_cmd(fd, f->data, f->len, &m);
+        if (r != PLANT_REJ_NONE) {
+            reject(a, r, id, 0);
             return;
         }
-        if (f->len != HIL_BENCH_LOAD_CMD_LENGTH) {
-            reject(a, PLANT_REJ_BAD_LENGTH, id, 0);
-            return;
-        }
-        hil_bench_load_cmd_unpack(&m, f->data, f->len);
-        if (m.mode > 2 || !(fabsf(m.torque) <= 10.0f) || !(fabsf(m.speed) <= 4000.0f) ||
-            !(m.k_speed >= 0.0f && m.k_speed <= 1.0f)) {
-            reject(a, PLANT_REJ_OUT_OF_RANGE, id, 0);
-            return;
-        }
-        plant_set_load(a->plant, m.mode, m.torque, m.speed, m.k_speed);
+        plant_set_load(a->plant, m.mode, m.torque_nm, m.speed_rpm, m.k_speed_nms);
         a->cnt.load_cmds++;
         return;
     }
@@ -491,21 +402,13 @@ static void run_period(app_t *a, const plant_pwm_cmd_t *cmd)
     send_truth(a, &t);
 }
 
-static void startup_command(plant_pwm_cmd_t *c)
-{
-    memset(c, 0, sizeof(*c));
-    c->gate_enable = 0;
-    c->n_soc = 1;
-    c->soc[0] = 0;
-}
-
 static int lockstep(app_t *a)
 {
     inbox_t in;
     int64_t next_housekeeping = now_ns() + HOUSEKEEPING_NS, adc_sent_ns = 0;
     int waiting_pwm = 0;
     memset(&in, 0, sizeof(in));
-    startup_command(&in.pwm);
+    plant_startup_command(&in.pwm);
     in.have_pwm = 1; /* period 0 runs on the start-up command */
 
     while (!g_stop) {
@@ -635,7 +538,7 @@ static int realtime(app_t *a)
     inbox_t in;
     setup_realtime(a);
     memset(&in, 0, sizeof(in));
-    startup_command(&current);
+    plant_startup_command(&current);
     start = now_ns() + 2 * ts_ns;
     next_housekeeping = start + HOUSEKEEPING_NS;
 

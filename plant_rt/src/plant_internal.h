@@ -19,6 +19,7 @@
 typedef struct plant_mag {
     double lambda_m;
     double ld_sat, ld_delta, ld_knee, ld_width, ld_sp0; /* sp0 = softplus(-knee/width) */
+    double ld_inv_width;
     double lq0, lq_a, lq_x1, lq_inf;
     double lq_psi1, lq_l1, lq_s; /* extension: value, slope and decay rate at x1 */
     double cross_k, cross_s;
@@ -169,6 +170,8 @@ typedef struct plant_machine {
     /* sin and cos of the last angle evaluated (RK4 stages often repeat an angle exactly) */
     double sc_theta, sc_sin, sc_cos;
     int sc_valid;
+    double sc_base, sc_base_sin, sc_base_cos; /* last angle given to libm (phase_axes) */
+    int sc_base_valid;
     plant_stats_t *stats;
 } plant_machine_t;
 
@@ -177,6 +180,9 @@ static inline int plant_machine_zero_count(const plant_machine_t *m)
     return (m->mode[0] == LEG_ZERO) + (m->mode[1] == LEG_ZERO) + (m->mode[2] == LEG_ZERO);
 }
 void plant_machine_rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d);
+/* The state derivatives alone (an integration stage): dpsi_d, dpsi_q, dtheta, domega, with
+ * the currents, inductances and torques; not the per-phase outputs and event functions. */
+void plant_machine_stage(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d);
 /* Removes integration drift of open phases (their currents exactly zero). */
 void plant_machine_project(plant_machine_t *m, plant_state_t *x);
 /* Makes the conduction modes consistent at the present state (may adjust x to put an

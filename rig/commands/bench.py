@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rig import _paths, bench_plant
+from rig import _paths, bench_plant, bench_sil
 from rig import bus as rigbus
 
 
@@ -39,14 +39,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
     i = bsub.add_parser(
         "isr", help="firmware ISR cost per period: ns on this host, instructions (callgrind)",
-        description="Times fw_core_isr() on the host (fw_isr_bench: the core against a small "
-        "motor model, RUN state at 1000 r/min) and counts instructions per call with "
+        description="Times fw_core_isr() on the host (sil_bench: the core against the real "
+        "plant in one process, RUN state at 1000 r/min) and counts instructions per call with "
         "callgrind (one dump per call; the 1 kHz tasks run on a fixed period residue, so "
         "calls are grouped by period mod 10 to tell the 10 kHz path from the 1 kHz path).",
     )
     i.add_argument("--periods", type=int, default=20000, help="RUN-state periods timed")
     i.add_argument("--callgrind-periods", type=int, default=400,
                    help="RUN-state periods under callgrind (0: skip callgrind)")
+    i.add_argument("--profile", default="paper", help="plant fidelity profile")
     i.set_defaults(func=_bench_isr)
 
     pl = bsub.add_parser(
@@ -55,9 +56,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     bench_plant.add_arguments(pl)
     pl.set_defaults(func=_bench_plant)
 
+    si = bsub.add_parser(
+        "sil", help="closed loop in one process (--bus inproc) against the bus, same run",
+        description=bench_sil.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    bench_sil.add_arguments(si)
+    si.set_defaults(func=_bench_sil)
+
 
 def _bench_plant(args: argparse.Namespace) -> int:
     bench_plant.bench_plant(args)  # prints its JSON object
+    return 0
+
+
+def _bench_sil(args: argparse.Namespace) -> int:
+    print(json.dumps(bench_sil.bench_sil(args)))
     return 0
 
 
@@ -129,18 +141,24 @@ def _bench_bus(args: argparse.Namespace) -> int:
     return 0
 
 
+def sil_bench_argv(profile: str, periods: int) -> list[str]:
+    """The in-process bench program on a fidelity profile, ``periods`` periods in RUN."""
+    path = _paths.data_dir("profiles") / f"{profile}.toml"
+    return [str(_paths.binary("sil_bench")), "--profile", str(path), "--periods", str(periods)]
+
+
 def _bench_isr(args: argparse.Namespace) -> int:
-    bench = str(_paths.binary("fw_isr_bench"))
-    timed = subprocess.run([bench, str(args.periods)], capture_output=True, text=True,
-                           check=True)
+    argv = sil_bench_argv(args.profile, args.periods)
+    timed = subprocess.run([*argv, "--time-isr"], capture_output=True, text=True, check=True)
     report: dict[str, Any] = {"benchmark": "isr", "host_timing": json.loads(timed.stdout)}
     if args.callgrind_periods > 0:
-        report["instructions"] = callgrind_isr(bench, args.callgrind_periods)
+        report["instructions"] = callgrind_isr(
+            sil_bench_argv(args.profile, args.callgrind_periods), args.callgrind_periods)
     print(json.dumps(report))
     return 0
 
 
-def callgrind_isr(bench: str, periods: int) -> dict[str, Any]:
+def callgrind_isr(argv: list[str], periods: int) -> dict[str, Any]:
     """Instructions per fw_core_isr() call, 10 kHz and 1 kHz paths, from callgrind dumps."""
     if shutil.which("valgrind") is None:
         return {"skipped": "valgrind not installed"}
@@ -148,7 +166,7 @@ def callgrind_isr(bench: str, periods: int) -> dict[str, Any]:
         out = Path(tmp) / "cg.out"
         subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}",
                         "--toggle-collect=fw_core_isr", "--dump-after=fw_core_isr",
-                        "--dump-instr=no", bench, str(periods)],
+                        "--dump-instr=no", *argv],
                        capture_output=True, text=True, check=True)
         dumps = sorted(Path(tmp).glob("cg.out.*"), key=lambda p: int(p.name.rsplit(".", 1)[1]))
         per_call = [_callgrind_total(p) for p in dumps]

@@ -33,8 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="a scenario or suite name (see `rig list`) or a path to its TOML file")
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (default: $HIL_OUT or ./out, plus name and time)")
-    p.add_argument("--bus", choices=("auto", "socketcan", "unixcan"), default=None,
-                   help="transport (default: $HIL_BUS, else auto: SocketCAN when available)")
+    p.add_argument("--bus", choices=("auto", "socketcan", "unixcan", "inproc"), default=None,
+                   help="transport (default: $HIL_BUS, else auto: SocketCAN when available); "
+                   "inproc: plant and firmware core in this process, no bus (rig.sil; "
+                   "lockstep only)")
     p.add_argument("--channel", default=None,
                    help="bus channel (default: $HIL_CHANNEL, else vcan0)")
     p.add_argument("--realtime", action="store_true",
@@ -81,6 +83,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"rig run: invalid scenario:\n{exc}", file=sys.stderr)
         return runner.EXIT_USAGE
     scenarios = target.scenarios if isinstance(target, scenario.Suite) else (target,)
+    if args.realtime and args.bus == "inproc":
+        print("rig run: --realtime needs a bus (the in-process bench runs in lockstep only)",
+              file=sys.stderr)
+        return runner.EXIT_USAGE
     if args.realtime:
         bad = [s.name for s in scenarios if not s.realtime_ok]
         if bad:

@@ -1,6 +1,7 @@
 /* Core API on bad input: rejected with a status code and nothing changed; loss of ADC data
  * and of commands turns the outputs off and reports the fault; repeated ADC frames are
- * idempotent; protection trips. */
+ * idempotent; protection trips. Closed loops on the in-process bench (sim.h); faults are
+ * injected into the ADC data through its hook. */
 #include <stdlib.h>
 
 #include "fw_test.h"
@@ -8,6 +9,7 @@
 
 static sim_t S;
 static fw_core_t snap;
+static fw_core_t alone; /* the core without a bench: API checks from its defaults */
 
 /* the whole object must be byte-identical except the reported command status */
 static int unchanged_except_cmd_status(const fw_core_t *c)
@@ -19,12 +21,13 @@ static int unchanged_except_cmd_status(const fw_core_t *c)
 
 static void bad_commands(void)
 {
-    fw_core_t *c = &S.core;
+    fw_core_t *c;
     fw_cmd_t good = {0, 0, FW_CTRL_SPEED, FW_FWMODE_REALTIME, 100.0f, 0.5f};
     fw_cmd_t bad;
     real_t nan = (real_t)NAN;
     int k;
-    sim_init(&S, 0.0);
+    fw_core_init(&alone);
+    c = &alone;
     CHECK(fw_core_command(c, &good) == FW_STATUS_OK, "good command rejected");
     for (k = 0; k < 9; k++) {
         int16_t st;
@@ -52,7 +55,7 @@ static void bad_commands(void)
 
 static void bad_params(void)
 {
-    fw_core_t *c = &S.core;
+    fw_core_t *c = &alone;
     real_t v = 0.0f;
     struct {
         uint16_t id;
@@ -119,26 +122,23 @@ static void bad_params(void)
 static void reach_run(sim_t *s)
 {
     long k;
-    sim_init(s, 1.0);
-    s->plant.bits = 24;
-    s->plant.vdc_bits = 23;
-    sim_sync_adc_params(s);
+    sim_open(s, "ideal", 1.0, NULL);
     s->cmd.enable = 1;
-    for (k = 0; k < 20000 && s->core.state != FW_STATE_RUN; k++) {
+    for (k = 0; k < 20000 && s->core->state != FW_STATE_RUN; k++) {
         sim_step(s);
     }
-    CHECK(s->core.state == FW_STATE_RUN, "did not reach RUN (state %d, fault %u)",
-          s->core.state, s->core.fault_code);
+    CHECK(s->core->state == FW_STATE_RUN, "did not reach RUN (state %d, fault %u)",
+          s->core->state, s->core->fault_code);
 }
 
 static void busy_while_running(void)
 {
     sim_t *s = &S;
     reach_run(s);
-    snap = s->core;
-    CHECK(fw_param_set(&s->core, FW_PID_POLE_PAIRS, 3.0f) == FW_STATUS_BUSY, "config not busy");
-    CHECK(memcmp(&s->core, &snap, sizeof snap) == 0, "busy set changed the core");
-    CHECK(fw_param_set(&s->core, FW_PID_SPD_KP, 0.02f) == FW_STATUS_OK, "tuning while running");
+    snap = *s->core;
+    CHECK(fw_param_set(s->core, FW_PID_POLE_PAIRS, 3.0f) == FW_STATUS_BUSY, "config not busy");
+    CHECK(memcmp(s->core, &snap, sizeof snap) == 0, "busy set changed the core");
+    CHECK(fw_param_set(s->core, FW_PID_SPD_KP, 0.02f) == FW_STATUS_OK, "tuning while running");
 }
 
 /* the telemetry voltages are block means of FW_SPEED_DIVIDER periods: they change once per
@@ -154,10 +154,10 @@ static void telemetry_voltage_means(void)
     reach_run(s);
     s->cmd.ctrl_mode = FW_CTRL_CURRENT;
     s->cmd.iq_ref = 1.0f;
-    fw_core_status(&s->core, &prev);
+    fw_core_status(s->core, &prev);
     for (k = 0; k < n; k++) {
         sim_step(s);
-        fw_core_status(&s->core, &st);
+        fw_core_status(s->core, &st);
         vd[k] = st.vd;
         vq[k] = st.vq;
         if (k > 0) {
@@ -185,6 +185,12 @@ static void telemetry_voltage_means(void)
     CHECK(ripple > 1e-3, "references constant (%g V): nothing to average", ripple);
 }
 
+static void drop_one_conversion(void *ctx, fw_adc_t *adc)
+{
+    (void)ctx;
+    adc->n_soc = (int16_t)(adc->n_soc - 1);
+}
+
 static void adc_loss(void)
 {
     sim_t *s = &S;
@@ -192,25 +198,25 @@ static void adc_loss(void)
     int loss_max;
     fw_pwm_t pwm;
     reach_run(s);
-    loss_max = (int)s->core.p[FW_PI_ADC_LOSS_MAX];
+    loss_max = (int)s->core->p[FW_PI_ADC_LOSS_MAX];
     for (k = 0; k < loss_max; k++) {
-        fw_core_isr(&s->core, NULL, &pwm);
+        fw_core_isr(s->core, NULL, &pwm);
         if (k < loss_max - 1) {
-            CHECK(s->core.state == FW_STATE_RUN, "faulted after %d lost periods", k + 1);
+            CHECK(s->core->state == FW_STATE_RUN, "faulted after %d lost periods", k + 1);
         }
     }
-    CHECK(s->core.state == FW_STATE_FAULT && s->core.fault_code == FW_FAULT_ADC_LOSS,
-          "ADC loss: state %d fault %u", s->core.state, s->core.fault_code);
+    CHECK(s->core->state == FW_STATE_FAULT && s->core->fault_code == FW_FAULT_ADC_LOSS,
+          "ADC loss: state %d fault %u", s->core->state, s->core->fault_code);
     CHECK(pwm.gate_enable == 0, "gates still enabled after ADC loss");
 
     /* a frame with the wrong number of conversions is a loss too */
     reach_run(s);
+    sil_bench_set_adc_hook(s->b, drop_one_conversion, NULL);
     for (k = 0; k < loss_max; k++) {
-        mp_period(&s->plant, &s->pwm, &s->adc);
-        s->adc.n_soc = (int16_t)(s->adc.n_soc - 1);
-        fw_core_isr(&s->core, &s->adc, &s->pwm);
+        sim_step(s);
     }
-    CHECK(s->core.fault_code == FW_FAULT_ADC_LOSS && s->pwm.gate_enable == 0, "short frame");
+    sil_bench_set_adc_hook(s->b, NULL, NULL);
+    CHECK(s->core->fault_code == FW_FAULT_ADC_LOSS && s->pwm.gate_enable == 0, "short frame");
 
     /* fault reset: back to idle, outputs stay off until a new enable edge */
     s->cmd.fault_reset = 1;
@@ -218,9 +224,9 @@ static void adc_loss(void)
     for (k = 0; k < 30; k++) {
         sim_step(s);
     }
-    CHECK(s->core.state == FW_STATE_IDLE && s->core.fault_code == FW_FAULT_NONE &&
+    CHECK(s->core->state == FW_STATE_IDLE && s->core->fault_code == FW_FAULT_NONE &&
               s->pwm.gate_enable == 0,
-          "reset: state %d", s->core.state);
+          "reset: state %d", s->core->state);
 }
 
 static void command_timeout(void)
@@ -229,16 +235,16 @@ static void command_timeout(void)
     long k;
     uint32_t limit;
     reach_run(s);
-    limit = s->core.cmd_timeout_ticks;
+    limit = s->core->cmd_timeout_ticks;
     s->send_cmd = 0;
     /* the last command was at most 9 periods ago */
-    for (k = 0; k < (long)limit + 20 && s->core.state == FW_STATE_RUN; k++) {
+    for (k = 0; k < (long)limit + 20 && s->core->state == FW_STATE_RUN; k++) {
         sim_step(s);
     }
-    CHECK(s->core.state == FW_STATE_FAULT && s->core.fault_code == FW_FAULT_CMD_TIMEOUT,
-          "timeout: state %d fault %u", s->core.state, s->core.fault_code);
-    CHECK(s->core.ticks_since_cmd == limit + 1u, "tripped after %u ticks, limit %u",
-          (unsigned)s->core.ticks_since_cmd, (unsigned)limit);
+    CHECK(s->core->state == FW_STATE_FAULT && s->core->fault_code == FW_FAULT_CMD_TIMEOUT,
+          "timeout: state %d fault %u", s->core->state, s->core->fault_code);
+    CHECK(s->core->ticks_since_cmd == limit + 1u, "tripped after %u ticks, limit %u",
+          (unsigned)s->core->ticks_since_cmd, (unsigned)limit);
     CHECK(s->pwm.gate_enable == 0, "gates on after the time-out");
 }
 
@@ -248,70 +254,110 @@ static void repeated_frame(void)
     fw_pwm_t first;
     fw_pwm_t again;
     reach_run(s);
-    mp_period(&s->plant, &s->pwm, &s->adc);
-    fw_core_isr(&s->core, &s->adc, &first);
-    snap = s->core;
-    fw_core_isr(&s->core, &s->adc, &again);
+    sim_step(s); /* the bench's ISR of ADC(k): first */
+    first = s->pwm;
+    snap = *s->core;
+    fw_core_isr(s->core, &s->adc, &again);
     CHECK(memcmp(&first, &again, sizeof first) == 0, "repeated ADC(k) gives another PWM");
-    CHECK(memcmp(&s->core, &snap, sizeof snap) == 0, "repeated ADC(k) changed the core");
+    CHECK(memcmp(s->core, &snap, sizeof snap) == 0, "repeated ADC(k) changed the core");
     CHECK(first.period == s->adc.period + 1u, "pwm period %u for adc %u", (unsigned)first.period,
           (unsigned)s->adc.period);
-    s->pwm = first;
+}
+
+/* what the ADC hook forces: one phase-a current sample, or the DC-link code */
+typedef struct {
+    int32_t ia0, vdc;
+    int force_ia0, force_vdc;
+} forced_adc_t;
+
+static void force_adc(void *ctx, fw_adc_t *adc)
+{
+    const forced_adc_t *f = (const forced_adc_t *)ctx;
+    if (f->force_ia0) {
+        adc->ia[0] = f->ia0;
+    }
+    if (f->force_vdc) {
+        adc->vdc = f->vdc;
+    }
 }
 
 static void trips(void)
 {
     sim_t *s = &S;
+    forced_adc_t f;
     /* over-current on one sample */
     reach_run(s);
-    mp_period(&s->plant, &s->pwm, &s->adc);
-    s->adc.ia[0] = mp_code(&s->plant, 9.8);
-    fw_core_isr(&s->core, &s->adc, &s->pwm);
-    CHECK(s->core.fault_code == FW_FAULT_OVERCURRENT && s->pwm.gate_enable == 0, "OC: %u",
-          s->core.fault_code);
+    memset(&f, 0, sizeof f);
+    f.force_ia0 = 1;
+    f.ia0 = sim_current_code(s, 9.8);
+    sil_bench_set_adc_hook(s->b, force_adc, &f);
+    sim_step(s);
+    CHECK(s->core->fault_code == FW_FAULT_OVERCURRENT && s->pwm.gate_enable == 0, "OC: %u",
+          s->core->fault_code);
     /* DC-link over-voltage */
     reach_run(s);
-    s->plant.vdc = 270.0;
+    memset(&f, 0, sizeof f);
+    f.force_vdc = 1;
+    f.vdc = sim_vdc_code(s, 270.0);
+    sil_bench_set_adc_hook(s->b, force_adc, &f);
     sim_step(s);
-    CHECK(s->core.fault_code == FW_FAULT_DC_OVERVOLTAGE && s->pwm.gate_enable == 0, "OV: %u",
-          s->core.fault_code);
+    CHECK(s->core->fault_code == FW_FAULT_DC_OVERVOLTAGE && s->pwm.gate_enable == 0, "OV: %u",
+          s->core->fault_code);
     /* under-voltage while running */
     reach_run(s);
-    s->plant.vdc = 100.0;
+    f.vdc = sim_vdc_code(s, 100.0);
+    sil_bench_set_adc_hook(s->b, force_adc, &f);
     sim_step(s);
-    CHECK(s->core.fault_code == FW_FAULT_DC_UNDERVOLTAGE && s->pwm.gate_enable == 0, "UV: %u",
-          s->core.fault_code);
+    CHECK(s->core->fault_code == FW_FAULT_DC_UNDERVOLTAGE && s->pwm.gate_enable == 0, "UV: %u",
+          s->core->fault_code);
 }
 
 /* Codes outside the converter's range (the adversarial campaign sent INT32_MIN): no
  * arithmetic overflow (the sanitized build aborts on one), no false over-current; the
- * period counts as lost data, as a frame with the wrong n_soc does. */
+ * period counts as lost data, as a frame with the wrong n_soc does. The hook puts the codes
+ * into what the core gets (the host HAL rejects them before: vio_codec.c). */
+typedef struct {
+    int32_t ia;
+    int32_t ib0;
+    int16_t index;
+    int16_t set_ib0;
+} bad_codes_t;
+
+static void bad_codes(void *ctx, fw_adc_t *adc)
+{
+    const bad_codes_t *b = (const bad_codes_t *)ctx;
+    if (adc->n_soc > 0) {
+        adc->ia[b->index % adc->n_soc] = b->ia;
+        if (b->set_ib0) {
+            adc->ib[0] = b->ib0;
+        }
+    }
+}
+
 static void out_of_range_codes(void)
 {
     sim_t *s = &S;
     const int32_t bad[] = {INT32_MIN, INT32_MIN + 1, -1, 65536, INT32_MAX};
     size_t i;
-    reach_run(s); /* 24-bit converter */
+    bad_codes_t h;
+    reach_run(s);
     for (i = 0; i < sizeof bad / sizeof bad[0]; i++) {
-        uint32_t lost = s->core.adc_loss_count;
-        mp_period(&s->plant, &s->pwm, &s->adc);
-        s->adc.ia[i % (size_t)s->adc.n_soc] = bad[i] == 65536 ? (int32_t)1 << 24 : bad[i];
-        s->adc.ib[0] = bad[i] == INT32_MAX ? INT32_MIN : s->adc.ib[0];
-        fw_core_isr(&s->core, &s->adc, &s->pwm);
-        CHECK(s->core.fault_code != FW_FAULT_OVERCURRENT, "code %ld: false over-current",
+        uint32_t lost = s->core->adc_loss_count;
+        h.index = (int16_t)i;
+        h.ia = bad[i] == 65536 ? (int32_t)1 << 24 : bad[i]; /* the ideal profile: 24 bits */
+        h.set_ib0 = (int16_t)(bad[i] == INT32_MAX);
+        h.ib0 = INT32_MIN;
+        sil_bench_set_adc_hook(s->b, bad_codes, &h);
+        sim_step(s);
+        sil_bench_set_adc_hook(s->b, NULL, NULL);
+        CHECK(s->core->fault_code != FW_FAULT_OVERCURRENT, "code %ld: false over-current",
               (long)bad[i]);
-        CHECK(s->core.adc_loss_count == lost + 1u, "code %ld: not counted as lost data",
+        CHECK(s->core->adc_loss_count == lost + 1u, "code %ld: not counted as lost data",
               (long)bad[i]);
         sim_step(s); /* a good period between (consecutive losses fault: adc_loss_max) */
     }
-    CHECK(s->core.state == FW_STATE_RUN, "a few bad periods stopped the drive (state %d)",
-          s->core.state);
-    /* the same samples with in-range codes still trip at the limit */
-    mp_period(&s->plant, &s->pwm, &s->adc);
-    s->adc.ia[0] = (int32_t)(((int32_t)1 << 24) - 1); /* full scale: above the trip */
-    fw_core_isr(&s->core, &s->adc, &s->pwm);
-    CHECK(s->core.fault_code == FW_FAULT_OVERCURRENT, "full-scale code did not trip (%u)",
-          s->core.fault_code);
+    CHECK(s->core->state == FW_STATE_RUN, "a few bad periods stopped the drive (state %d)",
+          s->core->state);
     /* fw_protect_samples on its own: any code, no overflow */
     {
         fw_adc_t a;
@@ -331,12 +377,12 @@ static void idle_outputs_off(void)
 {
     sim_t *s = &S;
     int k;
-    sim_init(s, 0.3);
+    sim_open(s, "ideal", 0.3, NULL);
     for (k = 0; k < 50; k++) {
         sim_step(s);
         CHECK(s->pwm.gate_enable == 0, "gates on in idle");
     }
-    CHECK(s->core.state == FW_STATE_IDLE, "state %d", s->core.state);
+    CHECK(s->core->state == FW_STATE_IDLE, "state %d", s->core->state);
     fw_core_isr(NULL, &s->adc, &s->pwm); /* no crash */
     fw_core_status(NULL, NULL);
 }
@@ -353,5 +399,6 @@ int main(void)
     trips();
     out_of_range_codes();
     idle_outputs_off();
+    sim_close(&S);
     TEST_DONE();
 }

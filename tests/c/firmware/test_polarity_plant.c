@@ -3,19 +3,12 @@
  * `paper` and `harsh` profiles and a few on `ideal` (linear magnetics: the motion check).
  * Expectations are the plant's truth: after POLARITY the estimated angle is on the north
  * pole. The pulse/chord method this replaced picked the south pole at 60, 180 and 300 deg on
- * `paper` (d_hat on an even SVPWM vector: a layout-dependent dead-time volt-second error). */
-#include <stdlib.h>
-#include <string.h>
-
+ * `paper` (d_hat on an even SVPWM vector: a layout-dependent dead-time volt-second error).
+ * The loop is the in-process bench (bench/, tests/c/firmware/sim.h). */
 #include "fw_test.h"
-#include "fw_internal.h"
-#include "plant_core.h"
+#include "sim.h"
 
-#ifndef FW_TEST_PROFILES_DIR
-#error "FW_TEST_PROFILES_DIR must name plant_rt/profiles"
-#endif
-
-static fw_core_t core;
+static sim_t S;
 
 typedef struct {
     int state;        /* core state when the run ended */
@@ -27,108 +20,41 @@ typedef struct {
     long periods;     /* periods from enable to RUN */
 } pol_result_t;
 
-static void set_param(const char *name, double v)
-{
-    uint16_t k;
-    for (k = 0; k < fw_param_count(); k++) {
-        const fw_param_info_t *pi = fw_param_info_at(k);
-        if (strcmp(pi->name, name) == 0) {
-            (void)fw_param_set(&core, pi->id, (real_t)v);
-            return;
-        }
-    }
-    fprintf(stderr, "unknown parameter %s\n", name);
-    exit(2);
-}
-
 static int run_start(const char *profile, double theta0_deg, pol_result_t *res)
 {
-    char path[512];
-    char err[256];
-    char set0[64];
-    const char *sets[1];
-    plant_t *pl;
-    const plant_config_t *cfg;
-    fw_pwm_t pwm;
-    fw_cmd_t cmd;
+    sim_t *s = &S;
+    fw_core_t *core;
+    plant_truth_t tr;
     long k;
-    int x;
-    long t_enable = 20;
+    const long t_enable = 20;
 
-    snprintf(path, sizeof path, "%s/%s.toml", FW_TEST_PROFILES_DIR, profile);
-    snprintf(set0, sizeof set0, "initial.theta_e_deg=%.3f", theta0_deg);
-    sets[0] = set0;
-    pl = plant_open(path, sets, 1, err, sizeof err);
-    if (pl == NULL) {
-        fprintf(stderr, "plant_open %s: %s\n", path, err);
-        return 0;
-    }
-    cfg = plant_config(pl);
-    fw_core_init(&core);
-    set_param("adc_bits", cfg->adc.bits);
-    set_param("adc_range_a", cfg->adc.range_a);
-    set_param("adc_vdc_bits", cfg->adc.vdc_bits);
-    set_param("adc_vdc_range_v", cfg->adc.vdc_range_v);
-    memset(&pwm, 0, sizeof pwm);
-    for (x = 0; x < 3; x++) {
-        pwm.cmp_up[x] = FW_TBPRD;
-        pwm.cmp_dn[x] = FW_TBPRD;
-    }
-    memset(&cmd, 0, sizeof cmd);
-    cmd.ctrl_mode = FW_CTRL_CURRENT;
-    cmd.fw_mode = FW_FWMODE_REALTIME;
+    sim_open(s, profile, theta0_deg * M_PI / 180.0, NULL);
+    core = s->core;
+    s->cmd.ctrl_mode = FW_CTRL_CURRENT;
     memset(res, 0, sizeof *res);
     for (k = 0; k < 20000; k++) {
-        plant_pwm_cmd_t pc;
-        plant_samples_t s;
-        plant_truth_t tr;
-        fw_adc_t adc;
-        uint32_t i;
-        memset(&pc, 0, sizeof pc);
-        pc.period = (uint32_t)k;
-        for (x = 0; x < 3; x++) {
-            pc.cmp_up[x] = pwm.cmp_up[x];
-            pc.cmp_dn[x] = pwm.cmp_dn[x];
-        }
-        pc.n_soc = (uint8_t)pwm.n_soc;
-        for (i = 0; i < (uint32_t)pwm.n_soc; i++) {
-            pc.soc[i] = pwm.soc[i];
-        }
-        pc.gate_enable = (uint8_t)pwm.gate_enable;
-        (void)plant_step(pl, &pc, &s, NULL);
-        memset(&adc, 0, sizeof adc);
-        adc.period = (uint32_t)k;
-        adc.n_soc = (int16_t)s.n_soc;
-        for (i = 0; i < s.n_soc; i++) {
-            adc.ia[i] = s.ia_code[i];
-            adc.ib[i] = s.ib_code[i];
-        }
-        adc.vdc = s.vdc_code[0];
-        cmd.enable = (int16_t)(k >= t_enable);
-        if (k % 10 == 0) {
-            (void)fw_core_command(&core, &cmd);
-        }
-        fw_core_isr(&core, &adc, &pwm);
-        plant_truth_now(pl, &tr);
-        if (core.state == FW_STATE_POLARITY) {
+        s->cmd.enable = (int16_t)(k >= t_enable);
+        sim_step(s);
+        plant_truth_now(sil_bench_plant(s->b), &tr);
+        if (core->state == FW_STATE_POLARITY) {
             double mv = fabs(remainder(tr.theta_e - theta0_deg * M_PI / 180.0, 2.0 * M_PI));
             res->move_deg = fmax(res->move_deg, mv * 180.0 / M_PI);
         }
-        if (core.state == FW_STATE_RUN || core.state == FW_STATE_FAULT) {
+        if (core->state == FW_STATE_RUN || core->state == FW_STATE_FAULT) {
             /* theta_hat is valid at the stamp of the period just measured: compare with the
              * angle at the end of it (standstill: the difference is far below the tolerance) */
-            res->err_deg = remainder((double)core.theta_hat - tr.theta_e, 2.0 * M_PI) * 180.0 / M_PI;
+            res->err_deg = remainder((double)core->theta_hat - tr.theta_e, 2.0 * M_PI) * 180.0 / M_PI;
             break;
         }
     }
-    res->state = core.state;
-    res->method = core.pol.method_used;
+    res->state = core->state;
+    res->method = core->pol.method_used;
     res->periods = k - t_enable;
     /* margin of the saturation test: |ratio| and |ratio| / standard error (whether the pole
      * it chose is the right one is err_deg) */
-    res->ratio = fabs((double)core.pol.ratio);
-    res->z = (core.pol.ratio_sigma > 0.0f) ? res->ratio / (double)core.pol.ratio_sigma : 0.0;
-    plant_free(pl);
+    res->ratio = fabs((double)core->pol.ratio);
+    res->z = (core->pol.ratio_sigma > 0.0f) ? res->ratio / (double)core->pol.ratio_sigma : 0.0;
+    sim_close(s);
     return 1;
 }
 
@@ -150,8 +76,7 @@ static void sweep(const char *profile, int step_deg, int need_saturation)
                "RUN after %ld periods\n",
                profile, a, r.state, r.method, r.ratio * 100.0, r.z, r.err_deg, r.move_deg,
                r.periods);
-        CHECK(r.state == FW_STATE_RUN, "%s %d deg: state %d fault %u", profile, a, r.state,
-              core.fault_code);
+        CHECK(r.state == FW_STATE_RUN, "%s %d deg: state %d", profile, a, r.state);
         CHECK(fabs(r.err_deg) < 20.0, "%s %d deg: wrong pole, theta_hat - theta = %.1f deg",
               profile, a, r.err_deg);
         if (r.method == 1) {

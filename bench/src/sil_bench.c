@@ -1,0 +1,608 @@
+/* sil_bench.c - see sil_bench.h. The glue between the plant's and the firmware's frame code;
+ * everything that decides a value lives in the units the bus programs link. */
+#define _POSIX_C_SOURCE 199309L /* clock_gettime */
+#include "sil_bench.h"
+
+#include <errno.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "adc_assembly.h"
+#include "drive_codec.h"
+#include "fw_core.h"
+#include "hil_bench.h"
+#include "hil_codec.h"
+#include "hil_drive.h"
+#include "hil_vio.h"
+#include "hiltrace.h"
+#include "param_file.h"
+#include "plant_core.h"
+#include "plant_vio.h"
+#include "vio_codec.h"
+
+struct sil_bench {
+    fw_core_t core; /* first: the large, aligned member */
+    plant_t *plant;
+    fwh_adc_asm_t adc;
+    plant_pwm_cmd_t pwm;    /* command of the plant's next period */
+    plant_truth_t truth;    /* at the start of the last simulated period */
+    hiltrace_t *plant_trace, *fw_trace;
+    int trace_vio;
+    int timing;
+    double last_isr_ns;
+    uint8_t alive;
+    sil_bench_adc_hook_t hook;
+    void *hook_ctx;
+    fw_adc_t last_adc;
+    fw_pwm_t last_pwm;
+    sil_bench_stats_t st;
+    uint64_t plant_rejects[PLANT_REJ_COUNT];
+    uint64_t fw_rejects[FWH_REJ_COUNT];
+};
+
+static fwh_param_list_t fw_sets; /* large: not on the stack (one bench opens at a time) */
+
+/* firmware parameter <- plant configuration (see sil_bench_hardware_param) */
+static const struct {
+    const char *param, *key;
+    double factor;
+} HARDWARE[] = {
+    {"adc_bits", "adc.bits", 1.0},
+    {"adc_range_a", "adc.range_a", 1.0},
+    {"adc_vdc_range_v", "adc.vdc_range_v", 1.0},
+    {"adc_vdc_bits", "adc.vdc_bits", 1.0},
+    {"deadtime_us", "inverter.dead_time_s", 1e6},
+    {"vdrop_v", "inverter.device_drop_v", 1.0},
+};
+#define N_HARDWARE ((int)(sizeof(HARDWARE) / sizeof(HARDWARE[0])))
+
+const char *sil_bench_hardware_param(int i, const char **profile_key, double *factor)
+{
+    if (i < 0 || i >= N_HARDWARE) {
+        return NULL;
+    }
+    *profile_key = HARDWARE[i].key;
+    *factor = HARDWARE[i].factor;
+    return HARDWARE[i].param;
+}
+
+static double plant_value(const plant_config_t *c, const char *key)
+{
+    if (strcmp(key, "adc.bits") == 0) {
+        return c->adc.bits;
+    }
+    if (strcmp(key, "adc.range_a") == 0) {
+        return c->adc.range_a;
+    }
+    if (strcmp(key, "adc.vdc_range_v") == 0) {
+        return c->adc.vdc_range_v;
+    }
+    if (strcmp(key, "adc.vdc_bits") == 0) {
+        return c->adc.vdc_bits;
+    }
+    if (strcmp(key, "inverter.dead_time_s") == 0) {
+        return c->inverter.dead_time_s;
+    }
+    return c->inverter.device_drop_v; /* "inverter.device_drop_v" */
+}
+
+static double now_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e9 + (double)ts.tv_nsec;
+}
+
+static void fail(char *err, size_t errlen, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+
+/* The reason of a refusal, for a caller that asked for one (err may be NULL). */
+static void fail(char *err, size_t errlen, const char *fmt, ...)
+{
+    va_list ap;
+    if (err == NULL || errlen == 0) {
+        return;
+    }
+    va_start(ap, fmt);
+    vsnprintf(err, errlen, fmt, ap);
+    va_end(ap);
+}
+
+static int open_plant(sil_bench_t *b, const sil_bench_config_t *cfg, char *err, size_t errlen)
+{
+    plant_config_t pc;
+    char msg[768];
+    int k;
+    plant_config_defaults(&pc);
+    if (cfg->profile_path != NULL &&
+        plant_config_load(&pc, cfg->profile_path, msg, sizeof(msg)) != 0) {
+        fail(err, errlen, "plant: %s", msg);
+        return -1;
+    }
+    for (k = 0; k < cfg->n_plant_sets; k++) {
+        if (plant_config_set(&pc, cfg->plant_sets[k], msg, sizeof(msg)) != 0) {
+            fail(err, errlen, "plant: %s", msg);
+            return -1;
+        }
+    }
+    b->plant = plant_new(&pc, msg, sizeof(msg));
+    if (b->plant == NULL) {
+        fail(err, errlen, "plant: %s (after the overrides)", msg);
+        return -1;
+    }
+    return 0;
+}
+
+static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *err,
+                         size_t errlen)
+{
+    char msg[512];
+    int k, failed = 0, changed = 0;
+    int16_t st;
+    fw_core_init(&b->core);
+    fwh_adc_init(&b->adc);
+    if (cfg->n_fw_sets + N_HARDWARE > FWH_PARAM_ITEMS_MAX) {
+        fail(err, errlen, "firmware: more than %d parameters", FWH_PARAM_ITEMS_MAX - N_HARDWARE);
+        return -1;
+    }
+    fw_sets.n = 0;
+    if (cfg->fw_from_plant) {
+        for (k = 0; k < N_HARDWARE; k++) {
+            char text[96];
+            const double v = plant_value(plant_config(b->plant), HARDWARE[k].key) *
+                             HARDWARE[k].factor;
+            snprintf(text, sizeof(text), "%s=%.9g", HARDWARE[k].param, v);
+            if (fwh_params_parse_assignment(text, &fw_sets.items[fw_sets.n], msg,
+                                            sizeof(msg)) != 0) {
+                fail(err, errlen, "firmware (from the plant): %s", msg);
+                return -1;
+            }
+            fw_sets.items[fw_sets.n].line = fw_sets.n + 1;
+            fw_sets.n++;
+        }
+    }
+    for (k = 0; k < cfg->n_fw_sets; k++) {
+        if (fwh_params_parse_assignment(cfg->fw_sets[k], &fw_sets.items[fw_sets.n], msg,
+                                        sizeof(msg)) != 0) {
+            fail(err, errlen, "firmware: %s", msg);
+            return -1;
+        }
+        fw_sets.items[fw_sets.n].line = fw_sets.n + 1;
+        fw_sets.n++;
+    }
+    st = fw_sets.n > 0 ? fwh_params_apply(&b->core, &fw_sets, &failed, &changed) : FW_STATUS_OK;
+    if (st != FW_STATUS_OK) {
+        fail(err, errlen,
+             "firmware: %s: rejected by the control core (status %d: not a whole number, or "
+             "inconsistent with other parameters)",
+             fw_sets.items[failed].name, (int)st);
+        return -1;
+    }
+    b->st.param_sets = (uint64_t)changed;
+    return 0;
+}
+
+sil_bench_t *sil_bench_open(const sil_bench_config_t *cfg, char *err, size_t errlen)
+{
+    sil_bench_t *b = (sil_bench_t *)calloc(1, sizeof(*b));
+    if (b == NULL) {
+        fail(err, errlen, "out of memory");
+        return NULL;
+    }
+    if (open_plant(b, cfg, err, errlen) != 0 || open_firmware(b, cfg, err, errlen) != 0) {
+        sil_bench_close(b);
+        return NULL;
+    }
+    b->trace_vio = cfg->trace_vio;
+    if (cfg->plant_trace != NULL && (b->plant_trace = hiltrace_open(cfg->plant_trace)) == NULL) {
+        fail(err, errlen, "trace: cannot create %s: %s", cfg->plant_trace, strerror(errno));
+        sil_bench_close(b);
+        return NULL;
+    }
+    if (cfg->fw_trace != NULL && (b->fw_trace = hiltrace_open(cfg->fw_trace)) == NULL) {
+        fail(err, errlen, "trace: cannot create %s: %s", cfg->fw_trace, strerror(errno));
+        sil_bench_close(b);
+        return NULL;
+    }
+    plant_startup_command(&b->pwm); /* period 0 runs on the start-up command */
+    return b;
+}
+
+int sil_bench_close(sil_bench_t *b)
+{
+    int rc = 0;
+    if (b == NULL) {
+        return 0;
+    }
+    if (b->plant_trace != NULL && hiltrace_close(b->plant_trace) != 0) {
+        rc = -1;
+    }
+    if (b->fw_trace != NULL && hiltrace_close(b->fw_trace) != 0) {
+        rc = -1;
+    }
+    plant_free(b->plant);
+    free(b);
+    return rc;
+}
+
+/* ------------------------------------------------------------------------ frames in */
+
+static int reject_fw(sil_bench_t *b, int reason, const char *why, char *err, size_t errlen)
+{
+    b->fw_rejects[reason]++;
+    b->st.fw_rejected++;
+    fail(err, errlen, "firmware rejected (%s): %s", fwh_reject_name(reason), why);
+    return -1;
+}
+
+static int drive_frame(sil_bench_t *b, const struct canfd_frame *f, int fd, char *err,
+                       size_t errlen)
+{
+    char why[200];
+    int reason = 0;
+    switch (fwh_drive_classify(f, fd, &reason, why, sizeof(why))) {
+    case FWH_DRIVE_REJECTED:
+        return reject_fw(b, reason, why, err, errlen);
+    case FWH_DRIVE_CMD: {
+        fw_cmd_t cmd;
+        if (fwh_drive_cmd_decode(f->data, f->len, &cmd, why, sizeof(why)) != 0) {
+            return reject_fw(b, FWH_REJ_OUT_OF_RANGE, why, err, errlen);
+        }
+        b->st.drive_cmds++;
+        if (fw_core_command(&b->core, &cmd) != FW_STATUS_OK) {
+            b->st.cmds_refused++; /* DRIVE_STATUS.cmd_status says so, as on the bus */
+        }
+        return 0;
+    }
+    case FWH_DRIVE_LIMITS: {
+        fwh_limits_t lim;
+        if (fwh_drive_limits_decode(f->data, f->len, &lim, why, sizeof(why)) != 0) {
+            return reject_fw(b, FWH_REJ_OUT_OF_RANGE, why, err, errlen);
+        }
+        b->st.limits++;
+        if (fw_core_set_limits(&b->core, (real_t)lim.i_max_a, (real_t)lim.speed_max_rpm,
+                               (real_t)lim.accel_rpm_s) != FW_STATUS_OK) {
+            b->st.limits_refused++;
+            return reject_fw(b, FWH_REJ_REFUSED, "DRIVE_LIMITS refused by the control core",
+                             err, errlen);
+        }
+        return 0;
+    }
+    case FWH_DRIVE_PARAM_REQ:
+        fail(err, errlen, "PARAM_REQ: not served by the in-process bench (parameters are set "
+                          "at open)");
+        return 1;
+    default:
+        return 1; /* what a drive sends */
+    }
+}
+
+int sil_bench_frame(sil_bench_t *b, uint32_t can_id, int fd, const uint8_t *data, uint8_t len,
+                    char *err, size_t errlen)
+{
+    struct canfd_frame f;
+    const uint32_t id = can_id & CAN_SFF_MASK;
+    if (len > sizeof(f.data)) {
+        fail(err, errlen, "frame of %u bytes: longer than 64", (unsigned)len);
+        return -1;
+    }
+    memset(&f, 0, sizeof(f));
+    f.can_id = can_id;
+    f.len = len;
+    memcpy(f.data, data, len);
+    if (id == HIL_BENCH_LOAD_CMD_FRAME_ID) {
+        plant_load_cmd_t m;
+        const int r = plant_decode_load_cmd(fd, f.data, f.len, &m);
+        if (r != PLANT_REJ_NONE) {
+            b->plant_rejects[r]++;
+            b->st.plant_rejected++;
+            fail(err, errlen, "plant rejected LOAD_CMD: %s", plant_reject_name(r));
+            return -1;
+        }
+        plant_set_load(b->plant, m.mode, m.torque_nm, m.speed_rpm, m.k_speed_nms);
+        b->st.load_cmds++;
+        return 0;
+    }
+    if (id >= 0x100u && id <= 0x1FFu) {
+        return drive_frame(b, &f, fd, err, errlen);
+    }
+    return 1;
+}
+
+int sil_bench_drive_cmd(sil_bench_t *b, int enable, int fault_reset, int ctrl_mode,
+                        int fw_mode, double speed_ref_rpm, double iq_ref_a)
+{
+    struct hil_drive_drive_cmd_t m;
+    uint8_t buf[8];
+    memset(&m, 0, sizeof(m));
+    m.enable = (uint8_t)enable;
+    m.fault_reset = (uint8_t)fault_reset;
+    m.ctrl_mode = (uint8_t)ctrl_mode;
+    m.fw_mode = (uint8_t)fw_mode;
+    m.alive = b->alive++;
+    m.speed_ref = HIL_ENCODE(hil_drive_drive_cmd_speed_ref, speed_ref_rpm);
+    m.iq_ref = HIL_ENCODE(hil_drive_drive_cmd_iq_ref, iq_ref_a);
+    hil_drive_drive_cmd_pack(buf, &m, sizeof(buf));
+    return sil_bench_frame(b, HIL_DRIVE_DRIVE_CMD_FRAME_ID, 0, buf, HIL_DRIVE_DRIVE_CMD_LENGTH,
+                           NULL, 0);
+}
+
+int sil_bench_drive_limits(sil_bench_t *b, double i_max_a, double speed_max_rpm,
+                           double accel_rpm_s)
+{
+    struct hil_drive_drive_limits_t m;
+    uint8_t buf[8];
+    memset(&m, 0, sizeof(m));
+    m.i_max = HIL_ENCODE(hil_drive_drive_limits_i_max, i_max_a);
+    m.speed_max = HIL_ENCODE(hil_drive_drive_limits_speed_max, speed_max_rpm);
+    m.accel_max = HIL_ENCODE(hil_drive_drive_limits_accel_max, accel_rpm_s);
+    hil_drive_drive_limits_pack(buf, &m, sizeof(buf));
+    return sil_bench_frame(b, HIL_DRIVE_DRIVE_LIMITS_FRAME_ID, 0, buf,
+                           HIL_DRIVE_DRIVE_LIMITS_LENGTH, NULL, 0);
+}
+
+int sil_bench_load_cmd(sil_bench_t *b, int mode, double torque_nm, double speed_rpm,
+                       double k_speed_nms)
+{
+    struct hil_bench_load_cmd_t m;
+    uint8_t buf[64];
+    memset(&m, 0, sizeof(m));
+    m.mode = (uint8_t)mode;
+    m.torque = (float)torque_nm;
+    m.speed = (float)speed_rpm;
+    m.k_speed = (float)k_speed_nms;
+    hil_bench_load_cmd_pack(buf, &m, sizeof(buf));
+    return sil_bench_frame(b, HIL_BENCH_LOAD_CMD_FRAME_ID, 1, buf, HIL_BENCH_LOAD_CMD_LENGTH,
+                           NULL, 0);
+}
+
+/* ------------------------------------------------------------------------ one period */
+
+static void trace(sil_bench_t *b, hiltrace_t *t, const struct canfd_frame *f)
+{
+    if (t != NULL && hiltrace_write(t, f) != 0) {
+        b->st.trace_errors++;
+    }
+}
+
+static void fw_trace(sil_bench_t *b)
+{
+    fw_status_t s;
+    struct canfd_frame f;
+    if (b->fw_trace == NULL) {
+        return;
+    }
+    fw_core_status(&b->core, &s);
+    fwh_vio_trace_pack(&s, &f);
+    if (hiltrace_write(b->fw_trace, &f) == 0) {
+        b->st.trace_records++;
+    } else {
+        b->st.trace_errors++;
+    }
+}
+
+/* The firmware side of one ADC frame (bus_io.c's feed() without the bus): 1 when the ISR ran
+ * and *pwm_frame holds VIO_PWM of the next period, 0 when more frames are needed, -1 when
+ * the data was refused. */
+static int firmware_adc(sil_bench_t *b, const struct canfd_frame *adc_frame,
+                        struct canfd_frame *pwm_frame)
+{
+    fwh_vio_adc_t m;
+    fwh_adc_result_t r;
+    char why[160];
+    int reason = 0;
+    uint32_t k;
+    fw_pwm_t pwm;
+    if (fwh_vio_adc_decode(adc_frame, 1, &m, &reason, why, sizeof(why)) <= 0 ||
+        !fwh_vio_adc_codes_ok(&b->core, &m, &reason, why, sizeof(why))) {
+        reject_fw(b, reason, why, NULL, 0);
+        return -1;
+    }
+    fwh_adc_feed(&b->adc, m.index, m.period, (int16_t)m.n_soc, m.vdc, m.ia, m.ib, &r);
+    if (r.incomplete) {
+        b->fw_rejects[FWH_REJ_INCOMPLETE]++;
+        b->st.fw_rejected++;
+    }
+    for (k = 0; k < r.n_lost; k++) {
+        fw_core_isr(&b->core, NULL, &pwm);
+        b->st.isr_no_data++;
+        fw_trace(b);
+    }
+    if (r.verdict != FWH_ADC_OK) {
+        const int why_code = r.verdict == FWH_ADC_STALE    ? FWH_REJ_STALE_PERIOD
+                             : r.verdict == FWH_ADC_FUTURE ? FWH_REJ_FUTURE_PERIOD
+                                                           : FWH_REJ_MALFORMED;
+        b->fw_rejects[why_code]++;
+        b->st.fw_rejected++;
+        return -1;
+    }
+    if (!r.complete) {
+        return 0;
+    }
+    b->last_adc = *r.adc;
+    if (b->hook != NULL) {
+        b->hook(b->hook_ctx, &b->last_adc);
+    }
+    if (b->timing) {
+        const double t0 = now_ns();
+        fw_core_isr(&b->core, &b->last_adc, &pwm);
+        b->last_isr_ns = now_ns() - t0;
+        b->st.isr_ns_total += b->last_isr_ns;
+    } else {
+        fw_core_isr(&b->core, &b->last_adc, &pwm);
+    }
+    b->last_pwm = pwm;
+    if (!fwh_vio_pwm_pack(&pwm, r.adc->period + 1u, pwm_frame)) {
+        b->st.pwm_invalid++;
+    }
+    if (!r.repeat) {
+        b->st.isr++;
+        fw_trace(b);
+    }
+    return 1;
+}
+
+int sil_bench_step(sil_bench_t *b)
+{
+    plant_samples_t s;
+    struct canfd_frame adc[PLANT_VIO_ADC_FRAMES_MAX], truth[2], pwm;
+    int n, k, got_pwm = 0, rej;
+    b->pwm.period = plant_next_period(b->plant);
+    if (b->timing) {
+        const double t0 = now_ns();
+        plant_step(b->plant, &b->pwm, &s, &b->truth);
+        b->st.plant_ns_total += now_ns() - t0;
+    } else {
+        plant_step(b->plant, &b->pwm, &s, &b->truth);
+    }
+    b->st.periods++;
+    b->st.adc_clipped += s.clipped;
+    n = plant_pack_adc(&s, adc);
+    plant_pack_truth(&b->truth, truth);
+    if (b->trace_vio) {
+        for (k = 0; k < n; k++) {
+            trace(b, b->plant_trace, &adc[k]);
+        }
+    }
+    trace(b, b->plant_trace, &truth[0]);
+    trace(b, b->plant_trace, &truth[1]);
+    for (k = 0; k < n && !got_pwm; k++) {
+        const int r = firmware_adc(b, &adc[k], &pwm);
+        if (r < 0) {
+            return -1;
+        }
+        got_pwm = r;
+    }
+    if (!got_pwm) {
+        return -1; /* no complete ADC data (n_soc 0): on the bus the lockstep would stall */
+    }
+    if (b->trace_vio) {
+        trace(b, b->plant_trace, &pwm);
+    }
+    rej = plant_decode_pwm(pwm.can_id, 1, pwm.data, pwm.len, plant_next_period(b->plant),
+                           &b->pwm);
+    if (rej != PLANT_REJ_NONE) {
+        b->plant_rejects[rej]++;
+        b->st.plant_rejected++;
+        return -1; /* the plant would wait for a PWM it accepts */
+    }
+    return 0;
+}
+
+long sil_bench_run_until(sil_bench_t *b, uint32_t run_until)
+{
+    long n = 0;
+    while ((int32_t)(plant_next_period(b->plant) - run_until) < 0) {
+        if (sil_bench_step(b) != 0) {
+            return -1;
+        }
+        n++;
+    }
+    return n;
+}
+
+uint32_t sil_bench_next_period(const sil_bench_t *b)
+{
+    return plant_next_period(b->plant);
+}
+
+void sil_bench_get_stats(const sil_bench_t *b, sil_bench_stats_t *stats)
+{
+    *stats = b->st;
+}
+
+void sil_bench_time_isr(sil_bench_t *b, int on)
+{
+    b->timing = on;
+}
+
+double sil_bench_last_isr_ns(const sil_bench_t *b)
+{
+    return b->last_isr_ns;
+}
+
+void sil_bench_set_adc_hook(sil_bench_t *b, sil_bench_adc_hook_t hook, void *ctx)
+{
+    b->hook = hook;
+    b->hook_ctx = ctx;
+}
+
+void sil_bench_last_io(const sil_bench_t *b, fw_adc_t *adc, fw_pwm_t *pwm)
+{
+    if (adc != NULL) {
+        *adc = b->last_adc;
+    }
+    if (pwm != NULL) {
+        *pwm = b->last_pwm;
+    }
+}
+
+struct plant *sil_bench_plant(sil_bench_t *b)
+{
+    return b->plant;
+}
+
+struct fw_core *sil_bench_core(sil_bench_t *b)
+{
+    return &b->core;
+}
+
+const struct plant_truth *sil_bench_truth(const sil_bench_t *b)
+{
+    return &b->truth;
+}
+
+size_t sil_bench_sizeof_stats(void)
+{
+    return sizeof(sil_bench_stats_t);
+}
+
+/* ------------------------------------------------------------------------ counters */
+
+#define APPEND(...)                                                                         \
+    do {                                                                                    \
+        const int w_ = snprintf(buf + (used < len ? used : len), used < len ? len - used : 0, \
+                                __VA_ARGS__);                                               \
+        used += w_ > 0 ? (size_t)w_ : 0;                                                    \
+    } while (0)
+
+int sil_bench_counters_json(const sil_bench_t *b, char *buf, size_t len)
+{
+    size_t used = 0;
+    plant_stats_t ps;
+    fw_status_t s;
+    int k;
+    plant_get_stats(b->plant, &ps);
+    fw_core_status(&b->core, &s);
+    APPEND("{\"plant\": {\"program\": \"sil_bench\", \"mode\": \"inproc\", \"periods\": %llu, "
+           "\"next_period\": %u, \"rejected\": %llu, \"rejects\": {",
+           (unsigned long long)b->st.periods, (unsigned)plant_next_period(b->plant),
+           (unsigned long long)b->st.plant_rejected);
+    for (k = 1; k < PLANT_REJ_COUNT; k++) {
+        APPEND("%s\"%s\": %llu", k > 1 ? ", " : "", plant_reject_name(k),
+               (unsigned long long)b->plant_rejects[k]);
+    }
+    APPEND("}, \"adc_clipped\": %llu, \"load_cmds\": %llu, \"conduction_events\": %llu, "
+           "\"newton_failures\": %llu, \"mode_loops_cut\": %llu}, ",
+           (unsigned long long)b->st.adc_clipped, (unsigned long long)b->st.load_cmds,
+           (unsigned long long)ps.conduction_events, (unsigned long long)ps.newton_failures,
+           (unsigned long long)ps.mode_loops_cut);
+    APPEND("\"firmware\": {\"program\": \"sil_bench\", \"mode\": \"inproc\", \"isr\": %llu, "
+           "\"isr_no_data\": %llu, \"pwm_invalid\": %llu, \"rx_rejected\": %llu, \"rejects\": {",
+           (unsigned long long)b->st.isr, (unsigned long long)b->st.isr_no_data,
+           (unsigned long long)b->st.pwm_invalid, (unsigned long long)b->st.fw_rejected);
+    for (k = 0; k < FWH_REJ_COUNT; k++) {
+        APPEND("%s\"%s\": %llu", k ? ", " : "", fwh_reject_name(k),
+               (unsigned long long)b->fw_rejects[k]);
+    }
+    APPEND("}, \"drive_cmds\": %llu, \"cmds_refused\": %llu, \"limits\": %llu, "
+           "\"trace_records\": %llu, \"trace_errors\": %llu, \"fault_code\": %u, "
+           "\"core_overruns\": %u}}",
+           (unsigned long long)b->st.drive_cmds, (unsigned long long)b->st.cmds_refused,
+           (unsigned long long)b->st.limits, (unsigned long long)b->st.trace_records,
+           (unsigned long long)b->st.trace_errors, s.fault_code, s.isr_overruns);
+    return (int)used;
+}

@@ -1,0 +1,64 @@
+"""The in-process bench (``--bus inproc``) against the bus in lockstep, on a sample of
+scenarios: the same verdict, the same criterion values, the same trace files.
+
+Both paths are deterministic in lockstep and hand the plant and the firmware the same frames
+(the bench links the bus programs' frame code), so they agree exactly: any difference is a
+defect to find, not a tolerance to widen. The sample covers the three fidelity profiles, a
+speed ramp and a load step (its event must land on the same period)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig import capture, scenario
+from rig.runner import RunResult
+
+SAMPLE = ("smoke", "fig09_load_step_realtime", "fig08_flux_600rpm@harsh")
+
+
+def _first_period(result: RunResult, column: str, level: float) -> int:
+    """The first period whose value of ``column`` is at least ``level``."""
+    assert result.capture is not None
+    values = np.asarray(result.capture[column])
+    hits = np.flatnonzero(values >= level)
+    assert hits.size, f"{column} never reaches {level}"
+    return int(hits[0]) + result.capture.first_period
+
+
+@pytest.mark.parametrize("name", SAMPLE)
+def test_inproc_agrees_with_lockstep_bus(name: str, hil_run) -> None:  # type: ignore[no-untyped-def]
+    sc = scenario.load(name)
+    assert isinstance(sc, scenario.Scenario)
+    on_bus = hil_run(sc, record=False)
+    inproc = hil_run(sc, record=False, bus="inproc")
+    assert on_bus.data["bus"] != "inproc" and inproc.data["bus"] == "inproc"
+    assert (inproc.status, inproc.passed) == (on_bus.status, on_bus.passed), (
+        on_bus.explain() + "\n" + inproc.explain())
+    by_name = {c["name"]: c for c in on_bus.criteria}
+    assert [c["name"] for c in inproc.criteria] == list(by_name)
+    for c in inproc.criteria:
+        ref = by_name[c["name"]]
+        assert c["outcome"] == ref["outcome"], c["name"]
+        if ref["value"] is None:
+            assert c["value"] is None, c["name"]
+        else:
+            assert math.isclose(c["value"], ref["value"], rel_tol=1e-12, abs_tol=1e-12), (
+                c["name"], c["value"], ref["value"])
+    for trace in ("plant.trace", "fw.trace"):
+        a, b = Path(on_bus.out_dir, trace), Path(inproc.out_dir, trace)
+        assert a.read_bytes() == b.read_bytes(), f"{trace} differs"
+    assert inproc.data["capture"]["lost"] == 0
+    assert inproc.data["counters"]["firmware.rx_rejected"] == 0
+    assert inproc.data["counters"]["plant.rejected"] == 0
+    # a load step lands on the period the scenario names, on both paths
+    for lc in sc.load_commands():
+        if lc.torque > 0:
+            want = round(lc.t / capture.TS)
+            level = 0.5 * lc.torque
+            assert _first_period(inproc, "truth.tl", level) == want
+            assert _first_period(on_bus, "truth.tl", level) == want
+            break

@@ -1,0 +1,164 @@
+"""rig sweep: the axes and points, the scenario a point runs, and whole sweeps on a local
+process pool and on a Dask cluster (a scheduler and two workers on 127.0.0.1) that loses a
+worker in the middle: its point is retried elsewhere, a point that cannot run is a row with
+its reason, and the table and summary are written."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import sweep_tasks
+
+from rig import scenario
+from rig.sweep import engine, spec, summary, table
+from rig.sweep import point as sweep_point
+
+
+def test_axes_grid_and_sample() -> None:
+    rs = spec.parse_axis("rs=1.5:2.5:3")
+    assert rs.key == "machine.rs_ohm" and rs.values == (1.5, 2.0, 2.5)
+    lq = spec.parse_axis("magnetics.lq_h=0.028,0.032")
+    assert lq.values == (0.028, 0.032)
+    noise = spec.parse_axis("noise=0:0.004")
+    assert noise.is_range and (noise.low, noise.high) == (0.0, 0.004)
+    assert len(spec.grid([rs, lq])) == 6
+    with pytest.raises(spec.SpecError, match="noise"):
+        spec.grid([rs, noise])
+    a = spec.sample([rs, noise], 50, seed=3)
+    assert a == spec.sample([rs, noise], 50, seed=3) != spec.sample([rs, noise], 50, seed=4)
+    assert all(p["rs"] in rs.values and 0.0 <= p["noise"] <= 0.004 for p in a)
+    for bad in ("rs", "rs=", "rs=1:2:x", "nonsense=1", "rs=a,b", "rs=1:2:0"):
+        with pytest.raises(spec.SpecError):
+            spec.parse_axis(bad)
+
+
+def test_a_point_scales_speed_and_load_and_sets_parameters() -> None:
+    sc = scenario.load("fig09_load_step_realtime")
+    assert isinstance(sc, scenario.Scenario)
+    axes = [spec.parse_axis(t) for t in ("speed_scale=0.5", "load_scale=0.25", "rs=2.2",
+                                         "firmware.spd_kp=0.02")]
+    p = spec.apply(sc, axes, {"speed_scale": 0.5, "load_scale": 0.25, "rs": 2.2,
+                              "firmware.spd_kp": 0.02}, "x")
+    targets = [s.to for s in sc.speed if s.to is not None]
+    assert [s.to for s in p.speed if s.to is not None] == [0.5 * t for t in targets]
+    assert [e.torque for e in p.load] == [0.25 * e.torque for e in sc.load]
+    assert p.overrides["machine.rs_ohm"] == 2.2 and p.firmware["spd_kp"] == 0.02
+    assert p.name == f"{sc.name}[x]" and p.criteria == sc.criteria
+
+
+def test_local_pool_sweep_writes_table_and_summary(tmp_path: Path) -> None:
+    out = tmp_path / "sweep"
+    r = subprocess.run(
+        [sys.executable, "-m", "rig", "sweep", "smoke", "--param", "rs=1.8,2.1",
+         "--param", "noise=0,0.002", "--workers", "2", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, check=False, timeout=600)
+    rows = table.read(out / "sweep.parquet")
+    assert len(rows) == 4, r.stderr
+    # noise of 2 mA on the 24-bit `ideal` converter breaks the smoke's speed tracking
+    assert [bool(x["passed"]) for x in rows] == [True, False, True, False], r.stderr
+    assert r.returncode == 1
+    failed = [x for x in rows if not x["passed"]]
+    assert all(x["failure_kind"] == "criteria" and "speed" in x["failure"] for x in failed)
+    assert (out / "sweep.csv").read_text().count("\n") == 5
+    assert "Pass rate: 2/4 (50.0 %)" in (out / "summary.md").read_text()
+    assert (out / "worst_error.png").stat().st_size > 10_000
+    assert json.loads((out / "sweep.json").read_text())["points"] == 4
+
+
+def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
+    """SIGTERM to each process group (a nanny and its worker), SIGKILL after 5 s."""
+    for p in procs:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(p.pid, signal.SIGTERM)
+    deadline = time.monotonic() + 5.0
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGKILL)
+            p.wait(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def dask_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """A scheduler and two single-threaded workers (with nannies) on 127.0.0.1."""
+    sched_file = tmp_path_factory.mktemp("dask") / "scheduler.json"
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL,
+             "start_new_session": True}
+    scheduler = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+         "--port", "0", "--no-dashboard", "--scheduler-file", str(sched_file)], **quiet)
+    workers: list[subprocess.Popen[bytes]] = []
+    try:
+        deadline = time.monotonic() + 60
+        while not sched_file.exists():
+            assert time.monotonic() < deadline, "scheduler did not start"
+            time.sleep(0.1)
+        address = json.loads(sched_file.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:")
+        for _ in range(2):
+            workers.append(subprocess.Popen(
+                [sys.executable, "-m", "distributed.cli.dask_worker", address, "--host",
+                 "127.0.0.1", "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+                **quiet))
+        from distributed import Client
+
+        with Client(address, timeout="30s") as c:
+            c.wait_for_workers(2, timeout=60)
+        yield address
+    finally:
+        _stop(workers)
+        _stop([scheduler])
+
+
+def test_sweep_on_a_dask_cluster_survives_a_killed_worker(dask_cluster: str,
+                                                           tmp_path: Path) -> None:
+    axes = [spec.parse_axis("rs=1.8,2.0,2.2"), spec.parse_axis("sensors.seed=1,-1")]
+    points = spec.grid(axes)
+    tasks = sweep_point.tasks("smoke", axes, points)
+    marker = tmp_path / "killed"
+    victim = 2
+    task_fn = sweep_tasks.die_once_at(str(marker), victim)
+    import cloudpickle
+
+    cloudpickle.register_pickle_by_value(sweep_tasks)  # the workers cannot import tests/
+    with engine.client(dask_cluster, 0) as c:
+        rows = engine.run_tasks(c, tasks, task_fn, retries=2, progress=False)
+    assert marker.exists(), "the victim's worker was never killed"
+    assert [r["point"] for r in rows] == list(range(len(points)))
+    good = [r for r in rows if r["param.sensors.seed"] == 1]
+    bad = [r for r in rows if r["param.sensors.seed"] == -1]
+    # the point whose worker died was run again on a live worker, to the same verdict
+    assert rows[victim]["passed"] is True and rows[victim]["param.rs"] == 2.0
+    assert all(r["passed"] for r in good) and len(good) == 3
+    # a point the plant refuses is a row with its reason, never dropped
+    assert len(bad) == 3 and all(r["status"] != "passed" for r in bad)
+    assert all("sensors.seed" in str(r["failure"]) for r in bad), bad[0]["failure"]
+    table.write(rows, tmp_path)
+    assert len(pq.read_table(tmp_path / "sweep.parquet")) == 6
+    md = summary.markdown(rows, ["rs", "sensors.seed"], {"scenario": "smoke",
+                                                         "metric": "pos_err_max_deg"})
+    assert "Pass rate: 3/6 (50.0 %)" in md
+
+
+def test_rig_sweep_cli_on_the_cluster(dask_cluster: str, tmp_path: Path) -> None:
+    out = tmp_path / "cli"
+    r = subprocess.run(
+        [sys.executable, "-m", "rig", "sweep", "smoke", "--param", "rs=1.9,2.0",
+         "--scheduler", dask_cluster, "--out", str(out), "--quiet"],
+        capture_output=True, text=True, check=False, timeout=600)
+    assert r.returncode == 0, r.stderr
+    rows = table.read(out / "sweep.parquet")
+    assert [x["passed"] for x in rows] == [True, True]
+    assert "Pass rate: 2/2" in (out / "summary.md").read_text()
