@@ -14,6 +14,7 @@
 #include "fw_internal.h"
 
 #define FW_LQ_BIN_MIN 50 /* updates before a bin counts as measured */
+#define FW_KAPPA_MIN_DX 0.15f /* A: smallest spacing of the points of the Lq-curve slope */
 #define FW_GAMMA0_FAST FW_REAL(0.1) /* per two-vector estimate: about 1 ms */
 
 void fw_pe_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max)
@@ -199,4 +200,63 @@ real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real
         have_prev = 1;
     }
     return i_max;
+}
+
+int16_t fw_pe_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_updates)
+{
+    int16_t b = (int16_t)(fw_fabs(iq) / pe->bin_width);
+    if (b >= FW_LQ_BINS) {
+        b = FW_LQ_BINS - 1;
+    }
+    return (int16_t)(pe->lq_bin_seen[b] >= min_updates);
+}
+
+real_t fw_pe_inv_lq_slope(const fw_param_est_t *pe, real_t iq)
+{
+    /* the two learnt points nearest |iq| (one on each side when there are), at least
+     * FW_KAPPA_MIN_DX apart so that bin noise does not become a steep slope */
+    real_t a = fw_fabs(iq);
+    int16_t lo = -1, hi = -1;
+    int16_t b;
+    real_t k, lim;
+    for (b = 0; b < FW_LQ_BINS; b++) {
+        if (pe->lq_bin_seen[b] < FW_LQ_BIN_MIN) {
+            continue;
+        }
+        if (pe->lq_bin_x[b] <= a) {
+            if (lo < 0 || pe->lq_bin_x[b] > pe->lq_bin_x[lo]) {
+                lo = b;
+            }
+        } else if (hi < 0 || pe->lq_bin_x[b] < pe->lq_bin_x[hi]) {
+            hi = b;
+        }
+    }
+    if (lo < 0 || hi < 0) {
+        /* one side only: the two nearest learnt points on it */
+        int16_t n1 = (lo >= 0) ? lo : hi;
+        int16_t n2 = -1;
+        if (n1 < 0) {
+            return FW_REAL(0.0);
+        }
+        for (b = 0; b < FW_LQ_BINS; b++) {
+            if (b != n1 && pe->lq_bin_seen[b] >= FW_LQ_BIN_MIN &&
+                (n2 < 0 || fw_fabs(pe->lq_bin_x[b] - pe->lq_bin_x[n1]) <
+                               fw_fabs(pe->lq_bin_x[n2] - pe->lq_bin_x[n1]))) {
+                n2 = b;
+            }
+        }
+        if (n2 < 0) {
+            return FW_REAL(0.0);
+        }
+        lo = (pe->lq_bin_x[n1] < pe->lq_bin_x[n2]) ? n1 : n2;
+        hi = (lo == n1) ? n2 : n1;
+    }
+    if (!(pe->lq_bin_x[hi] - pe->lq_bin_x[lo] >= FW_KAPPA_MIN_DX)) {
+        return FW_REAL(0.0);
+    }
+    k = (pe->lq_bin[hi] - pe->lq_bin[lo]) / (pe->lq_bin_x[hi] - pe->lq_bin_x[lo]);
+    /* a plausible saturation slope: below 0.6 of 1/Lq per ampere */
+    lim = FW_REAL(0.6) * fw_max(pe->lq_bin[lo], pe->lq_bin[hi]);
+    k = fw_clamp(k, -lim, lim);
+    return (iq < FW_REAL(0.0)) ? -k : k;
 }

@@ -262,8 +262,13 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
         }
         break;
     case POL_MOTION_BRAKE:
+        /* brake until the rotor stands again: the estimated speed back through zero (a
+         * fixed brake time left the rotor turning whenever the brake current came up slower
+         * than the drive current: 70 r/min after the check on the ideal profile), at most
+         * twice the drive time */
         out->iq = -p[FW_PI_POL_MOTION_IQ_A];
-        if (pol->count >= n_motion) {
+        if (pol->count >= 2 * n_motion ||
+            (pol->count >= 2 && (c->pll.theta_unwrapped - pol->theta_start) * c->pll.omega <= FW_REAL(0.0))) {
             next_phase(pol, POL_MOTION_REST);
         }
         break;
