@@ -129,6 +129,10 @@ typedef struct {
     real_t bin_width;          /* A */
     real_t lq_app, ld_app;     /* H, apparent values at the present operating point */
     int32_t n_updates;
+    /* cross-saturation identification: the turn of the saliency axes against the flux
+     * angle, mean over ~0.2 s at the present current (param_estimator.c) */
+    real_t xs_turn;
+    int32_t xs_n;
 } fw_param_est_t;
 
 typedef struct {
@@ -218,6 +222,9 @@ struct fw_core {
     uint32_t est_reject_count;
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
     int16_t flux_pos_active;     /* the flux estimator carried the PLL in the last period */
+    int16_t est_param_ok;        /* the period's two-vector estimate is fit for Ld/Lq */
+    real_t theta_raw_axes;       /* rad, the estimate's saliency-axis angle (before the
+                                    cross-saturation correction) */
     int16_t full_mod;            /* FULL modulation (whole voltage range) is active */
     real_t theta_raw_branch;
     int16_t slopes_ok;

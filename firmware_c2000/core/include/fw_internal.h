@@ -89,6 +89,11 @@ real_t fw_pe_inv_lq_slope(const fw_param_est_t *pe, real_t iq);
 /* 1 when the Lq bin of |iq| has had at least min_updates slope estimates */
 int16_t fw_pe_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_updates);
 real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max);
+/* Turn of the saliency axes by cross-saturation at q current iq, rad, for an incremental Ldq
+ * of ldq_per_a * iq (H) and the learnt Lq curve */
+real_t fw_pe_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a);
+/* one period's turn e (rad) of the saliency axes against the flux angle: into the mean */
+void fw_pe_xsat_learn(fw_param_est_t *pe, real_t e, real_t alpha);
 
 /* ---- flux_estimator.c -------------------------------------------------------------------- */
 void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);

@@ -15,7 +15,7 @@
 #define FW_FLUX_NEG_PERIODS 50   /* 5 ms of negative lambda_d: polarity lost */
 #define FW_EST_VALID_MAX_RUN 50  /* est_valid drops after 5 ms without a good estimate */
 #define FW_FLUX_VALID_UPDATES 2000 /* 0.2 s of plausible flux before MTPA/FW use it */
-#define FW_FULL_LEARNT_UPDATES 500 /* Lq bin updates before FULL mode stops measuring there */
+#define FW_FULL_LEARNT_UPDATES 150 /* Lq bin updates before FULL mode stops measuring there */
 /* current-loop voltage in FULL modulation, fraction of six-step: the last few per cent add
  * mostly 5th/7th harmonics (measured at 2600 r/min, i_max 4.5 A: 4.77 A peaks at 1.0, 4.57 A
  * at 0.97) */
@@ -23,6 +23,12 @@
 /* the current loop's response (400 Hz design bandwidth) per period, for the torque model */
 #define FW_TE_MODEL_ALPHA ((real_t)0.222)
 #define FW_SIX_STEP ((real_t)0.63661977236758134308) /* six-step fundamental per Vdc, 2/pi */
+/* cross-saturation identification: from this speed and q current on (once the Lq bin of the
+ * current is learnt), the mean of the turn over ~0.2 s */
+#define FW_XSAT_MIN_RPM ((real_t)200.0)
+#define FW_XSAT_MIN_IQ_A ((real_t)0.5)
+#define FW_XSAT_ALPHA ((real_t)5e-4)
+#define FW_XSAT_LEARNT_UPDATES 300
 
 static const fw_core_t fw_core_zero;
 
@@ -532,6 +538,7 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
     }
     c->est.n_active = 0;
     c->est.ok = 0;
+    c->est_param_ok = 0;
     if (c->slope_ok[FW_WIN_ZERO]) {
         /* q saturation: the windows see the incremental inductance at the current of their
          * own instant, which the pattern moves by up to ~0.1 A between them; to first order
@@ -573,11 +580,23 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
     if (n_act > 0) {
         fw_est_solve(n_act, vec, di, t, FW_REAL(2.0) / FW_REAL(3.0) * pl->vdc, omega,
                      fw_pe_gamma0_prior(&c->pe, c->iq), &c->est);
+        /* cross-saturation turns the saliency axes the slopes see by a load-dependent angle:
+         * remove it (xsat_ldq_per_a, identified at speed: xsat_learn). Measured on the harsh
+         * profile at 1 r/min, 2 N*m: +5 deg of bias without it, and the loop crept away */
+        c->theta_raw_axes = c->est.theta_raw;
+        if (c->est.n_active > 0 && p[FW_PI_XSAT_LDQ_PER_A] != FW_REAL(0.0)) {
+            c->est.theta_raw += fw_pe_xsat_angle(&c->pe, c->iq, p[FW_PI_XSAT_LDQ_PER_A]);
+        }
+        /* plausibility: the residual of the 4th equation; for the position also enough
+         * saliency left. The inductances along the tracked d axis need no saliency: while the
+         * flux estimator carries the position they are learnt at any load (q saturation takes
+         * all of it near 4 A on the paper machine, where the flux angle needs Lq_app most) */
+        c->est_param_ok = (int16_t)(c->est.n_active == 2 && c->est.gamma0 > FW_REAL(0.0) &&
+                                    fw_fabs(c->est.residual) <=
+                                        p[FW_PI_RESIDUAL_MAX] * c->est.gamma0);
         if (c->est.ok) {
-            /* plausibility: residual of the 4th equation and enough saliency left */
             real_t g1_nom = c->pe.gamma1_f;
-            if (fw_fabs(c->est.residual) > p[FW_PI_RESIDUAL_MAX] * c->est.gamma0 ||
-                c->est.gamma1 < FW_REAL(0.25) * g1_nom) {
+            if (!c->est_param_ok || c->est.gamma1 < FW_REAL(0.25) * g1_nom) {
                 c->est.ok = 0;
             }
         }
@@ -675,7 +694,8 @@ static void update_parameters_and_flux(fw_core_t *c, int16_t run_flux)
     real_t alpha = FW_TS / (p[FW_PI_PARAM_TAU_MS] * FW_REAL(1e-3));
     real_t ld_nom = p[FW_PI_LD_H];
     real_t lq_nom = p[FW_PI_LQ_H];
-    if (c->est.ok && c->est.n_active == 2 && c->pll.init) {
+    if (((c->est.ok && c->est.n_active == 2) || (c->flux_pos_active && c->est_param_ok)) &&
+        c->pll.init) {
         fw_pe_update(&c->pe, &c->est, c->theta_hat, c->iq, alpha, FW_REAL(0.2) * ld_nom,
                      FW_REAL(5.0) * lq_nom);
     }
@@ -689,6 +709,33 @@ static void update_parameters_and_flux(fw_core_t *c, int16_t run_flux)
                              omega_min, theta_end, c->i_end, c->pe.ld_app, p[FW_PI_LAMBDA_M_WB],
                              alpha);
     }
+}
+
+/* Cross-saturation identification (param_estimator.c, fw_pe_xsat_learn): at speed, with a
+ * settled flux estimator and a two-vector slope estimate in the same period, the active-flux
+ * angle less the slope angle (the saliency axes, brought to the period end): the correction
+ * that, added to the slope angle, gives the flux angle (harsh profile, 300 r/min, id = 0:
+ * -1.05/-2.61/-7.60 deg at +1.8/+2.6/+3.4 A, where the plant's Ldq gives 1.4/2.9/7.3). */
+static void xsat_learn(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    fw_cplx_t act;
+    real_t th_s, th_f;
+    if (!c->flux.active || c->flux.n_valid < FW_FLUX_VALID_UPDATES || !c->est_param_ok ||
+        c->est.n_active != 2 || fw_fabs(c->speed_f_rpm) < FW_XSAT_MIN_RPM ||
+        fw_fabs(c->iq) < FW_XSAT_MIN_IQ_A ||
+        !fw_pe_iq_learnt(&c->pe, c->iq, FW_XSAT_LEARNT_UPDATES)) {
+        return; /* (the model needs Lqq at this current: a new load waits for its Lq bin) */
+    }
+    act = fw_csub(c->flux.psi, fw_cscale(c->i_end, c->pe.lq_app));
+    if (fw_cabs2(act) < FW_REAL(0.0625) * p[FW_PI_LAMBDA_M_WB] * p[FW_PI_LAMBDA_M_WB]) {
+        return;
+    }
+    th_f = fw_atan2(act.im, act.re);
+    th_s = c->theta_raw_axes + c->pll.omega * ((real_t)FW_P_TICKS - c->est.t_ref / FW_TICK_S) *
+                                   FW_TICK_S;
+    fw_pe_xsat_learn(&c->pe, FW_REAL(0.5) * fw_wrap_pi(FW_REAL(2.0) * (th_f - th_s)),
+                     FW_XSAT_ALPHA);
 }
 
 /* parameter set of the selected MTPA/FW mode */
@@ -989,6 +1036,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             c->iq = idq.im;
         }
         update_parameters_and_flux(c, (int16_t)(c->plan_cur.layout != FW_LAYOUT_OFF));
+        xsat_learn(c);
         if (by_flux) {
             bad_est = (int16_t)!flux_position(c);
         }

@@ -143,6 +143,8 @@ static real_t live_value(const fw_core_t *c, uint16_t id, real_t stored)
         return (real_t)c->adc_loss_count;
     case FW_PID_EST_REJECT_COUNT:
         return (real_t)c->est_reject_count;
+    case FW_PID_XSAT_TURN_DEG:
+        return c->pe.xs_turn * (FW_REAL(180.0) / FW_PI_R);
     default:
         return stored;
     }

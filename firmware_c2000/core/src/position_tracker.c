@@ -34,7 +34,7 @@
  */
 #include "fw_internal.h"
 
-#define FW_TRK_EMEAN_TAU_S 0.02f   /* innovation mean for the disturbance detector */
+#define FW_TRK_EMEAN_TAU_S 0.005f  /* innovation mean for the disturbance detector */
 #define FW_TRK_EVAR_TAU_S 0.5f     /* innovation mean square */
 #define FW_TRK_NOISE_FLOOR 0.0035f /* rad (0.2 deg): a smaller mean never counts */
 /* disturbance pole: wn / 2 (the bandwidth may then come down as fast as wn = 10 / t, see
