@@ -48,7 +48,7 @@ typedef struct {
     fw_cplx_t v_applied;            /* average alpha-beta voltage of the pattern (ideal inverter), V */
     real_t vdc;                     /* DC-link voltage the pattern was computed for */
     int16_t clipped;                /* the reference was outside the measurable hexagon */
-    int16_t n_soc_windows;          /* SOCs of the measured windows; the rest sample the current only */
+    int16_t n_soc_windows;          /* SOCs of the measured windows (the rest: current only) */
     int16_t mirror;                 /* 1: the B layout of an A/B pair (svpwm.c) */
     /* volt-second dipole about the period centre, sum of v_seg * len * (H - t_mid) / P, V*s:
      * the period-mean current exceeds the mean of its start and end currents by Gamma * it */
@@ -81,7 +81,7 @@ typedef struct {
 
 #define FW_OM_N 16 /* overmodulation table: reference magnitudes and their fundamentals */
 
-/* Least-squares position estimate of one period (estimator-math.md section 3). */
+/* Least-squares position estimate of one period (docs/estimator.md §3). */
 typedef struct {
     int16_t n_active;   /* active vectors used: 0, 1 or 2 */
     int16_t ok;         /* plausible (residual, saliency) */

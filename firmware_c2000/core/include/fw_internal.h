@@ -66,7 +66,7 @@ void fw_pll_set_accel(fw_pll_t *pll, real_t a_ff);
 void fw_pll_reset(fw_pll_t *pll, real_t theta, real_t omega, uint16_t stamp);
 void fw_pll_advance(fw_pll_t *pll, int32_t ticks);
 real_t fw_pll_predict(const fw_pll_t *pll, int32_t tick_in_period);
-/* Branch nearest the prediction (note section 7); returns the error epsilon (rad) and the
+/* Branch nearest the prediction (docs/estimator.md §7); returns the error epsilon (rad) and the
  * selected measurement in *theta_meas. */
 real_t fw_pll_update(fw_pll_t *pll, real_t theta_raw_mod_pi, uint16_t stamp, real_t *theta_meas);
 void fw_pll_flip(fw_pll_t *pll);
@@ -80,7 +80,7 @@ void fw_pe_apparent(fw_param_est_t *pe, real_t iq);
  * moved along the learnt Gamma0(iq) curve from the current it was measured at */
 real_t fw_pe_gamma0_prior(const fw_param_est_t *pe, real_t iq);
 /* Gamma1 along the d axis at theta: Re(g exp(-j 2 theta)), so 1/Ld_inc = Gamma0 + it and
- * 1/Lq_inc = Gamma0 - it (estimator-math section 3) */
+ * 1/Lq_inc = Gamma0 - it (docs/estimator.md §3) */
 real_t fw_est_gamma1_at(const fw_est_out_t *est, real_t theta);
 /* Largest |iq| at which the learnt incremental saliency Gamma1 stays above gamma1_min (linear
  * extrapolation of the measured bins); i_max when no measured bin approaches it. */

@@ -312,11 +312,13 @@ static void integrate_segments(const real_t *tb, const fw_cplx_t *slope, int16_t
         if (v <= ta) {
             acc_mean = fw_cadd(acc_mean, fw_cscale(slope[s], -(v - u) * FW_REAL(0.5) * (u + v)));
         } else if (u >= ta) {
-            acc_mean = fw_cadd(acc_mean, fw_cscale(slope[s], (v - u) * (P - FW_REAL(0.5) * (u + v))));
+            acc_mean =
+                fw_cadd(acc_mean, fw_cscale(slope[s], (v - u) * (P - FW_REAL(0.5) * (u + v))));
             acc_end = fw_cadd(acc_end, fw_cscale(slope[s], v - u));
         } else {
             acc_mean = fw_cadd(acc_mean, fw_cscale(slope[s], -(ta - u) * FW_REAL(0.5) * (u + ta)));
-            acc_mean = fw_cadd(acc_mean, fw_cscale(slope[s], (v - ta) * (P - FW_REAL(0.5) * (ta + v))));
+            acc_mean =
+                fw_cadd(acc_mean, fw_cscale(slope[s], (v - ta) * (P - FW_REAL(0.5) * (ta + v))));
             acc_end = fw_cadd(acc_end, fw_cscale(slope[s], v - ta));
         }
     }
@@ -440,7 +442,8 @@ static void reconstruct_current(fw_core_t *c, const fw_adc_t *adc)
                 if ((changed >> x) & 1) {
                     real_t sgn = fw_clamp(iph[x] / FW_REAL(0.01), FW_REAL(-1.0), FW_REAL(1.0));
                     int16_t rising = (int16_t)((pl->seg_state[s] >> x) & 1);
-                    sum += td * FW_REAL(0.5) * (rising ? (FW_REAL(1.0) + sgn) : (FW_REAL(1.0) - sgn));
+                    sum += td * FW_REAL(0.5) *
+                           (rising ? (FW_REAL(1.0) + sgn) : (FW_REAL(1.0) - sgn));
                     cnt++;
                 }
             }
@@ -482,8 +485,8 @@ static real_t ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
         fw_cplx_t slope = fw_cadd(fw_cscale(dv, c->pe.gamma0_f), fw_cmul(g, fw_cconj(dv)));
         fw_cplx_t r1 = fw_cadd(r0, fw_cmul(fw_cscale(slope, len * FW_TICK_S), rot));
         /* exact integral of the product of two linear segments */
-        acc += len * (r0.re * r0.im / FW_REAL(3.0) + (r0.re * r1.im + r1.re * r0.im) / FW_REAL(6.0) +
-                      r1.re * r1.im / FW_REAL(3.0));
+        acc += len * (r0.re * r0.im / FW_REAL(3.0) +
+                      (r0.re * r1.im + r1.re * r0.im) / FW_REAL(6.0) + r1.re * r1.im / FW_REAL(3.0));
         r0 = r1;
     }
     return acc / P;
@@ -623,7 +626,8 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
         } else {
             real_t pred = fw_pll_predict(&c->pll, (int32_t)stamp);
             c->theta_raw_branch =
-                fw_wrap_2pi(pred + FW_REAL(0.5) * fw_wrap_pi(FW_REAL(2.0) * (c->est.theta_raw - pred)));
+                fw_wrap_2pi(pred + FW_REAL(0.5) *
+                                       fw_wrap_pi(FW_REAL(2.0) * (c->est.theta_raw - pred)));
         }
         if (updated) {
             c->stamp = (int16_t)stamp;
@@ -640,11 +644,11 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
     return (int16_t)(bad || (n_act == 0 && pl->layout != FW_LAYOUT_OFF));
 }
 
-/* Speed- and load-dependent hand-over (estimator-math notes 5-7): above flux_pos_min_rpm and
+/* Speed- and load-dependent hand-over (docs/estimator.md §5-§7): above flux_pos_min_rpm and
  * flux_pos_min_iq_a the d axis
- * comes from the flux estimator's active flux psi - Lq_app i (note 4.6: its direction is the
- * magnet's whatever Ld does), which needs no saliency, so q saturation under load cannot take
- * the position away; the slopes keep feeding the online Ld/Lq. Below it, the current slopes
+ * comes from the flux estimator's active flux psi - Lq_app i (docs/estimator.md §4.6: its
+ * direction is the magnet's whatever Ld does), which needs no saliency, so q saturation under
+ * load cannot take the position away; the slopes keep feeding the online Ld/Lq. Below it, the current slopes
  * carry the PLL. */
 static int16_t flux_carries_position(fw_core_t *c)
 {

@@ -1,5 +1,5 @@
 /* param_estimator.c - online Ld, Lq from the slope estimates, and the apparent inductances
- * MTPA/FW need (estimator-math.md sections 3 and 4.7).
+ * MTPA/FW need (docs/estimator.md §3 and §4.7).
  *
  * The slopes measure the INCREMENTAL inductance matrix at the operating point
  * (Ld = 1/(Gamma0 + Gamma1), Lq = 1/(Gamma0 - Gamma1)). MTPA (eq. 50) and FW (eq. 53) are
@@ -192,8 +192,8 @@ real_t fw_pe_gamma0_prior(const fw_param_est_t *pe, real_t iq)
 real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max)
 {
     /* Gamma1(bin) = (1/Ld - 1/Lq_inc(bin))/2 falls with |iq| under q saturation; sensorless
-     * operation needs it (note section 7: the noise grows as 1/Gamma1, and at Lq_inc = Ld the
-     * position is unobservable). */
+     * operation needs it (docs/estimator.md §7: the noise grows as 1/Gamma1, and at
+     * Lq_inc = Ld the position is unobservable). */
     real_t inv_ld = FW_REAL(1.0) / pe->ld_inc;
     real_t prev_g1 = FW_REAL(0.0);
     real_t prev_x = FW_REAL(0.0);

@@ -1,4 +1,4 @@
-/* polarity_detect.c - magnet polarity at standstill (estimator-math.md section 7).
+/* polarity_detect.c - magnet polarity at standstill (docs/estimator.md §7).
  *
  * The slope estimator gives theta modulo pi. Two tests resolve the remaining pi:
  *

@@ -25,7 +25,7 @@
  * half and a V7 of at least Tmin; at To = Te = 0 that is 5 * Tmin <= Ts (20 us: exactly fits).
  * When both cannot be measured the longer vector is measured alone (single-vector fallback of
  * the estimator). Keeping V7 >= Tmin limits the voltage to the hexagon To + Te <= Ts - Tmin,
- * whose inscribed circle is (1 - Tmin/Ts) * Vdc/sqrt(3) (92.4 V at 200 V, note section 5).
+ * whose inscribed circle is (1 - Tmin/Ts) * Vdc/sqrt(3) (92.4 V at 200 V, docs/estimator.md §5).
  *
  * A/B pairs. The layouts above are not symmetric about the period centre: their volt-seconds
  * have a dipole Q = sum v_seg len (H - t_mid)/P, and the period-mean current is the mean of
@@ -447,7 +447,8 @@ void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_mod_
         real_t ah, bh;
         real_t h = kv * (real_t)(mirror ? tmin : (int32_t)cfg->sector_hyst);
         sector_coeffs(mod->sector, x, &ah, &bh);
-        if (ah >= -h && bh >= -h && fw_max(ah, FW_REAL(0.0)) + fw_max(bh, FW_REAL(0.0)) <= kv * limit) {
+        if (ah >= -h && bh >= -h &&
+            fw_max(ah, FW_REAL(0.0)) + fw_max(bh, FW_REAL(0.0)) <= kv * limit) {
             s = mod->sector;
         }
     }
