@@ -262,9 +262,17 @@ int16_t fwh_params_apply(fw_core_t *core, const fwh_param_list_t *list, int *fai
     memcpy(&scratch, core, sizeof(scratch));
     for (i = 0; i < list->n; i++) {
         real_t now;
-        pending[i] = (unsigned char)(fw_param_get(&scratch, list->items[i].id, &now) !=
-                                         FW_STATUS_OK ||
-                                     now != list->items[i].value);
+        int j, superseded = 0;
+        /* a later assignment of the same parameter wins (the bench's hardware values come
+         * first, a scenario's own settings after them): an earlier one is not applied, or a
+         * later "deadtime_us=0" equal to the default was skipped and the earlier 2 stayed */
+        for (j = i + 1; j < list->n; j++) {
+            superseded |= (list->items[j].id == list->items[i].id);
+        }
+        pending[i] = (unsigned char)(!superseded &&
+                                     (fw_param_get(&scratch, list->items[i].id, &now) !=
+                                          FW_STATUS_OK ||
+                                      now != list->items[i].value));
         left += pending[i];
     }
     /* cross-parameter rules can make the order matter: retry until nothing moves */

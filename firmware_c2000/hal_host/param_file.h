@@ -49,7 +49,8 @@ int fwh_params_parse_assignment(const char *text, fwh_param_item_t *item, char *
 
 /* Applies every item, all or nothing, in whatever order the cross-parameter rules need
  * (e.g. raising both ld_h and lq_h). Items equal to the present value are skipped, so a
- * file of unchanged configuration loads while the drive is enabled. Returns FW_STATUS_OK,
+ * file of unchanged configuration loads while the drive is enabled; of two items for the same
+ * parameter the later one is the one applied. Returns FW_STATUS_OK,
  * or the core's status for the first item that cannot be applied (*failed = its index);
  * *changed = number of parameters changed. */
 int16_t fwh_params_apply(fw_core_t *core, const fwh_param_list_t *list, int *failed,

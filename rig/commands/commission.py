@@ -17,6 +17,8 @@ load off, so any step runs alone):
   standstill    polarity, Ld/Lq from the slope estimator, rs from locked-rotor current steps
   start         sensorless start at low speed on a free shaft
   flux          λm at speeds held by the load machine (±iq, id = 0)
+  xsat          cross-saturation: the saliency axes against the flux angle at a held speed,
+                q currents of both signs; writes xsat_ldq_per_a
   sweep         speed control at several speeds with load steps
 
 output: RUN/commissioning.md (report), RUN/commissioning.json, RUN/bus.log (recording), and

@@ -53,11 +53,14 @@ def plant_values(desc: BenchDescription) -> dict[str, Any]:
 
 def plant_truth(desc: BenchDescription) -> dict[str, float]:
     """What the emulated machine really is (for the report's comparison column): rs, the
-    incremental Ld and Lq at zero current, λm, pole pairs."""
+    incremental Ld and Lq at zero current, λm, pole pairs, and the cross-saturation as Ldq per
+    ampere of q current (the profile gives Ldq at id = 0 and iq = cross_ref_a, where the
+    plant's law is linear in iq to 5 %)."""
     v = plant_values(desc)
     return {"rs_ohm": float(v["machine.rs_ohm"]), "ld_h": float(v["magnetics.ld_h"]),
             "lq_h": float(v["magnetics.lq_h"]), "lambda_m_wb": float(v["machine.lambda_m_wb"]),
-            "pole_pairs": float(v["machine.pole_pairs"])}
+            "pole_pairs": float(v["machine.pole_pairs"]),
+            "xsat_ldq_per_a": float(v["magnetics.ldq_ref_h"]) / float(v["magnetics.cross_ref_a"])}
 
 
 @dataclass

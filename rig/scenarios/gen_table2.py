@@ -17,45 +17,31 @@ from pathlib import Path
 GRID = [(1, 0), (1, 1), (1, 2), (100, 0), (100, 1), (100, 2), (600, 0), (600, 1), (600, 2),
         (1000, 0), (1000, 1), (1000, 2), (2000, 0), (2000, 1), (2000, 2), (3000, 0), (3000, 1.5)]
 I_MAX = 4.5
-V5 = ("the FW voltage limit (1 - Tmin/Ts)*Vdc/sqrt(3) = 92.4 V that keeps a measurable "
-      "zero window (estimator-math note 5)")
-LOW = ("5000-period window at <= 100 r/min: the raw per-period estimate (W = Tmin - 9 us = "
-       "11 us) is noise-limited (note 6) and the 60 Hz PLL passes its tail; not yet improved")
+SIX_STEP = ("1.5 N*m at 3000 r/min (2.44 N*m with friction B*w) needs >= {i} A even at the "
+            "six-step voltage 2*Vdc/pi = 127 V (computed on the {p} magnetics), above i_max 4.5 A")
+ONE_RPM = ("1 r/min holds within ~0.6 r/min, not 0.5: J = 0.0005 kg*m^2 turns a torque error of "
+           "1e-4 N*m (0.15 mA of q current) held for 0.2 s into 0.4 r/min, and the position "
+           "tracker, which must stay near 2 Hz for the noise of the raw estimate, cannot see it "
+           "sooner; measured without ADC noise 0.45, without noise, dead time and device drop "
+           "0.11 r/min: what remains are sub-mA errors of the period-mean current near the "
+           "phase-current zero crossings and the ADC noise through the current loop")
+XSAT = ("cross-saturation (harsh: Ldq 0.5 mH at 3 A) turns the saliency axes by ~5 deg at 2 N*m; "
+        "the firmware removes it with xsat_ldq_per_a (with the plant's own Ldq: 3.5 deg at "
+        "1 r/min, 3.2 at 100 r/min), but identifying it at speed (rig commission xsat) is not "
+        "reliable yet (43-57 % of the plant's Ldq), so the grid runs without it")
 # Known failures: the reason per (r/min, N*m, profile, metric). The measured values come from
 # a run of the grid (table2_measured.json beside this file, refreshed with --measured).
 XFAIL: dict[tuple[int, float, str, str], str] = {
-    (100, 0, "paper", "pos_err_max_deg"): LOW,
-    (100, 0, "paper", "speed_track_err_max_rpm"): LOW,
-    (100, 2, "paper", "pos_err_max_deg"): LOW,
-    (100, 2, "paper", "speed_track_err_max_rpm"): LOW,
-    (2000, 2, "ideal", "speed_track_err_max_rpm"): "2.63 N*m at 2000 r/min needs more than "
-    "i_max 4.5 A under " + V5,
-    (2000, 2, "paper", "speed_track_err_max_rpm"): "2.63 N*m at 2000 r/min needs more than "
-    "i_max 4.5 A under " + V5,
-    (3000, 0, "ideal", "speed_track_err_max_rpm"): "3000 r/min needs >= 4.7 A of FW current "
-    "under " + V5,
-    (3000, 0, "paper", "speed_track_err_max_rpm"): "3000 r/min needs >= 4.7 A of FW current "
-    "under " + V5,
-    (3000, 1.5, "ideal", "speed_track_err_max_rpm"): "1.5 N*m at 3000 r/min needs ~6.3 A under "
-    + V5,
-    (3000, 1.5, "paper", "speed_track_err_max_rpm"): "1.5 N*m at 3000 r/min needs ~6.3 A under "
-    + V5,
+    (3000, 1.5, "ideal", "speed_track_err_max_rpm"): SIX_STEP.format(i=4.56, p="ideal"),
+    (3000, 1.5, "paper", "speed_track_err_max_rpm"): SIX_STEP.format(i=4.59, p="paper"),
+    (1, 2, "harsh", "pos_err_max_deg"): XSAT,
+    (1, 2, "harsh", "polarity_loss_count"): XSAT + "; on the biased angle the loop creeps off by "
+    "up to 25 deg and is pulled back, on the edge of losing the rotor (episodes past 90 deg: "
+    "0 to 9 in builds with marginally different numerics)",
+    (100, 2, "harsh", "pos_err_max_deg"): XSAT,
 }
-XFAIL[(1, 2, "harsh", "polarity_loss_count")] = (
-    "periods past 90 deg: the drive lost the rotor at 1 r/min under 2 N*m. harsh = 12-bit ADC, "
-    "5 mA noise (raw sigma ~3x paper, note 6), cross-saturation bias ~1.7 deg uncompensated "
-    "(note 7) and Gamma1 down to ~0.35 at this load (note 7); on the edge: builds with "
-    "marginally different numerics hold it. Needs cross-saturation compensation and a "
-    "load-aware low-speed estimator")
-ONE = ("1 r/min: speed excursions of the true shaft speed around 1 r/min from the position "
-       "noise through the speed loop (no load torque to stiffen it); " + LOW)
 for _tq in (0, 1, 2):
-    XFAIL[(1, _tq, "paper", "pos_err_max_deg")] = ONE
-    XFAIL[(1, _tq, "paper", "speed_track_err_max_rpm")] = ONE
-for _tq in (0, 2):
-    XFAIL[(1, _tq, "ideal", "speed_track_err_max_rpm")] = (
-        "the speed loop's 0.01 A/(r/min) proportional gain against 0.5 r/min at 1 r/min; "
-        "not tuned yet")
+    XFAIL[(1, _tq, "paper", "speed_track_err_max_rpm")] = ONE_RPM
 MEASURED_FILE = Path(__file__).with_name("table2_measured.json")
 UNITS = {"pos_err_max_deg": "deg", "pos_err_rms_deg": "deg", "speed_track_err_max_rpm": "r/min",
          "polarity_loss_count": "periods"}
@@ -94,7 +80,9 @@ def cell(rpm: int, torque: float, values: dict[str, float]) -> str:
     steady = max(0.5, rev * 1.02)
     dur = round(t0 + steady, 2)
     t0 = round(t0, 2)
-    trk = 0.5 if rpm < 10 else max(10.0, 0.02 * rpm)
+    # speed held within 0.5 r/min at 1 r/min, 2 at 100, 2 % at 600 and 1000 (at least 10),
+    # 1 % at 2000 and 3000 r/min
+    trk = {1: 0.5, 100: 2.0, 2000: 20.0, 3000: 30.0}.get(rpm, max(10.0, 0.02 * rpm))
     lines = [
         f"# Table 2 grid cell: steady-state position error at {rpm} r/min, {torque:g} N*m.",
         "# Paper (Table 2, Section V): |error| within 2.5 deg from 1 r/min to 1.5x rated speed.",
@@ -141,7 +129,8 @@ def cell(rpm: int, torque: float, values: dict[str, float]) -> str:
 
     crit("steady-state position error", "pos_err_max_deg", 0.5, profiles=["ideal"])
     crit("steady-state position error", "pos_err_max_deg", 2.5, profiles=["paper"])
-    crit("steady-state position error", "pos_err_max_deg", None, "report", ["harsh"])
+    crit("steady-state position error", "pos_err_max_deg", 5.0, profiles=["harsh"])
+    crit("position error against the 1 deg target", "pos_err_max_deg", 1.0, profiles=["paper"])
     crit("RMS position error", "pos_err_rms_deg", 1.5, profiles=["ideal"])
     crit("RMS position error", "pos_err_rms_deg", 1.5, profiles=["paper"])
     crit("RMS position error", "pos_err_rms_deg", None, "report", ["harsh"])
@@ -182,6 +171,8 @@ def refresh(result_json: Path) -> int:
                                 f"{c.get('value')}")
             elif c.get("outcome") == "xpass":
                 problems.append(f"passes now (remove its XFAIL): {entry['name']} {c['name']}")
+    known = {key_text(k) for k in XFAIL}
+    values = {k: v for k, v in values.items() if k in known}  # (failures fixed since: gone)
     MEASURED_FILE.write_text(json.dumps(dict(sorted(values.items())), indent=1) + "\n")
     print("\n".join(problems) or "every known failure measured, no new failures")
     return 1 if problems else 0

@@ -48,7 +48,18 @@ typedef struct {
     fw_cplx_t v_applied;            /* average alpha-beta voltage of the pattern (ideal inverter), V */
     real_t vdc;                     /* DC-link voltage the pattern was computed for */
     int16_t clipped;                /* the reference was outside the measurable hexagon */
+    int16_t n_soc_windows;          /* SOCs of the measured windows (the rest: current only) */
+    int16_t mirror;                 /* 1: the B layout of an A/B pair (svpwm.c) */
+    /* volt-second dipole about the period centre, sum of v_seg * len * (H - t_mid) / P, V*s:
+     * the period-mean current exceeds the mean of its start and end currents by Gamma * it */
+    fw_cplx_t dipole;
 } fw_plan_t;
+
+/* Modulator state carried from one period to the next. */
+typedef struct {
+    fw_cplx_t carry; /* volt-ticks the patterns still owe the reference */
+    int16_t sector;  /* sector of the last pattern, 0: none (gates were off) */
+} fw_mod_t;
 
 typedef struct {
     uint16_t tmin;      /* ticks */
@@ -56,9 +67,21 @@ typedef struct {
     uint16_t soc_off;   /* ticks */
     int16_t n_per_state;
     int16_t stretch;
+    uint16_t sector_hyst; /* ticks: an A period keeps the last sector while its request lies
+                             at most this far outside it (the carry makes up the rest) */
+    int16_t pairs;        /* 1: A/B pairs of mirrored layouts whose dipoles cancel */
+    /* 1: whole voltage range (no Tmin reserve): references beyond the hexagon are projected
+     * onto it (minimum distance), windows are measured only where they fit, and current
+     * samples are added in the other switching states (FULL modulation, svpwm.c) */
+    int16_t full_range;
+    /* 1: a reference beyond the hexagon leaves its deficit in the carry (a measurement period
+     * inside FULL modulation, made up by the next periods); 0: a clipped reference is dropped */
+    int16_t carry_clipped;
 } fw_pwm_cfg_t;
 
-/* Least-squares position estimate of one period (estimator-math.md section 3). */
+#define FW_OM_N 16 /* overmodulation table: reference magnitudes and their fundamentals */
+
+/* Least-squares position estimate of one period (docs/estimator.md §3). */
 typedef struct {
     int16_t n_active;   /* active vectors used: 0, 1 or 2 */
     int16_t ok;         /* plausible (residual, saliency) */
@@ -70,14 +93,23 @@ typedef struct {
     real_t t_ref;       /* s, time the estimate is valid at (same origin as the inputs) */
 } fw_est_out_t;
 
-/* Type-2 PLL on theta with branch selection (note section 7). */
+/* Position tracker: mechanical observer on theta with branch selection (position_tracker.c). */
 typedef struct {
     int16_t init;
     real_t theta;       /* rad at the reference instant */
     real_t omega;       /* electrical rad/s */
+    real_t a_ff;        /* electrical rad/s^2 from the torque model (input) */
+    real_t a_d;         /* electrical rad/s^2, estimated disturbance (load, friction, model) */
+    real_t a_d_lo;      /* compensation term of the a_d sum */
     real_t theta_unwrapped;
     int32_t age_ticks;  /* ticks from the reference instant to the start of the current period */
-    real_t k1, k2;      /* gains per update */
+    real_t l1, l2, l3;  /* gains per update at the present natural frequency wn */
+    real_t wn, wn_hi, wn_lo, zeta; /* rad/s: present, highest, floor */
+    real_t speed_ratio; /* wn per electrical rad/s of speed (between wn_lo and wn_hi) */
+    real_t boost_sigma; /* innovation-mean threshold in RMS of the innovation (0: never) */
+    int32_t conv_ticks; /* periods since the last reset or detected disturbance */
+    uint32_t boosts;    /* detected disturbances (diagnostics) */
+    real_t e_mean, e_var; /* innovation mean and mean square */
     real_t last_err;    /* rad */
     uint16_t stamp;     /* tick of the reference instant within the period of the last update */
 } fw_pll_t;
@@ -97,6 +129,10 @@ typedef struct {
     real_t bin_width;          /* A */
     real_t lq_app, ld_app;     /* H, apparent values at the present operating point */
     int32_t n_updates;
+    /* cross-saturation identification: the turn of the saliency axes against the flux
+     * angle, mean over ~0.2 s at the present current (param_estimator.c) */
+    real_t xs_turn;
+    int32_t xs_n;
 } fw_param_est_t;
 
 typedef struct {
@@ -134,6 +170,8 @@ struct fw_core {
     real_t p[FW_PARAM_MAX];
     /* derived from parameters */
     fw_pwm_cfg_t pwm_cfg;
+    real_t om_ref[FW_OM_N], om_fund[FW_OM_N]; /* overmodulation: |v_ref| -> fundamental, in
+                                                 units of Vdc/sqrt3 (fw_svpwm_om_init) */
     real_t adc_i_lsb, adc_v_lsb; /* A and V per code */
     int32_t adc_half;            /* 2^(N-1) */
     uint32_t cmd_timeout_ticks;
@@ -161,7 +199,7 @@ struct fw_core {
     uint16_t prev_on[3], prev_off[3]; /* edges of the period before plan_cur (dead-time count) */
     int16_t pwm_valid;
     fw_pwm_t pwm_last;
-    fw_cplx_t vs_carry;          /* volt-tick quantisation error carried to the next period */
+    fw_mod_t mod;                /* modulator state (carry, last sector) */
 
     /* measurement of the last period */
     real_t vdc;
@@ -184,6 +222,10 @@ struct fw_core {
     uint32_t est_reject_count;
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
     int16_t flux_pos_active;     /* the flux estimator carried the PLL in the last period */
+    int16_t est_param_ok;        /* the period's two-vector estimate is fit for Ld/Lq */
+    real_t theta_raw_axes;       /* rad, the estimate's saliency-axis angle (before the
+                                    cross-saturation correction) */
+    int16_t full_mod;            /* FULL modulation (whole voltage range) is active */
     real_t theta_raw_branch;
     int16_t slopes_ok;
     int16_t stamp;
@@ -215,6 +257,8 @@ struct fw_core {
     real_t fw_did;               /* A, voltage-feedback d-current */
     int16_t fw_active;
     real_t te_hat;
+    real_t te_model;             /* N*m, torque of the references through the current loop */
+    real_t te_ripple;            /* N*m, reluctance torque of the next pattern's current ripple */
     real_t ld_use, lq_use, lambda_use; /* parameter set of the selected mode */
 };
 

@@ -19,11 +19,18 @@ int16_t fw_vec_state(int16_t k); /* switching state bits (a = 1, b = 2, c = 4) *
 fw_cplx_t fw_state_voltage(int16_t state_bits, real_t vdc);
 /* Largest voltage magnitude that still leaves a V7 window of tmin in every direction. */
 real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks);
-/* Plan period pattern for average voltage v_ref (alpha-beta, V). carry: volt-tick error fed
- * forward (in/out, may be NULL). parity alternates single-vector measurements when needed. */
-void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_cplx_t *carry,
+/* Plan period pattern for average voltage v_ref (alpha-beta, V). mod: carry and last sector
+ * (in/out, may be NULL: no carry, no sector hold). parity: the period index; odd periods are the
+ * B half of an A/B pair (mirrored layouts, cfg->pairs) and alternate single-vector
+ * measurements when needed. */
+void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_mod_t *mod,
                    uint32_t parity, fw_plan_t *plan);
 void fw_svpwm_plan_off(fw_plan_t *plan, real_t vdc);
+/* Overmodulation table of the minimum-distance projection: reference magnitudes and their
+ * fundamentals, units of Vdc/sqrt3 (1 = the linear limit; six-step is 2*sqrt3/pi = 1.1027). */
+void fw_svpwm_om_init(real_t ref[FW_OM_N], real_t fund[FW_OM_N]);
+/* Reference magnitude whose projected pattern has fundamental v1 (same units). */
+real_t fw_svpwm_om_ref(const real_t ref[FW_OM_N], const real_t fund[FW_OM_N], real_t v1);
 /* volt-seconds (V*s, ideal inverter) of the pattern between period ticks t0 and t1 */
 void fw_plan_to_pwm(const fw_plan_t *plan, uint32_t period, int16_t gate, fw_pwm_t *pwm);
 
@@ -44,12 +51,22 @@ void fw_est_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
                   const real_t t[2], real_t kv, real_t omega, real_t gamma0_prior,
                   fw_est_out_t *out);
 
-/* ---- position_tracker.c: type-2 PLL, branch selection ------------------------------------ */
+/* ---- position_tracker.c: mechanical observer, speed-scheduled, branch selection --------- */
+/* bw_hz: the fastest loop (convergence, high speed), zeta its damping */
 void fw_pll_config(fw_pll_t *pll, real_t bw_hz, real_t zeta);
+/* the floor low_bw_hz, the speed schedule wn = speed_ratio * |omega_e|, and the disturbance
+ * detector's threshold boost_sigma (0: none); without it the loop runs at bw_hz */
+void fw_pll_config_schedule(fw_pll_t *pll, real_t low_bw_hz, real_t speed_ratio,
+                            real_t boost_sigma);
+/* once per period before the update: gains for the present speed and convergence state;
+ * returns wn, rad/s */
+real_t fw_pll_schedule(fw_pll_t *pll);
+/* acceleration the torque model predicts until the next update, electrical rad/s^2 */
+void fw_pll_set_accel(fw_pll_t *pll, real_t a_ff);
 void fw_pll_reset(fw_pll_t *pll, real_t theta, real_t omega, uint16_t stamp);
 void fw_pll_advance(fw_pll_t *pll, int32_t ticks);
 real_t fw_pll_predict(const fw_pll_t *pll, int32_t tick_in_period);
-/* Branch nearest the prediction (note section 7); returns the error epsilon (rad) and the
+/* Branch nearest the prediction (docs/estimator.md §7); returns the error epsilon (rad) and the
  * selected measurement in *theta_meas. */
 real_t fw_pll_update(fw_pll_t *pll, real_t theta_raw_mod_pi, uint16_t stamp, real_t *theta_meas);
 void fw_pll_flip(fw_pll_t *pll);
@@ -63,11 +80,20 @@ void fw_pe_apparent(fw_param_est_t *pe, real_t iq);
  * moved along the learnt Gamma0(iq) curve from the current it was measured at */
 real_t fw_pe_gamma0_prior(const fw_param_est_t *pe, real_t iq);
 /* Gamma1 along the d axis at theta: Re(g exp(-j 2 theta)), so 1/Ld_inc = Gamma0 + it and
- * 1/Lq_inc = Gamma0 - it (estimator-math section 3) */
+ * 1/Lq_inc = Gamma0 - it (docs/estimator.md §3) */
 real_t fw_est_gamma1_at(const fw_est_out_t *est, real_t theta);
 /* Largest |iq| at which the learnt incremental saliency Gamma1 stays above gamma1_min (linear
  * extrapolation of the measured bins); i_max when no measured bin approaches it. */
+/* d(1/Lq_inc)/d iq at iq from the learnt curve, 1/(H*A) (0 until two points are learnt) */
+real_t fw_pe_inv_lq_slope(const fw_param_est_t *pe, real_t iq);
+/* 1 when the Lq bin of |iq| has had at least min_updates slope estimates */
+int16_t fw_pe_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_updates);
 real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max);
+/* Turn of the saliency axes by cross-saturation at q current iq, rad, for an incremental Ldq
+ * of ldq_per_a * iq (H) and the learnt Lq curve */
+real_t fw_pe_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a);
+/* one period's turn e (rad) of the saliency axes against the flux angle: into the mean */
+void fw_pe_xsat_learn(fw_param_est_t *pe, real_t e, real_t alpha);
 
 /* ---- flux_estimator.c -------------------------------------------------------------------- */
 void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);

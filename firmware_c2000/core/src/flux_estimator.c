@@ -1,5 +1,5 @@
 /* flux_estimator.c - stator flux from the voltage model and the PM flux lambda_m
- * (estimator-math.md section 4.6).
+ * (docs/estimator.md §4.6).
  *
  * Per period the core knows the exact integral of v - rs*i over the period: the realised
  * volt-seconds of the pattern (corrected for dead time and device drop) minus rs times the

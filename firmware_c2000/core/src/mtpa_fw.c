@@ -1,7 +1,7 @@
 /* mtpa_fw.c - current references: MTPA (paper eq. 50), flux weakening (eq. 53), the current
  * circle and the voltage ellipse. Torque is eq. 10: Te = 3P/4 [(Ld - Lq) id iq + lambda iq]
  * with P poles, i.e. 1.5 * pole_pairs * (...).
- * All inductances here are APPARENT (psi/i) ones (estimator-math.md section 4.7).
+ * All inductances here are APPARENT (psi/i) ones (docs/estimator.md §4.7).
  */
 #include "fw_internal.h"
 

@@ -88,8 +88,12 @@ void fw_params_apply(fw_core_t *c)
     c->pwm_cfg.soc_off = us_to_ticks(p[FW_PI_SOC_OFF_US]);
     c->pwm_cfg.n_per_state = (int16_t)p[FW_PI_SOC_PER_STATE];
     c->pwm_cfg.stretch = (int16_t)p[FW_PI_STRETCH_ENABLE];
+    c->pwm_cfg.sector_hyst = us_to_ticks(p[FW_PI_SECTOR_HYST_US]);
+    c->pwm_cfg.pairs = (int16_t)p[FW_PI_PATTERN_PAIRS];
     c->cmd_timeout_ticks = (uint32_t)(p[FW_PI_CMD_TIMEOUT_MS] * FW_REAL(10.0) + FW_REAL(0.5));
     fw_pll_config(&c->pll, p[FW_PI_PLL_BW_HZ], p[FW_PI_PLL_ZETA]);
+    fw_pll_config_schedule(&c->pll, p[FW_PI_PLL_LOW_BW_HZ], p[FW_PI_PLL_SPEED_RATIO],
+                           p[FW_PI_PLL_BOOST_SIGMA]);
     c->speed_alpha = fw_min(FW_2PI_R * p[FW_PI_SPD_FILTER_HZ] * FW_TS, FW_REAL(1.0));
     c->pi_d.kp = p[FW_PI_CUR_KP_D];
     c->pi_d.ki = p[FW_PI_CUR_KI_D];
@@ -139,6 +143,8 @@ static real_t live_value(const fw_core_t *c, uint16_t id, real_t stored)
         return (real_t)c->adc_loss_count;
     case FW_PID_EST_REJECT_COUNT:
         return (real_t)c->est_reject_count;
+    case FW_PID_XSAT_TURN_DEG:
+        return c->pe.xs_turn * (FW_REAL(180.0) / FW_PI_R);
     default:
         return stored;
     }

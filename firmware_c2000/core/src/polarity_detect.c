@@ -1,4 +1,4 @@
-/* polarity_detect.c - magnet polarity at standstill (estimator-math.md section 7).
+/* polarity_detect.c - magnet polarity at standstill (docs/estimator.md §7).
  *
  * The slope estimator gives theta modulo pi. Two tests resolve the remaining pi:
  *
@@ -267,7 +267,17 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
             next_phase(pol, POL_MOTION_REST);
         }
         break;
-    case POL_MOTION_REST:
+    case POL_MOTION_REST: {
+        /* the brake returns the rotor to rest only when both currents came up alike: damp
+         * what is left (on the ideal profile 70 r/min after 20 ms of 1 A each way, which the
+         * speed ramp then took seconds to bring down at a 1 r/min reference). Damping gain for
+         * a time constant of a quarter of the rest, with the nominal torque constant; the
+         * angle travelled keeps its sign */
+        real_t kt = FW_REAL(1.5) * p[FW_PI_POLE_PAIRS] * p[FW_PI_LAMBDA_M_WB];
+        real_t tau = FW_REAL(0.25) * (real_t)n_motion * FW_TS;
+        real_t w_mech = c->pll.omega / p[FW_PI_POLE_PAIRS];
+        out->iq = fw_clamp(-p[FW_PI_INERTIA_KGM2] / (kt * tau) * w_mech,
+                           -p[FW_PI_POL_MOTION_IQ_A], p[FW_PI_POL_MOTION_IQ_A]);
         if (pol->count >= n_motion) {
             real_t min_move = p[FW_PI_POL_MOTION_MIN_DEG] * (FW_PI_R / FW_REAL(180.0));
             pol->moved = c->pll.theta_unwrapped - pol->theta_start;
@@ -279,6 +289,7 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
             }
         }
         break;
+    }
     default:
         pol->result = -1;
         break;

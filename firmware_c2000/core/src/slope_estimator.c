@@ -1,5 +1,5 @@
 /* slope_estimator.c - current slopes per measured state and the least-squares position
- * estimate of reference/estimator-math.md (sections 2, 3, 4.5).
+ * estimate of docs/estimator.md §2, 3, 4.5.
  */
 #include "fw_internal.h"
 
@@ -44,7 +44,7 @@ int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, i
     sb = stb / stt * lsb * FW_TBCLK_HZ;
     ia = ((real_t)(a0 - adc_half) + da_sum / (real_t)n) * lsb;
     ib = ((real_t)(b0 - adc_half) + db_sum / (real_t)n) * lsb;
-    /* two sensors, isolated neutral: alpha = a, beta = (a + 2b)/sqrt3 (note section 2) */
+    /* two sensors, isolated neutral: alpha = a, beta = (a + 2b)/sqrt3 (docs/estimator.md §2) */
     *slope = fw_c(sa, (sa + FW_REAL(2.0) * sb) * FW_INV_SQRT3_R);
     *i_mean = fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_INV_SQRT3_R);
     *t_mean_ticks = t_bar;

@@ -4,6 +4,7 @@
  * in real_t. */
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "fw_internal.h"
 
@@ -19,23 +20,25 @@ int32_t fwt_svpwm(double vdc, double valpha, double vbeta, double tmin_us, doubl
 {
     fw_pwm_cfg_t cfg;
     fw_plan_t pl;
-    fw_cplx_t carry;
+    fw_mod_t mod;
     int32_t i;
     int32_t w;
+    memset(&cfg, 0, sizeof cfg); /* one layout family (no A/B pairs), no sector hold */
     cfg.tmin = (uint16_t)(tmin_us * 100.0 + 0.5);
     cfg.soc_on = (uint16_t)(on_us * 100.0 + 0.5);
     cfg.soc_off = (uint16_t)(off_us * 100.0 + 0.5);
     cfg.n_per_state = (int16_t)n_per_state;
     cfg.stretch = (int16_t)stretch;
-    carry = fw_c(0.0f, 0.0f);
+    mod.carry = fw_c(0.0f, 0.0f);
+    mod.sector = 0;
     if (carry_io != NULL) {
-        carry = fw_c((real_t)carry_io[0], (real_t)carry_io[1]);
+        mod.carry = fw_c((real_t)carry_io[0], (real_t)carry_io[1]);
     }
     fw_svpwm_plan(&cfg, (real_t)vdc, fw_c((real_t)valpha, (real_t)vbeta),
-                  carry_io != NULL ? &carry : NULL, parity, &pl);
+                  carry_io != NULL ? &mod : NULL, parity, &pl);
     if (carry_io != NULL) {
-        carry_io[0] = carry.re;
-        carry_io[1] = carry.im;
+        carry_io[0] = mod.carry.re;
+        carry_io[1] = mod.carry.im;
     }
     for (i = 0; i < 3; i++) {
         out[i] = pl.cmp_up[i];

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from rig.commissioning.results import StepResult
 from rig.commissioning.session import BenchSession
-from rig.commissioning.steps import connectivity, flux, standstill, start, sweep
+from rig.commissioning.steps import connectivity, flux, standstill, start, sweep, xsat
 
 
 @dataclass(frozen=True)
@@ -27,6 +27,7 @@ STEPS = {s.name: s for s in (
     Step("standstill", standstill.TITLE, standstill.run),
     Step("start", start.TITLE, start.run),
     Step("flux", flux.TITLE, flux.run),
+    Step("xsat", xsat.TITLE, xsat.run),
     Step("sweep", sweep.TITLE, sweep.run),
 )}
-ALL = ("connectivity", "standstill", "start", "flux", "sweep")
+ALL = ("connectivity", "standstill", "start", "flux", "xsat", "sweep")

@@ -185,7 +185,7 @@ static void modes(void)
 
 /* q-axis self-saturation (DESIGN.md section 5: apparent Lq 32 -> 28 mH, incremental about
  * 21 mH at 3 A): the slopes give the incremental value, MTPA gets the apparent one from the
- * integrated incremental curve (estimator-math.md section 4.7). */
+ * integrated incremental curve (docs/estimator.md §4.7). */
 static void q_saturation(void)
 {
     sim_t *s = &S;

@@ -1,5 +1,5 @@
 /* Least-squares position estimator on synthetic slopes from the model of
- * reference/estimator-math.md (section 2), in all six sectors and both polarity branches, then
+ * docs/estimator.md §2, in all six sectors and both polarity branches, then
  * with back-EMF, resistance and rotation between the windows (section 4.5). Expected values
  * come from the model parameters, not from the estimator. */
 #include "fw_internal.h"

@@ -12,6 +12,7 @@ static sim_t S;
 
 typedef struct {
     int state;        /* core state when the run ended */
+    int fault;        /* its fault code (FAULT) */
     int method;       /* 1 saturation, 2 motion */
     double err_deg;   /* theta_hat - theta at the first RUN period, wrapped */
     double ratio;     /* saturation test: |Ld(-id) - Ld(+id)| / mean */
@@ -48,6 +49,7 @@ static int run_start(const char *profile, double theta0_deg, pol_result_t *res)
         }
     }
     res->state = core->state;
+    res->fault = core->fault_code;
     res->method = core->pol.method_used;
     res->periods = k - t_enable;
     /* margin of the saturation test: |ratio| and |ratio| / standard error (whether the pole
@@ -76,7 +78,8 @@ static void sweep(const char *profile, int step_deg, int need_saturation)
                "RUN after %ld periods\n",
                profile, a, r.state, r.method, r.ratio * 100.0, r.z, r.err_deg, r.move_deg,
                r.periods);
-        CHECK(r.state == FW_STATE_RUN, "%s %d deg: state %d", profile, a, r.state);
+        CHECK(r.state == FW_STATE_RUN, "%s %d deg: state %d (fault %d)", profile, a, r.state,
+              r.fault);
         CHECK(fabs(r.err_deg) < 20.0, "%s %d deg: wrong pole, theta_hat - theta = %.1f deg",
               profile, a, r.err_deg);
         if (r.method == 1) {

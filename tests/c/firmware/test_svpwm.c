@@ -2,6 +2,8 @@
  * alone with the semantics of docs/interfaces.md (upper gate on during [cmp_up, 2*TBPRD -
  * cmp_dn)). Volt-seconds of a pattern follow from the per-phase on-times (isolated neutral:
  * the common mode drops out). */
+#include <string.h>
+
 #include "fw_internal.h"
 #include "fw_test.h"
 
@@ -88,6 +90,7 @@ static void check_windows(const fw_plan_t *pl, const fw_pwm_cfg_t *cfg, const ch
 static fw_pwm_cfg_t make_cfg(double tmin_us, double on_us, double off_us, int n, int stretch)
 {
     fw_pwm_cfg_t cfg;
+    memset(&cfg, 0, sizeof cfg);
     cfg.tmin = (uint16_t)(tmin_us * 100.0 + 0.5);
     cfg.soc_on = (uint16_t)(on_us * 100.0 + 0.5);
     cfg.soc_off = (uint16_t)(off_us * 100.0 + 0.5);
@@ -150,7 +153,7 @@ static void carry_sequence(const fw_pwm_cfg_t *cfg)
 {
     const double kv = 2.0 * VDC / 3.0;
     const double vmax = fw_svpwm_vmax((real_t)VDC, cfg->tmin);
-    fw_cplx_t carry = fw_c(0.0f, 0.0f);
+    fw_mod_t carry = {{0.0f, 0.0f}, 0};
     double sum_a = 0.0;
     double sum_b = 0.0;
     double worst = 0.0;
@@ -219,8 +222,93 @@ static void zero_vector(const fw_pwm_cfg_t *cfg)
     check_windows(&pl, cfg, "zero");
 }
 
+/* FULL modulation (whole voltage range): inside the hexagon Vdc/sqrt3 the pattern reproduces
+ * the reference exactly (no Tmin reserve); beyond it the applied vector is the nearest point of
+ * the hexagon (analytic: the edge point along the normal, or the vertex); without a measured
+ * zero window every state long enough gets current samples clear of its edges. */
+static void full_range(void)
+{
+    fw_pwm_cfg_t cfg = make_cfg(20.0, 8.0, 1.0, 5, 1);
+    const double lin = VDC / sqrt(3.0);
+    const double vtx = 2.0 * VDC / 3.0;
+    int k;
+    cfg.full_range = 1;
+    for (k = 0; k < 720; k++) {
+        double ang = (k + 0.25) * M_PI / 360.0;
+        double mags[4] = {0.5 * lin, 0.999 * lin, 1.08 * lin, 3.0 * lin};
+        int j;
+        for (j = 0; j < 4; j++) {
+            fw_plan_t pl;
+            fw_mod_t carry = {{0.0f, 0.0f}, 0};
+            double va, vb, ea, eb;
+            double ra = mags[j] * cos(ang), rb = mags[j] * sin(ang);
+            int s;
+            fw_svpwm_plan(&cfg, (real_t)VDC, fw_c((real_t)ra, (real_t)rb), &carry, 0u, &pl);
+            applied_vs(&pl, VDC, &va, &vb);
+            va /= 1e-4;
+            vb /= 1e-4;
+            double sec = floor(ang / (M_PI / 3.0));
+            double mid = (sec + 0.5) * M_PI / 3.0;
+            /* the sector's edge is the line at distance lin along its middle direction */
+            int inside = ra * cos(mid) + rb * sin(mid) <= lin;
+            if (inside) {
+                ea = ra;
+                eb = rb;
+            } else {
+                /* nearest point of the hexagon: the foot on the edge, or its vertex */
+                double along = -ra * sin(mid) + rb * cos(mid); /* component along the edge */
+                double half = vtx * 0.5;                       /* half the edge length */
+                if (along > half) {
+                    along = half;
+                } else if (along < -half) {
+                    along = -half;
+                }
+                ea = lin * cos(mid) - along * sin(mid);
+                eb = lin * sin(mid) + along * cos(mid);
+            }
+            CHECK(fabs(va - ea) < 0.03 && fabs(vb - eb) < 0.03,
+                  "full range %.3f x lin at %.2f deg: applied (%.3f, %.3f) V, expected (%.3f, "
+                  "%.3f)", mags[j] / lin, ang * 180.0 / M_PI, va, vb, ea, eb);
+            CHECK(pl.clipped == !inside, "clipped flag at %.3f x lin", mags[j] / lin);
+            if (!pl.win[FW_WIN_ZERO].measured) {
+                CHECK(pl.n_soc > pl.n_soc_windows, "current samples without a zero window");
+            }
+            for (s = 0; s < pl.n_soc; s++) {
+                int t = pl.soc[s];
+                int st = state_at(&pl, t);
+                CHECK(st == state_at(&pl, t - cfg.soc_on) && st == state_at(&pl, t + cfg.soc_off - 1),
+                      "sample %d at %d ticks within soc_on/soc_off of an edge", s, t);
+            }
+        }
+    }
+}
+
+/* The overmodulation table: the fundamental of the minimum-distance projection starts at the
+ * linear limit, grows monotonically and approaches six-step (2 sqrt3 / pi of Vdc/sqrt3); the
+ * inverse hits the table's own points. */
+static void overmodulation_table(void)
+{
+    real_t ref[FW_OM_N], fund[FW_OM_N];
+    int k;
+    fw_svpwm_om_init(ref, fund);
+    CHECK(fabs(fund[0] - 1.0) < 1e-6, "fundamental at the linear limit %.6f", (double)fund[0]);
+    for (k = 1; k < FW_OM_N; k++) {
+        CHECK(fund[k] > fund[k - 1], "monotonic at %d", k);
+    }
+    CHECK(fabs(fund[FW_OM_N - 1] - 2.0 * sqrt(3.0) / M_PI) < 0.005 * 2.0 * sqrt(3.0) / M_PI,
+          "towards six-step: %.5f vs %.5f", (double)fund[FW_OM_N - 1], 2.0 * sqrt(3.0) / M_PI);
+    for (k = 0; k < FW_OM_N; k++) {
+        double r = fw_svpwm_om_ref(ref, fund, fund[k]);
+        CHECK(fabs(r - ref[k]) < 1e-4 * ref[k], "inverse at %d: %.5f vs %.5f", k, r,
+              (double)ref[k]);
+    }
+    CHECK(fabs(fw_svpwm_om_ref(ref, fund, 0.7f) - 0.7) < 1e-6, "linear range unchanged");
+}
+
 int main(void)
 {
+    full_range();
+    overmodulation_table();
     fw_pwm_cfg_t paper = make_cfg(20.0, 10.0, 5.0, 2, 1);
     fw_pwm_cfg_t multi = make_cfg(20.0, 8.0, 4.0, 5, 1);
     fw_pwm_cfg_t long_tmin = make_cfg(24.0, 10.0, 5.0, 3, 1); /* 5*Tmin > Ts */

@@ -193,6 +193,28 @@ static void test_param_file(const char *dir)
     CHECK(fwh_params_parse_file(path, &list, err, sizeof(err)) == 0, "parse: %s", err);
     CHECK(fwh_params_apply(&core, &list, &failed, &changed) == FW_STATUS_OK && changed == 2,
           "ld before lq");
+    /* the later of two assignments wins, also when it restores the present value (the
+     * bench's hardware values are followed by a scenario's own: deadtime_us=2 then 0) */
+    fw_core_init(&core);
+    list.n = 0;
+    CHECK(fwh_params_parse_assignment("deadtime_us=2", &list.items[list.n++], err,
+                                      sizeof(err)) == 0 &&
+              fwh_params_parse_assignment("deadtime_us=0", &list.items[list.n++], err,
+                                          sizeof(err)) == 0,
+          "parse assignments: %s", err);
+    CHECK(fwh_params_apply(&core, &list, &failed, &changed) == FW_STATUS_OK && changed == 0,
+          "later assignment of the default (changed %d)", changed);
+    CHECK(fw_param_get(&core, 24, &v) == FW_STATUS_OK && v == 0.0f, "deadtime_us %g, not 0",
+          (double)v);
+    list.n = 0;
+    CHECK(fwh_params_parse_assignment("deadtime_us=0", &list.items[list.n++], err,
+                                      sizeof(err)) == 0 &&
+              fwh_params_parse_assignment("deadtime_us=3", &list.items[list.n++], err,
+                                          sizeof(err)) == 0,
+          "parse assignments: %s", err);
+    CHECK(fwh_params_apply(&core, &list, &failed, &changed) == FW_STATUS_OK && changed == 1 &&
+              fw_param_get(&core, 24, &v) == FW_STATUS_OK && v == 3.0f,
+          "later assignment wins (%g)", (double)v);
     f = fopen(path, "w");
     fputs("rs_ohm = 3\nld_h = 0.06\n", f);
     fclose(f);

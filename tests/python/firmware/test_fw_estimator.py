@@ -1,4 +1,4 @@
-"""Position and inductance estimator against the model of reference/estimator-math.md.
+"""Position and inductance estimator against the model of docs/estimator.md.
 
 Synthetic slopes come from the model equations (section 2, and the full voltage equation with
 back-EMF, resistance and a turning rotor for section 4.5); the noise test draws per-sample

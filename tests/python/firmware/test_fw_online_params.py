@@ -1,5 +1,5 @@
 """Online lambda_m (flux estimator) and the apparent/incremental inductance handling, against
-closed-form trajectories of the machine model (estimator-math.md sections 4.6 and 4.7)."""
+closed-form trajectories of the machine model (docs/estimator.md §4.6 and §4.7)."""
 
 from __future__ import annotations
 
