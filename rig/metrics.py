@@ -510,6 +510,10 @@ def _dups(w: Window, p: Mapping[str, float]) -> float:
     return float(w.counters.get("capture.duplicates", float("nan")))
 
 
+# What an infinite value means, per metric (the criterion's note).
+INFINITE_NOTES: dict[str, str] = {"recovery_time_s": "never settled"}
+
+
 def is_counter(name: str) -> bool:
     """``plant.<key>``, ``firmware.<key>``, ``bench.<signal>``, ``rejects.<signal>``,
     ``rig.<key>``: counters of the run (exit JSON of the programs, bus frames, the rig)."""

@@ -47,8 +47,9 @@ from rig import __version__, _paths, capture, metrics, output, protocols, record
 from rig.firmware_from_profile import firmware_settings
 from rig.frames import FrameDecoder
 from rig.progress import Progress
-from rig.scenario import Comparison, Criterion, Scenario, Suite
+from rig.scenario import Comparison, Scenario, Suite
 from rig.supervisor import ChildFailed, StopReport, Supervisor, Terminated
+from rig.verdict import AGAINST, NOT_EVALUATED, Coverage, evaluate_one, outcome, outcome_of
 
 TS = capture.TS
 PROGRESS_RESEND_S = 1.0  # re-send a grant when the plant has said nothing for this long
@@ -120,8 +121,9 @@ class RunResult:
         return list(self.data.get("criteria", []))
 
     def failed_criteria(self) -> list[dict[str, Any]]:
-        """Criteria that count against the run (an XFAIL does not, an XPASS does not)."""
-        return [c for c in self.criteria if outcome(c) == "fail"]
+        """Criteria that count against the run: failed or not evaluated (an XFAIL does not,
+        an XPASS does not)."""
+        return [c for c in self.criteria if outcome(c) in AGAINST]
 
     def expected_failures(self) -> list[dict[str, Any]]:
         return [c for c in self.criteria if outcome(c) in ("xfail", "xpass")]
@@ -154,6 +156,9 @@ class RunResult:
             if failure.get("log_tail"):
                 lines += ["    " + x for x in str(failure["log_tail"]).splitlines()[-15:]]
         for c in self.failed_criteria():
+            if outcome(c) == NOT_EVALUATED:
+                lines.append(f"  NOT EVALUATED {c['name']}: {c.get('note')}")
+                continue
             lines.append(
                 f"  FAIL {c['name']}: {c['metric']} over {c['window']} = {c['value']} "
                 f"(limit {c['comparison']} {c['limit']})"
@@ -794,60 +799,6 @@ def execute_realtime(
     return plan.n_periods
 
 
-def evaluate(sc: Scenario, cap: capture.Capture, counters: Mapping[str, float]) -> list[
-    dict[str, Any]
-]:
-    out: list[dict[str, Any]] = []
-    for cr in sc.criteria:
-        out.append(evaluate_one(cr, cap, counters))
-    return out
-
-
-def evaluate_one(cr: Criterion, cap: capture.Capture | None,
-                 counters: Mapping[str, float]) -> dict[str, Any]:
-    note = ""
-    value = math.nan
-    if cap is None and not metrics.is_counter(cr.metric):
-        note = "no capture"
-    else:
-        cols: metrics.ColumnSource = cap if cap is not None else {}
-        first = cap.first_period if cap is not None else 0
-        w = metrics.Window(cols, cr.window[0], cr.window[1], ts=TS, first_period=first,
-                           counters=counters)
-        try:
-            value = metrics.compute(cr.metric, w, cr.params)
-        except KeyError as exc:
-            note = f"missing data: {exc}"
-        if math.isnan(value) and not note:
-            note = "no data in the window"
-        elif math.isinf(value):
-            note = "never settled" if cr.metric == "recovery_time_s" else "infinite"
-    passed = metrics.compare(value, cr.comparison, cr.limit)
-    result = outcome_of(passed, cr.xfail)
-    return {
-        "name": cr.name,
-        "metric": cr.metric,
-        "window": [cr.window[0], cr.window[1]],
-        "value": value if math.isfinite(value) else None,
-        "limit": cr.limit if math.isfinite(cr.limit) else None,
-        "comparison": cr.comparison,
-        "unit": metrics.unit_of(cr.metric),
-        "params": dict(cr.params),
-        "passed": passed,
-        "outcome": result,
-        "xfail": cr.xfail,
-        "note": note,
-    }
-
-
-def outcome(c: Mapping[str, Any]) -> str:
-    """pass | fail | xfail (known failure, reason in the scenario) | xpass (a known failure
-    that passed: its xfail should be removed)."""
-    if "outcome" in c:
-        return str(c["outcome"])
-    return "pass" if c.get("passed") else "fail"
-
-
 def _dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else 0
 
@@ -1090,9 +1041,10 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                        f"end of the scenario ({periods_done - 1})"}
 
     result["counters"] = counters
-    crit_results = [evaluate_one(cr, cap, counters) for cr in sc.criteria]
+    coverage = _coverage(plan, cap, loss, periods_done, realtime, interrupted, failure)
+    crit_results = [evaluate_one(cr, cap, counters, coverage) for cr in sc.criteria]
     result["criteria"] = crit_results
-    all_ok = all(outcome(c) != "fail" for c in crit_results)
+    all_ok = all(outcome(c) not in AGAINST for c in crit_results)
     if failure is None:
         result["status"] = "passed" if all_ok else "failed"
         result["passed"] = all_ok
@@ -1157,6 +1109,26 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     if interrupted is not None:
         raise interrupted
     return res
+
+
+def _coverage(plan: Plan, cap: capture.Capture | None, loss: capture.LossReport | None,
+              periods_done: int, realtime: bool, interrupted: BaseException | None,
+              failure: Mapping[str, Any] | None) -> Coverage:
+    """What data the run produced, for the verdicts (rig.verdict): the periods the capture
+    holds without a hole and whether the run reached its planned end."""
+    reached = interrupted is None and periods_done >= plan.n_periods
+    why = "" if failure is None else f"{failure['kind']}: {str(failure['message'])[:200]}"
+    # a hole (missing, duplicate, stray or short records) could be anywhere; a partial
+    # record at the end of a trace is where a killed writer stopped: the range holds before it
+    holes = loss is None or not all(m.ok for m in loss.messages)
+    if cap is None or loss is None or holes or cap.n == 0:
+        if loss is not None and holes:
+            why = why or loss.summary()
+        return Coverage(plan.n_periods, None, None, reached, why or "no capture")
+    first, last = cap.first_period, cap.first_period + cap.n - 1
+    if reached and loss.ok and not realtime:
+        last = plan.n_periods - 1  # complete by the loss report (the firmware's last ISR)
+    return Coverage(plan.n_periods, first, last, reached, why)
 
 
 def _run_inproc(sc: Scenario, plan: Plan, out: Path, opts: RunOptions, result: dict[str, Any],
@@ -1269,28 +1241,28 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
 
 def evaluate_comparison(cmp: Comparison,
                         entries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """A suite comparison on the criterion values recorded in the entries of two runs: a run
-    that is missing (interrupted suite) or has no value fails the comparison."""
+    """A suite comparison on the criterion values recorded in the entries of two runs. A run
+    that is missing (interrupted suite) or whose criterion was not evaluated leaves the
+    comparison not evaluated; a criterion without a value fails it."""
 
-    def criterion(run: str) -> Mapping[str, Any]:
+    def criterion(run: str) -> Mapping[str, Any] | None:
         return next((c for e in entries if e["name"] == run
-                     for c in e.get("criteria") or [] if c.get("name") == cmp.criterion), {})
+                     for c in e.get("criteria") or [] if c.get("name") == cmp.criterion), None)
 
     ca, cb = criterion(cmp.a), criterion(cmp.b)
-    a, b = ca.get("value"), cb.get("value")
+    a = ca.get("value") if ca is not None else None
+    b = cb.get("value") if cb is not None else None
     passed = a is not None and b is not None and metrics.compare(a, cmp.relation, b)
+    missing = [run for run, c in ((cmp.a, ca), (cmp.b, cb))
+               if c is None or outcome(c) == NOT_EVALUATED]
     return {
         "name": cmp.name, "criterion": cmp.criterion, "a": cmp.a, "b": cmp.b,
-        "relation": cmp.relation, "value_a": a, "value_b": b, "unit": ca.get("unit") or "",
-        "passed": passed, "outcome": outcome_of(passed, cmp.xfail), "xfail": cmp.xfail,
+        "relation": cmp.relation, "value_a": a, "value_b": b,
+        "unit": (ca or cb or {}).get("unit") or "", "passed": passed,
+        "outcome": NOT_EVALUATED if missing else outcome_of(passed, cmp.xfail),
+        "xfail": cmp.xfail,
+        "note": f"not evaluated: no value from {', '.join(missing)}" if missing else "",
     }
-
-
-def outcome_of(passed: bool, xfail: str) -> str:
-    """pass/fail, or for a known failure (xfail reason given) xfail/xpass."""
-    if xfail:
-        return "xpass" if passed else "xfail"
-    return "pass" if passed else "fail"
 
 
 def exit_code(passed: bool, status: str) -> int:
