@@ -33,7 +33,6 @@ import platform
 import shutil
 import sys
 import time
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -43,7 +42,20 @@ from typing import Any
 import can
 import numpy as np
 
-from rig import __version__, _paths, capture, metrics, output, protocols, recording, report, sil
+from rig import (
+    __version__,
+    _paths,
+    capture,
+    drive_link,
+    faults,
+    metrics,
+    output,
+    protocols,
+    recording,
+    report,
+    scenario,
+    sil,
+)
 from rig.firmware_from_profile import firmware_settings
 from rig.frames import FrameDecoder
 from rig.progress import Progress
@@ -236,6 +248,10 @@ class Plan:
     load_events: dict[int, LoadState]
     boundaries: list[int]
     grant_max: int
+    # FAULT_CMD signals to send before the grant that starts on a period (plant-side faults)
+    fault_cmds: dict[int, list[dict[str, float | int]]] = field(default_factory=dict)
+    # the faults on the rig's own frames (rig.drive_link)
+    link_windows: list[drive_link.Window] = field(default_factory=list)
 
     @classmethod
     def build(cls, sc: Scenario) -> Plan:
@@ -262,9 +278,30 @@ class Plan:
         loads: dict[int, LoadState] = {}
         for lc in sc.load_commands():
             loads[at(lc.t)] = LoadState(lc.mode, lc.torque, lc.speed, lc.k_speed)
-        bps = {at(t) for t in sc.breakpoints(step)} | set(drive) | set(loads)
-        bounds = [*sorted(p for p in bps if 0 < p < n), n]
-        return cls(n, drive, loads, bounds, max(1, round(sc.grant_max_s / TS)))
+        fault_cmds: dict[int, list[dict[str, float | int]]] = {}
+        slot = 0
+        for f in sc.faults:
+            if not f.on_plant:
+                continue
+            start, end = f.periods(n)
+            fault_cmds.setdefault(start, []).append(f.fault_cmd(slot))
+            if end < n:
+                fault_cmds.setdefault(end, []).append(faults.Fault.clear_cmd(slot))
+            slot += 1
+        link_windows = drive_link.windows(sc.faults, n)
+        bps = {at(t) for t in sc.breakpoints(step)} | set(drive) | set(loads) | set(fault_cmds)
+        for w in link_windows:
+            bps |= {w.start, w.end}
+        plan = cls(n, drive, loads, [], max(1, round(sc.grant_max_s / TS)), fault_cmds,
+                   link_windows)
+        while True:
+            # a frame the rig holds back arrives exactly before its due period: make every
+            # due period a grant start (due periods of those starts too, up to a fixed point)
+            plan.boundaries = [*sorted(p for p in bps if 0 < p < n), n]
+            due = drive_link.due_periods(link_windows, (g[0] for g in plan.grants()), n)
+            if due <= bps:
+                return plan
+            bps |= due
 
     def grants(self) -> list[tuple[int, int]]:
         """(start, run_until) pairs covering [0, n)."""
@@ -281,16 +318,22 @@ class Plan:
 class Commander:
     """Encodes and sends the rig's frames (cantools; layouts only from the DBC)."""
 
-    def __init__(self, bus: can.BusABC | sil.BenchPort) -> None:
+    def __init__(self, bus: can.BusABC | sil.BenchPort,
+                 link: drive_link.DriveLink | None = None) -> None:
         self.bus = bus
         self.alive = 0
         self.load_seq = 0
         self.step_seq = 0
+        self.fault_seq = 0
         self.tx = 0
+        self.link = link if link is not None else drive_link.DriveLink()
+        # the frames sent since the last at(), and whether a fault corrupted each
+        self.batch: list[tuple[can.Message, bool]] = []
         self._m = {
             "DRIVE_CMD": _msg("drive", "DRIVE_CMD"),
             "DRIVE_LIMITS": _msg("drive", "DRIVE_LIMITS"),
             "LOAD_CMD": _msg("bench", "LOAD_CMD"),
+            "FAULT_CMD": _msg("bench", "FAULT_CMD"),
             "BENCH_STEP": _msg("bench", "BENCH_STEP"),
         }
         self._ctrl = _choices("drive", "DRIVE_CMD", "ctrl_mode")
@@ -299,12 +342,45 @@ class Commander:
 
     def _send(self, name: str, values: Mapping[str, float | int]) -> None:
         m = self._m[name]
-        data = m.encode(dict(values), scaling=True, strict=True)
-        self.bus.send(
-            can.Message(arbitration_id=m.frame_id, is_extended_id=m.is_extended_frame,
-                        data=data, is_fd=bool(m.is_fd), bitrate_switch=False)
-        )
+        data = bytes(m.encode(dict(values), scaling=True, strict=True))
+        if name in faults.RIG_MESSAGES:
+            sent = self.link.filter(name, data)
+            if sent is None:
+                return  # dropped or held back by a fault (rig.drive_link)
+            self._send_raw(name, sent, faulted=sent != data)
+            return
+        self._send_raw(name, data)
+
+    def _send_raw(self, name: str, data: bytes, faulted: bool = False) -> None:
+        m = self._m[name]
+        msg = can.Message(arbitration_id=m.frame_id, is_extended_id=m.is_extended_frame,
+                          data=data, is_fd=bool(m.is_fd), bitrate_switch=False)
+        self._put(msg, faulted)
+        self.batch.append((msg, faulted))
+
+    def _put(self, msg: can.Message, faulted: bool) -> None:
+        if faulted and isinstance(self.bus, sil.BenchPort):
+            self.bus.send_faulted(msg)
+        else:
+            self.bus.send(msg)
         self.tx += 1
+
+    def at(self, period: int) -> None:
+        """The sends that follow are before ``period``: frames held back until then go
+        first."""
+        self.batch = []
+        self.link.at(period)
+        for name, data, corrupted in self.link.due():
+            self._send_raw(name, data, faulted=corrupted)
+
+    def resend(self) -> None:
+        """The frames sent since the last ``at()`` again, byte for byte (a lost grant)."""
+        for msg, faulted in list(self.batch):
+            self._put(msg, faulted)
+
+    def fault(self, values: Mapping[str, float | int]) -> None:
+        self.fault_seq = (self.fault_seq + 1) % 256
+        self._send("FAULT_CMD", {**values, "seq": self.fault_seq})
 
     def drive(self, s: DriveState) -> None:
         self._send("DRIVE_LIMITS", {"i_max": s.i_max, "speed_max": s.speed_max,
@@ -509,20 +585,7 @@ def profile_values(sc: Scenario) -> tuple[Path | None, dict[str, Any]]:
         path = _paths.data_dir("profiles") / f"{sc.profile}.toml"
     except FileNotFoundError:
         return None, dict(sc.overrides)
-    values: dict[str, Any] = {}
-    if path.is_file():
-        data = tomllib.loads(path.read_text())
-
-        def walk(prefix: str, d: Mapping[str, Any]) -> None:
-            for k, v in d.items():
-                if isinstance(v, Mapping):
-                    walk(f"{prefix}{k}.", v)
-                else:
-                    values[f"{prefix}{k}"] = v
-
-        walk("", data)
-    values.update(sc.overrides)
-    return (path if path.is_file() else None), values
+    return (path if path.is_file() else None), scenario.profile_values(sc.profile, sc.overrides)
 
 
 def pole_pairs(values: Mapping[str, Any]) -> int:
@@ -655,6 +718,17 @@ def initial_drive(sc: Scenario) -> DriveState:
                       i_max=sc.i_max, speed_max=sc.speed_max, accel=_step_accel())
 
 
+def send_grant_frames(cmd: Commander, plan: Plan, start: int, drive: DriveState,
+                      load: LoadState) -> None:
+    """What goes out before the grant that starts at ``start`` (lockstep, bus and in process
+    alike): frames the rig held back that are due, its commands, the fault commands."""
+    cmd.at(start)
+    cmd.drive(drive)
+    cmd.load(load)
+    for values in plan.fault_cmds.get(start, []):
+        cmd.fault(values)
+
+
 def execute_inproc(sc: Scenario, plan: Plan, bench: sil.SilBench, cmd: Commander,
                    prog: Progress, clock: _Clock, deadline: float) -> int:
     """The lockstep grants on the in-process bench: the same frames before each grant, then
@@ -667,8 +741,7 @@ def execute_inproc(sc: Scenario, plan: Plan, bench: sil.SilBench, cmd: Commander
         if start in plan.load_events:
             load = plan.load_events[start]
         t_grant = time.monotonic()
-        cmd.drive(drive)
-        cmd.load(load)
+        send_grant_frames(cmd, plan, start, drive, load)
         try:
             bench.run_until(until)
         except sil.BenchError as exc:
@@ -693,8 +766,7 @@ def execute_lockstep(
         if start in plan.load_events:
             load = plan.load_events[start]
         t_grant = time.monotonic()
-        cmd.drive(drive)
-        cmd.load(load)
+        send_grant_frames(cmd, plan, start, drive, load)
         cmd.step(until)
         last_change = time.monotonic()
         last_period = mon.progress_period
@@ -725,10 +797,9 @@ def execute_lockstep(
             waiting = mon.latest.get("BENCH_PROGRESS", {}).get("state") == 0.0
             if (now - last_change > PROGRESS_RESEND_S and now - last_resend > PROGRESS_RESEND_S
                     and (waiting or mon.progress_frames == 0)):
-                # the plant waits for a grant it should have: the frame was lost, send again
-                cmd.drive(drive)
-                cmd.load(load)
-                cmd.step(until, new=False)
+                # the plant waits for a grant it should have: the frame was lost, send the
+                # grant's frames again, byte for byte
+                cmd.resend()
                 mon.grant_resends += 1
                 last_resend = now
             if now - last_change > stall_s:
@@ -749,7 +820,7 @@ def execute_realtime(
     """Sends the plan's commands on the wall clock; returns the last period commanded."""
     drive = initial_drive(sc)
     load = LoadState()
-    events = sorted(set(plan.drive_events) | set(plan.load_events))
+    events = sorted(set(plan.drive_events) | set(plan.load_events) | set(plan.fault_cmds))
     t_origin = time.monotonic()
 
     def period_now() -> float:
@@ -767,7 +838,9 @@ def execute_realtime(
         if time.monotonic() > deadline:
             raise RunError("timeout", "real-time run time-out")
         now_p = period_now()
+        cmd.at(int(now_p))
         changed_drive = changed_load = False
+        fault_now: list[dict[str, float | int]] = []
         while i < len(events) and events[i] <= now_p:
             p = events[i]
             for fn in plan.drive_events.get(p, []):
@@ -776,7 +849,10 @@ def execute_realtime(
             if p in plan.load_events:
                 load = plan.load_events[p]
                 changed_load = True
+            fault_now += plan.fault_cmds.get(p, [])
             i += 1
+        for values in fault_now:
+            cmd.fault(values)
         if changed_drive:
             cmd.drive(drive)
             next_cmd = time.monotonic() + CMD_PERIOD_S
@@ -930,7 +1006,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                     sup.wait_ready(sc.ready_timeout_s)
                     clock.t0 = time.monotonic()
                     deadline = clock.t0 + timeout
-                    cmd = Commander(bus)
+                    cmd = Commander(bus, drive_link.DriveLink(plan.link_windows))
                     runner = execute_realtime if realtime else execute_lockstep
                     grace = opts.grace_s
                     try:
@@ -946,6 +1022,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                         prog.finish()
                         stops = sup.stop(grace_s=grace)
                     counters["rig.tx_frames"] = float(cmd.tx)
+                    counters.update(cmd.link.counters())
             finally:
                 sys.setswitchinterval(switch)
                 bus.shutdown()
@@ -1162,7 +1239,7 @@ def _run_inproc(sc: Scenario, plan: Plan, out: Path, opts: RunOptions, result: d
         raise RunError("config", f"in-process bench: {exc}") from exc
     try:
         clock.t0 = time.monotonic()
-        cmd = Commander(sil.BenchPort(bench))
+        cmd = Commander(sil.BenchPort(bench), drive_link.DriveLink(plan.link_windows))
         cpu0 = time.process_time()
         try:
             periods = execute_inproc(sc, plan, bench, cmd, prog, clock, clock.t0 + timeout)
@@ -1173,7 +1250,11 @@ def _run_inproc(sc: Scenario, plan: Plan, out: Path, opts: RunOptions, result: d
             for name in ("plant", "firmware"):
                 _flatten(name, bench_counters.get(name, {}), counters)
             counters["rig.tx_frames"] = float(cmd.tx)
+            counters.update(cmd.link.counters())
             counters["rig.bench_rejected"] = float(len(bench.rejected))
+            port = cmd.bus
+            if isinstance(port, sil.BenchPort):
+                counters["rig.bench_refused_faulted"] = float(len(port.refused_faulted))
     finally:
         try:
             bench.close()

@@ -144,9 +144,9 @@ def _print_verdict(data: dict[str, Any]) -> None:
         bound = "reported" if limit is None else f"{c['comparison']} {limit:g}"
         print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
               f"({bound}) over {c['window']}", file=sys.stderr)
-        if c.get("outcome") == "not_evaluated":
+        if c.get("outcome") == "not_evaluated" or (value is None and c.get("note")):
             print(f"        {c.get('note')}", file=sys.stderr)
-        elif c.get("xfail"):
+        if c.get("xfail") and c.get("outcome") != "not_evaluated":
             print(f"        expected failure: {c['xfail']}", file=sys.stderr)
 
 
