@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cache
 from typing import Any, Protocol
 
@@ -133,6 +133,15 @@ class Fault:
     delay: int = 0
     signal: str = ""
     xor: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        """The event as the scenario gave it (fields at their default left out)."""
+        out: dict[str, Any] = {"kind": self.kind, "at": self.at}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name not in out and v != f.default:
+                out[f.name] = v
+        return out
 
     @property
     def on_plant(self) -> bool:

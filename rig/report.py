@@ -52,6 +52,15 @@ def scenario_report(result: Mapping[str, Any]) -> str:
     ]
     if result.get("figure"):
         lines.append(f"| paper | {result['figure']} |")
+    injected = result.get("faults") or []
+    if injected:
+        lines += ["", "## Faults injected", ""]
+        for f in injected:
+            what = ", ".join(f"{k} {v}" for k, v in f.items()
+                             if k not in ("kind", "at", "duration"))
+            until = f"for {f['duration']:g} s" if f.get("duration") else "to the end"
+            lines.append(f"- {f.get('kind')} at {f.get('at'):g} s {until}"
+                         + (f" ({what})" if what else ""))
     failure = result.get("failure")
     if failure:
         lines += ["", "## Failure", "", f"**{failure.get('kind')}**: {failure.get('message')}"]

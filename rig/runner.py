@@ -936,6 +936,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
         "profile": sc.profile,
         "overrides": dict(sc.overrides),
         "firmware_params": dict(sc.firmware),
+        "faults": [f.to_json() for f in sc.faults],
         "ctrl_mode": sc.ctrl_mode,
         "fw_mode": sc.fw_mode,
         "mode": "realtime" if realtime else "lockstep",

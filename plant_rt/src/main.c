@@ -1,8 +1,10 @@
 /* plant_rt: the bench emulator on the bus (DESIGN.md section 4, docs/interfaces.md).
  *
- * Receives VIO_PWM, LOAD_CMD and BENCH_STEP; sends VIO_ADC_x per period, BENCH_TRUTH and
- * BENCH_TRUTH_MAG (decimated on the bus, every period in the trace), BENCH_COUNTERS,
- * BENCH_REJECTS and BENCH_PROGRESS every 100 ms. Lockstep (default) or real-time pacing.
+ * Receives VIO_PWM, LOAD_CMD, FAULT_CMD, BENCH_STEP and VIO_SYNC_ACK; sends VIO_ADC_x per
+ * period (under frame faults through plant_link.h, then with the VIO_SYNC barrier in
+ * lockstep), BENCH_TRUTH and BENCH_TRUTH_MAG (decimated on the bus, every period in the
+ * trace), BENCH_COUNTERS, BENCH_REJECTS and BENCH_PROGRESS every 100 ms. Lockstep (default)
+ * or real-time pacing.
  *
  * Period 0 runs with the start-up command: gates disabled, one SOC at tick 0, so that
  * ADC(0) reaches the firmware, which answers with PWM(1).

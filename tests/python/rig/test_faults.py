@@ -317,6 +317,10 @@ value = 170.0
 """, duration=0.25)
     r = hil_run(s, bus="inproc", record=False)
     assert r.capture is not None and r.data["capture"]["lost"] == 0, r.explain()
+    assert r.data["faults"] == [
+        {"kind": "open_phase", "at": 0.15, "duration": 0.01, "phase": "c"},
+        {"kind": "dc_link", "at": 0.2, "value": 170.0}]
+    assert "- open_phase at 0.15 s for 0.01 s (phase c)" in (r.out_dir / "report.md").read_text()
     cap = r.capture
     ic = -(np.asarray(cap["truth.ia"], float) + np.asarray(cap["truth.ib"], float))
     assert np.abs(ic[1400:1500]).max() > 0.05  # phase c carries current until 0.15 s...
