@@ -467,7 +467,14 @@ int sil_bench_step(sil_bench_t *b)
     plant_samples_t s;
     struct canfd_frame adc[PLANT_VIO_ADC_FRAMES_MAX], truth[2], pwm;
     const int max_out = (int)(sizeof(b->out) / sizeof(b->out[0]));
-    int n, n_out, k, barrier;
+    int n, n_out, k, barrier, rc;
+    /* the command with the faults in force now (plant_link.h; a FAULT_CMD given between
+     * periods acts from the next one, as on the bus) */
+    rc = plant_link_commit(&b->link, &b->pwm, &b->pwm);
+    if (rc != PLANT_REJ_NONE) {
+        b->plant_rejects[rc]++;
+        b->st.plant_rejected++;
+    }
     b->pwm.period = plant_next_period(b->plant);
     if (b->timing) {
         const double t0 = now_ns();
@@ -491,7 +498,7 @@ int sil_bench_step(sil_bench_t *b)
     trace(b, b->plant_trace, &truth[0]);
     trace(b, b->plant_trace, &truth[1]);
     for (k = 0; k < n_out; k++) {
-        int decided = 0, rej;
+        int rej;
         const int r = firmware_adc(b, &b->out[k], &pwm);
         if (r < 0 && !barrier) {
             return -1; /* refused without a fault on the wires: on the bus the lockstep stalls */
@@ -502,23 +509,22 @@ int sil_bench_step(sil_bench_t *b)
         if (b->trace_vio) {
             trace(b, b->plant_trace, &pwm);
         }
-        rej = plant_link_pwm(&b->link, &pwm, 1, &b->pwm, &decided);
+        rej = plant_link_pwm(&b->link, &pwm, 1);
         if (rej != PLANT_REJ_NONE) {
             b->plant_rejects[rej]++;
             b->st.plant_rejected++;
-            if (!decided && !barrier) {
+            if (!barrier && !plant_link_decided(&b->link)) {
                 return -1; /* the plant would wait for a PWM it accepts */
             }
         }
     }
     if (barrier) {
         /* the barrier: everything the firmware made of these frames is in */
-        plant_link_resolve(&b->link, &b->pwm);
+        plant_link_resolve(&b->link);
     }
     if (!plant_link_decided(&b->link)) {
         return -1; /* no PWM(k+1): on the bus the lockstep would stall */
     }
-    b->pwm = *plant_link_command(&b->link);
     return 0;
 }
 

@@ -7,16 +7,20 @@
  * - FAULT_CMD: frame faults are kept here, physical ones go to the plant (plant_set_fault).
  * - ADC out (plant_link_adc_out): the period's VIO_ADC frames under the frame faults on them
  *   (dropped, XOR-corrupted, or held back and delivered after the frames of a later period).
- * - PWM in (plant_link_pwm): the frame that carries PWM(k+1) under the frame faults on
- *   VIO_PWM: dropped (the previous command stays: the compare registers keep their values),
- *   corrupted (then checked; refused: the previous command stays), or applied d periods
- *   late (PWM(k+1) runs in period k+1+d; until the first arrives, the previous command).
- * - Pacing: without faults on VIO_ADC the plant waits for PWM(k+1), as always. Once a frame
- *   fault on VIO_ADC was commanded, whether the firmware answers a period is no longer
- *   known in advance (it may refuse a corrupted frame, a period may be missing), so from
- *   then on every exchange ends with a barrier (plant_link_barrier: plant_rt sends VIO_SYNC
- *   and waits for VIO_SYNC_ACK; in process the firmware has run when the frames are fed)
- *   and plant_link_resolve decides: PWM(k+1) if it came, else the previous command.
+ * - PWM in (plant_link_pwm): the frame that carries PWM(k+1) is kept as it came; the frame
+ *   faults on VIO_PWM act on it when period k+1 is about to run (plant_link_commit), with
+ *   the faults in force then (a FAULT_CMD always arrives before the period it starts, but
+ *   the frame may come before or after it): dropped (the previous command stays: the compare
+ *   registers keep their values), corrupted (then checked; refused: the previous command
+ *   stays), or applied d periods late (PWM(k+1) runs in period k+1+d; until the first is
+ *   due, the previous command).
+ * - Pacing: without faults on VIO_ADC the plant waits for PWM(k+1), as always (a frame that
+ *   fails the checks while no fault acts on VIO_PWM is refused and the plant goes on
+ *   waiting). Once a frame fault on VIO_ADC was commanded, whether the firmware answers a
+ *   period is no longer known in advance (it may refuse a corrupted frame, a period may be
+ *   missing), so from then on every exchange ends with a barrier (plant_link_barrier:
+ *   plant_rt sends VIO_SYNC and waits for VIO_SYNC_ACK; in process the firmware has run when
+ *   the frames are fed), plant_link_resolve; without PWM(k+1) the previous command stays.
  *
  * No I/O, no allocation.
  */
@@ -53,7 +57,7 @@ typedef struct plant_link_stats {
     uint64_t corrupted;    /* frames XORed by FRAME_CORRUPT */
     uint64_t held;         /* periods run on the previous command: no usable PWM update */
     uint64_t overflow;     /* held-back frames or commands dropped for want of room */
-    uint64_t syncs;        /* exchanges that ended with the barrier */
+    uint64_t syncs;        /* exchanges that ended with the barrier (plant_link_resolve) */
 } plant_link_stats_t;
 
 typedef struct plant_link {
@@ -71,7 +75,11 @@ typedef struct plant_link {
     int n_pwmq;
     /* the exchange in progress: the command of period 'expect' */
     uint32_t expect;
-    int decided;
+    int decided;           /* the frame came (or the barrier ended the exchange) */
+    int have_frame;        /* ... and 'frame' is PWM(expect) as it came (CAN FD: frame_fd) */
+    int frame_fd;
+    int have_cmd;          /* 'cmd' is the command already (the start-up command) */
+    struct canfd_frame frame;
     plant_pwm_cmd_t cmd;
     plant_link_stats_t st;
 } plant_link_t;
@@ -106,20 +114,22 @@ int plant_link_adc_out(plant_link_t *l, uint32_t k, const struct canfd_frame *in
 /* 1 when this exchange ends with the barrier (VIO_SYNC) instead of the wait for PWM(k+1). */
 int plant_link_barrier(const plant_link_t *l);
 
-/* A VIO_PWM frame (can_id without flags) while the exchange waits: returns PLANT_REJ_NONE or
- * the reason it was refused (count it); *decided is 1 when the command of the exchange's
- * period is now known (plant_link_command). 'current' is the command the plant ran last. */
-int plant_link_pwm(plant_link_t *l, const struct canfd_frame *f, int fd,
-                   const plant_pwm_cmd_t *current, int *decided);
+/* A VIO_PWM frame (can_id without flags; CAN FD) while the exchange waits: returns
+ * PLANT_REJ_NONE when it is PWM(k+1) (kept for plant_link_commit; the exchange is decided),
+ * else the reason it was refused (count it; the plant goes on waiting). */
+int plant_link_pwm(plant_link_t *l, const struct canfd_frame *f, int fd);
 
-/* 1 when the command of the exchange's period is known. */
+/* 1 when the exchange is decided: PWM(k+1) came, or the barrier ended it. */
 int plant_link_decided(const plant_link_t *l);
 
-/* The end of a barrier exchange: without a usable PWM the previous command stays. */
-void plant_link_resolve(plant_link_t *l, const plant_pwm_cmd_t *current);
+/* The end of a barrier exchange (everything the firmware sent for it is in). */
+void plant_link_resolve(plant_link_t *l);
 
-/* The command of the exchange's period (valid once decided). */
-const plant_pwm_cmd_t *plant_link_command(const plant_link_t *l);
+/* The command of period k+1, just before it runs (or in real time, whenever a decided
+ * exchange's period starts), with the VIO_PWM faults in force now; 'current' is the command
+ * the last period ran on (it stays when no usable update came). Returns PLANT_REJ_NONE, or
+ * the reason the (corrupted) update was refused (count it: the previous command stays). */
+int plant_link_commit(plant_link_t *l, const plant_pwm_cmd_t *current, plant_pwm_cmd_t *out);
 
 /* The statistics as one JSON member, "faults": {...} (the exit counters of plant_rt and of
  * the in-process bench). Returns the length (snprintf semantics). */

@@ -7,6 +7,7 @@
 
 #include "hil_bench.h"
 #include "hil_vio.h"
+#include "plant_vio.h"
 
 static int frame_kind(int kind)
 {
@@ -66,8 +67,10 @@ int plant_decode_fault_cmd(int fd, const uint8_t *data, size_t len, plant_fault_
 void plant_link_init(plant_link_t *l)
 {
     memset(l, 0, sizeof(*l));
-    l->expect = 0;
-    l->decided = 0;
+    /* period 0 runs on the start-up command (docs/interfaces.md) */
+    plant_startup_command(&l->cmd);
+    l->have_cmd = 1;
+    l->decided = 1;
 }
 
 static int pwm_delay_active(const plant_link_t *l)
@@ -131,7 +134,7 @@ int plant_link_adc_out(plant_link_t *l, uint32_t k, const struct canfd_frame *in
 {
     int i, s, n_out = 0, kept = 0;
     l->expect = k + 1u;
-    l->decided = 0;
+    l->decided = l->have_frame = l->have_cmd = 0;
     for (i = 0; i < n; ++i) {
         struct canfd_frame w = in[i];
         const uint32_t id = w.can_id & CAN_SFF_MASK;
@@ -175,9 +178,6 @@ int plant_link_adc_out(plant_link_t *l, uint32_t k, const struct canfd_frame *in
         }
     }
     l->n_held = kept;
-    if (l->barrier) {
-        l->st.syncs++;
-    }
     return n_out;
 }
 
@@ -191,21 +191,52 @@ int plant_link_decided(const plant_link_t *l)
     return l->decided;
 }
 
-static void take(plant_link_t *l, const plant_pwm_cmd_t *cmd)
+static uint32_t raw_period(const struct canfd_frame *f)
 {
-    l->cmd = *cmd;
-    l->cmd.period = l->expect;
+    return f->len >= 4 ? (uint32_t)f->data[0] | ((uint32_t)f->data[1] << 8) |
+                             ((uint32_t)f->data[2] << 16) | ((uint32_t)f->data[3] << 24)
+                       : 0u;
+}
+
+static int pwm_fault_active(const plant_link_t *l)
+{
+    int s;
+    for (s = 0; s < PLANT_FAULT_SLOTS; ++s) {
+        if (l->slot[s].kind != 0 && l->slot[s].id == HIL_VIO_VIO_PWM_FRAME_ID) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+int plant_link_pwm(plant_link_t *l, const struct canfd_frame *f, int fd)
+{
+    const uint32_t id = f->can_id & CAN_SFF_MASK;
+    plant_pwm_cmd_t cmd;
+    const int r = plant_decode_pwm(id, fd, f->data, f->len, l->expect, &cmd);
+    if (l->decided) {
+        /* the exchange is over: a second PWM for its period is as late as any other */
+        return r == PLANT_REJ_NONE ? PLANT_REJ_STALE_PERIOD : r;
+    }
+    if (id != HIL_VIO_VIO_PWM_FRAME_ID || raw_period(f) != l->expect ||
+        (r != PLANT_REJ_NONE && !pwm_fault_active(l))) {
+        return r; /* not PWM(k+1), or refused while no fault acts on it: wait on */
+    }
+    l->frame = *f;
+    l->frame_fd = fd;
+    l->have_frame = 1;
+    l->decided = 1;
+    return PLANT_REJ_NONE; /* (under a fault, its checks come at plant_link_commit) */
+}
+
+void plant_link_resolve(plant_link_t *l)
+{
+    l->st.syncs++;
     l->decided = 1;
 }
 
-static void hold(plant_link_t *l, const plant_pwm_cmd_t *current)
-{
-    take(l, current);
-    l->st.held++;
-}
-
-/* The command of the exchange's period from the PWM delay queue (or the previous one). */
-static void from_queue(plant_link_t *l, const plant_pwm_cmd_t *current)
+/* The command of period 'expect' from the PWM delay queue, else the current one. */
+static void from_queue(plant_link_t *l, const plant_pwm_cmd_t *current, plant_pwm_cmd_t *out)
 {
     int i, kept = 0, found = -1;
     for (i = 0; i < l->n_pwmq; ++i) {
@@ -214,9 +245,10 @@ static void from_queue(plant_link_t *l, const plant_pwm_cmd_t *current)
         }
     }
     if (found >= 0) {
-        take(l, &l->pwmq[found].cmd);
+        *out = l->pwmq[found].cmd;
     } else {
-        hold(l, current);
+        *out = *current;
+        l->st.held++;
     }
     for (i = 0; i < l->n_pwmq; ++i) {
         if ((int32_t)(l->pwmq[i].due - l->expect) > 0) {
@@ -226,55 +258,38 @@ static void from_queue(plant_link_t *l, const plant_pwm_cmd_t *current)
     l->n_pwmq = kept;
 }
 
-int plant_link_pwm(plant_link_t *l, const struct canfd_frame *f, int fd,
-                   const plant_pwm_cmd_t *current, int *decided)
+int plant_link_commit(plant_link_t *l, const plant_pwm_cmd_t *current, plant_pwm_cmd_t *out)
 {
-    const uint32_t id = f->can_id & CAN_SFF_MASK;
-    struct canfd_frame w = *f;
+    struct canfd_frame w = l->frame;
     plant_pwm_cmd_t cmd;
-    uint32_t raw = 0, delay = 0;
-    int s, r, faulted = 0;
-    *decided = 0;
-    if (f->len >= 4) {
-        raw = (uint32_t)f->data[0] | ((uint32_t)f->data[1] << 8) | ((uint32_t)f->data[2] << 16) |
-              ((uint32_t)f->data[3] << 24);
-    }
-    if (l->decided) {
-        /* the period's command is known: a second PWM for it is as late as any other */
-        r = plant_decode_pwm(id, fd, f->data, f->len, l->expect, &cmd);
-        return r == PLANT_REJ_NONE ? PLANT_REJ_STALE_PERIOD : r;
-    }
-    if (id == HIL_VIO_VIO_PWM_FRAME_ID && raw == l->expect) {
-        for (s = 0; s < PLANT_FAULT_SLOTS; ++s) {
-            const plant_link_slot_t *sl = &l->slot[s];
-            if (sl->kind == 0 || sl->id != id) {
-                continue;
+    uint32_t delay = 0;
+    int s, r = PLANT_REJ_NONE, lost = 0, usable = 0;
+    if (l->have_cmd) {
+        *out = l->cmd; /* the start-up command */
+    } else {
+        if (l->have_frame) {
+            const uint32_t id = w.can_id & CAN_SFF_MASK;
+            for (s = 0; s < PLANT_FAULT_SLOTS && !lost; ++s) {
+                const plant_link_slot_t *sl = &l->slot[s];
+                if (sl->kind == 0 || sl->id != id) {
+                    continue;
+                }
+                if (sl->kind == HIL_BENCH_FAULT_CMD_KIND_FRAME_LOSS_CHOICE) {
+                    lost = 1;
+                    l->st.dropped++;
+                } else if (sl->kind == HIL_BENCH_FAULT_CMD_KIND_FRAME_CORRUPT_CHOICE) {
+                    xor_word(&w, sl->byte, sl->xor_mask);
+                    l->st.corrupted++;
+                } else {
+                    delay = sl->delay;
+                }
             }
-            faulted = 1;
-            if (sl->kind == HIL_BENCH_FAULT_CMD_KIND_FRAME_LOSS_CHOICE) {
-                l->st.dropped++;
-                hold(l, current); /* the compare registers keep their values */
-                *decided = 1;
-                return PLANT_REJ_NONE;
-            }
-            if (sl->kind == HIL_BENCH_FAULT_CMD_KIND_FRAME_CORRUPT_CHOICE) {
-                xor_word(&w, sl->byte, sl->xor_mask);
-                l->st.corrupted++;
-            } else {
-                delay = sl->delay;
+            if (!lost) {
+                r = plant_decode_pwm(id, l->frame_fd, w.data, w.len, l->expect, &cmd);
+                usable = r == PLANT_REJ_NONE;
             }
         }
-    }
-    r = plant_decode_pwm(id, fd, w.data, w.len, l->expect, &cmd);
-    if (!faulted) {
-        if (r == PLANT_REJ_NONE) {
-            take(l, &cmd);
-            *decided = 1;
-        }
-        return r; /* an ordinary refusal: the plant goes on waiting */
-    }
-    if (delay > 0) {
-        if (r == PLANT_REJ_NONE) {
+        if (usable && delay > 0) {
             if (l->n_pwmq < PLANT_LINK_PWM_QUEUE) {
                 l->pwmq[l->n_pwmq].cmd = cmd;
                 l->pwmq[l->n_pwmq].due = l->expect + delay;
@@ -283,32 +298,20 @@ int plant_link_pwm(plant_link_t *l, const struct canfd_frame *f, int fd,
             } else {
                 l->st.overflow++;
             }
+            usable = 0;
         }
-        from_queue(l, current);
-    } else if (r == PLANT_REJ_NONE) {
-        take(l, &cmd);
-    } else {
-        hold(l, current); /* the corrupted update was refused */
+        if (usable) {
+            *out = cmd;
+        } else if (pwm_delay_active(l)) {
+            from_queue(l, current, out);
+        } else {
+            *out = *current; /* no usable update: the compare registers keep their values */
+            l->st.held++;
+        }
     }
-    *decided = 1;
+    out->period = l->expect;
+    l->have_cmd = l->have_frame = 0;
     return r;
-}
-
-void plant_link_resolve(plant_link_t *l, const plant_pwm_cmd_t *current)
-{
-    if (l->decided) {
-        return;
-    }
-    if (pwm_delay_active(l)) {
-        from_queue(l, current);
-    } else {
-        hold(l, current);
-    }
-}
-
-const plant_pwm_cmd_t *plant_link_command(const plant_link_t *l)
-{
-    return &l->cmd;
 }
 
 int plant_link_stats_json(const plant_link_t *l, char *buf, size_t len)

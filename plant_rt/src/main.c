@@ -354,14 +354,12 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
                                                    ((uint32_t)f->data[2] << 16) |
                                                    ((uint32_t)f->data[3] << 24))
                                                 : 0u;
-        int decided = 0;
-        const int r = plant_link_pwm(&a->link, f, fd, &a->current, &decided);
+        const int r = plant_link_pwm(&a->link, f, fd);
         if (a->opt.trace_vio) {
             trace_frame(a, f->can_id, f->data, f->len);
         }
-        if (decided && !a->waiting_sync) { /* under the barrier: decided at its answer */
+        if (r == PLANT_REJ_NONE && !a->waiting_sync) { /* under the barrier: at its answer */
             in->have_pwm = 1;
-            in->pwm = *plant_link_command(&a->link);
             in->pwm_arrival_ns = now_ns();
         }
         if (r == PLANT_REJ_NONE) {
@@ -389,9 +387,8 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
         hil_vio_vio_sync_ack_unpack(&m, f->data, f->len);
         if (a->waiting_sync && m.seq == a->sync_seq && m.period + 1u == a->link.expect) {
             /* everything the firmware sent for this period is here: PWM(k+1) or none */
-            plant_link_resolve(&a->link, &a->current);
+            plant_link_resolve(&a->link);
             in->have_pwm = 1;
-            in->pwm = *plant_link_command(&a->link);
             in->pwm_arrival_ns = now_ns();
             a->waiting_sync = 0;
             a->cnt.sync_acks++;
@@ -490,7 +487,14 @@ static int lockstep(app_t *a)
             next_housekeeping = t + HOUSEKEEPING_NS;
         }
         if (in.have_pwm && grant_open(a, k)) {
-            run_period(a, &in.pwm);
+            plant_pwm_cmd_t cmd;
+            /* the command with the faults in force now (the FAULT_CMD of this period came
+             * with its grant, the PWM frame may have come before it) */
+            const int rc = plant_link_commit(&a->link, &a->current, &cmd);
+            if (rc != PLANT_REJ_NONE) {
+                reject(a, rc, HIL_VIO_VIO_PWM_FRAME_ID, cmd.period);
+            }
+            run_period(a, &cmd);
             in.have_pwm = 0;
             waiting_pwm = 1;
             adc_sent_ns = now_ns();
@@ -637,9 +641,12 @@ static int realtime(app_t *a)
         while (hilbus_recv(a->bus, &f, &fd, 0) == 1) {
             handle_frame(a, &f, fd, &in, deadline);
         }
-        if (in.have_pwm) {
-            current = in.pwm;
-        } else if (k > 0) {
+        if (in.have_pwm || k == 0) {
+            const int rc = plant_link_commit(&a->link, &current, &current);
+            if (rc != PLANT_REJ_NONE) {
+                reject(a, rc, HIL_VIO_VIO_PWM_FRAME_ID, current.period);
+            }
+        } else {
             a->cnt.late_cmds++; /* the old compare values stay loaded */
         }
         run_period(a, &current);

@@ -61,15 +61,14 @@ static void plant_side(plant_t *plant, const struct canfd_frame *f, int fd, uint
     static struct canfd_frame out[PLANT_VIO_ADC_FRAMES_MAX + PLANT_LINK_HELD_MAX];
     plant_pwm_cmd_t cur;
     char err[128];
-    int decided = 0;
     if ((f->can_id & CAN_SFF_MASK) == HIL_BENCH_FAULT_CMD_FRAME_ID) {
         (void)plant_link_fault(&wires, plant, fd, f->data, f->len, err, sizeof err);
         return;
     }
     plant_startup_command(&cur);
-    (void)plant_link_pwm(&wires, f, fd, &cur, &decided);
-    plant_link_resolve(&wires, &cur);
-    (void)plant_link_command(&wires);
+    (void)plant_link_pwm(&wires, f, fd);
+    plant_link_resolve(&wires);
+    (void)plant_link_commit(&wires, &cur, &cur);
     (void)plant_link_adc_out(&wires, (*k)++, f, 1, out,
                              (int)(sizeof(out) / sizeof(out[0])));
 }

@@ -337,15 +337,12 @@ static void pwm_frame(uint32_t period, int cmp, struct canfd_frame *f)
 static int exchange(plant_link_t *l, uint32_t k, int cmp, plant_pwm_cmd_t *cur)
 {
     struct canfd_frame in[2], out[8], f;
-    int decided = 0;
     adc_frames(k, in);
     (void)plant_link_adc_out(l, k, in, 1, out, 8);
     pwm_frame(k + 1, cmp, &f);
-    (void)plant_link_pwm(l, &f, 1, cur, &decided);
-    if (!decided) {
-        plant_link_resolve(l, cur);
-    }
-    *cur = *plant_link_command(l);
+    CHECK(plant_link_pwm(l, &f, 1) == PLANT_REJ_NONE && plant_link_decided(l));
+    (void)plant_link_commit(l, cur, cur);
+    CHECK(cur->period == k + 1);
     return cur->cmp_up[0];
 }
 
@@ -356,8 +353,7 @@ static void test_link_pwm(void)
     plant_pwm_cmd_t cur;
     uint8_t buf[64];
     char err[128];
-    struct canfd_frame f;
-    int decided = 0;
+    struct canfd_frame f, in[2], out[8];
     if (p == NULL || l == NULL) {
         ++g_failures;
         free(l);
@@ -365,31 +361,60 @@ static void test_link_pwm(void)
         return;
     }
     plant_link_init(l);
-    plant_startup_command(&cur);
+    memset(&cur, 0xA5, sizeof(cur));
+    CHECK(plant_link_commit(l, &cur, &cur) == PLANT_REJ_NONE); /* period 0: the start-up */
+    CHECK(cur.period == 0 && cur.gate_enable == 0 && cur.n_soc == 1 && cur.soc[0] == 0);
     CHECK(exchange(l, 0, 100, &cur) == 100 && cur.period == 1);
     /* a second PWM of a decided period is as late as any other */
     pwm_frame(1, 300, &f);
-    CHECK(plant_link_pwm(l, &f, 1, &cur, &decided) == PLANT_REJ_STALE_PERIOD && !decided);
+    CHECK(plant_link_pwm(l, &f, 1) == PLANT_REJ_STALE_PERIOD);
+    /* without a fault on VIO_PWM a refused PWM(k+1) leaves the exchange open (the plant
+     * waits for a good one); the barrier ends it, and the values stay */
+    adc_frames(1, in);
+    (void)plant_link_adc_out(l, 1, in, 1, out, 8);
+    pwm_frame(2, 200, &f);
+    f.data[5] ^= 0x20; /* cmp_a_up 200 -> 8392: outside the DBC */
+    CHECK(plant_link_pwm(l, &f, 1) == PLANT_REJ_OUT_OF_RANGE && !plant_link_decided(l));
+    plant_link_resolve(l);
+    CHECK(plant_link_decided(l) && plant_link_commit(l, &cur, &cur) == PLANT_REJ_NONE);
+    CHECK(cur.cmp_up[0] == 100 && cur.period == 2);
+    /* PWM(k+1) may come before the FAULT_CMD of period k+1: the fault still acts on it */
+    adc_frames(2, in);
+    (void)plant_link_adc_out(l, 2, in, 1, out, 8);
+    pwm_frame(3, 250, &f);
+    CHECK(plant_link_pwm(l, &f, 1) == PLANT_REJ_NONE);
     /* VIO_PWM lost: the compare values stay */
     pack_fault(buf, 5, KIND(FRAME_LOSS), HIL_VIO_VIO_PWM_FRAME_ID, 0, 0, 0);
     CHECK(plant_link_fault(l, p, 1, buf, HIL_BENCH_FAULT_CMD_LENGTH, err, sizeof(err)) == 0);
-    CHECK(exchange(l, 1, 200, &cur) == 100 && cur.period == 2);
+    CHECK(plant_link_commit(l, &cur, &cur) == PLANT_REJ_NONE);
+    CHECK(cur.cmp_up[0] == 100 && cur.period == 3);
     /* VIO_PWM 2 periods late: PWM(k+1) runs in period k+3 */
     pack_fault(buf, 5, KIND(FRAME_DELAY), HIL_VIO_VIO_PWM_FRAME_ID, 2, 0, 0);
     CHECK(plant_link_fault(l, p, 1, buf, HIL_BENCH_FAULT_CMD_LENGTH, err, sizeof(err)) == 0);
-    CHECK(exchange(l, 2, 301, &cur) == 100); /* period 3: nothing due yet */
-    CHECK(exchange(l, 3, 302, &cur) == 100); /* period 4 */
-    CHECK(exchange(l, 4, 303, &cur) == 301); /* period 5: PWM(3) */
-    CHECK(exchange(l, 5, 304, &cur) == 302 && cur.period == 6);
+    CHECK(exchange(l, 3, 301, &cur) == 100); /* period 4: nothing due yet */
+    CHECK(exchange(l, 4, 302, &cur) == 100); /* period 5 */
+    CHECK(exchange(l, 5, 303, &cur) == 301); /* period 6: PWM(4) */
+    CHECK(exchange(l, 6, 304, &cur) == 302 && cur.period == 7);
     /* corrupted beyond the DBC (cmp_a_up 0x2000 + 303 > 5000): refused, the values stay */
     pack_fault(buf, 5, KIND(FRAME_CORRUPT), HIL_VIO_VIO_PWM_FRAME_ID, 0, 4, 0x2000);
     CHECK(plant_link_fault(l, p, 1, buf, HIL_BENCH_FAULT_CMD_LENGTH, err, sizeof(err)) == 0);
-    CHECK(exchange(l, 6, 400, &cur) == 302);
+    {
+        struct canfd_frame fr;
+        adc_frames(7, in);
+        (void)plant_link_adc_out(l, 7, in, 1, out, 8);
+        pwm_frame(8, 400, &fr);
+        CHECK(plant_link_pwm(l, &fr, 1) == PLANT_REJ_NONE); /* taken; checked when it runs */
+        CHECK(plant_link_commit(l, &cur, &cur) == PLANT_REJ_OUT_OF_RANGE);
+        CHECK(cur.cmp_up[0] == 302 && cur.period == 8);
+    }
     /* freed: PWM(k+1) again */
     pack_fault(buf, 5, KIND(NONE), 0, 0, 0, 0);
     CHECK(plant_link_fault(l, p, 1, buf, HIL_BENCH_FAULT_CMD_LENGTH, err, sizeof(err)) == 0);
-    CHECK(exchange(l, 7, 500, &cur) == 500);
-    CHECK(l->st.held == 4 && l->st.dropped == 1 && l->st.corrupted == 1);
+    CHECK(exchange(l, 8, 500, &cur) == 500);
+    /* held: the refused update, the lost one, two periods before the first delayed one is
+     * due, the refused corrupted one */
+    CHECK(l->st.held == 5 && l->st.dropped == 1 && l->st.corrupted == 1);
+    CHECK(l->st.delayed == 4 && l->st.syncs == 1);
     free(l);
     plant_free(p);
 }
