@@ -1,14 +1,15 @@
 """Runs a scenario (or a suite) end to end: plant and firmware up, commands, capture, verdict.
 
-Lockstep (default): before each grant the rig sends DRIVE_LIMITS, DRIVE_CMD, LOAD_CMD and
-then BENCH_STEP; the plant simulates up to ``run_until`` and answers BENCH_PROGRESS. Grants
-last at most ``grant_max_s`` (100 ms) of simulated time and end exactly at every profile
-breakpoint, so commands take effect on an exact period. Speed ramps are the firmware's own
-ramp: at a segment start the rig sets ``speed_ref`` to the segment's target and
-``accel_max`` to the segment's slope (a step uses the DBC maximum of ``accel_max``); the
-expected reference (``speed_ref_rpm`` in the capture) is the same rate limiter evaluated
-here. Torque ramps of the load are sent as 1 ms steps. DRIVE_CMD goes out with every grant,
-which also keeps the firmware's command time-out alive.
+Lockstep (default): before each grant the rig sends DRIVE_LIMITS, DRIVE_CMD, LOAD_CMD, the
+FAULT_CMDs of faults that start or end on its first period (``rig.faults``; faults on the
+rig's own frames act in ``rig.drive_link``) and then BENCH_STEP; the plant simulates up to
+``run_until`` and answers BENCH_PROGRESS. Grants last at most ``grant_max_s`` (100 ms) of
+simulated time and end exactly at every profile breakpoint, so commands take effect on an
+exact period. Speed ramps are the firmware's own ramp: at a segment start the rig sets
+``speed_ref`` to the segment's target and ``accel_max`` to the segment's slope (a step uses
+the DBC maximum of ``accel_max``); the expected reference (``speed_ref_rpm`` in the capture)
+is the same rate limiter evaluated here. Torque ramps of the load are sent as 1 ms steps.
+DRIVE_CMD goes out with every grant, which also keeps the firmware's command time-out alive.
 
 Real-time: the same commands on the wall clock against the plant's period counter
 (estimated from BENCH_PROGRESS), DRIVE_CMD every 10 ms.
@@ -17,8 +18,9 @@ In process (``--bus inproc``, ``rig.sil``): no programs and no bus; the same fra
 in-process bench before each of the same grants, and a grant runs the bench to its
 ``run_until`` (lockstep only). The traces are the same files.
 
-Afterwards the traces are merged (``rig.capture``), the criteria evaluated
-(``rig.metrics``), and ``result.json``, ``report.md`` and ``recording.rrd`` written.
+Afterwards the traces are merged (``rig.capture``), the criteria evaluated on the data the
+run produced (``rig.verdict``, ``rig.metrics``), and ``result.json``, ``report.md`` and
+``recording.rrd`` written.
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """Scenarios as data: one TOML file per scenario, suites as files listing scenarios.
 
 A scenario names a fidelity profile (plus overrides), the drive modes, a speed profile (a
-sequence of segments), a load profile (events at absolute times), the initial rotor state,
-the duration and the pass criteria. ``load()`` validates a file and reports every schema
-error with the file, the line and the field (``file:line: field: message``); the CLI exits 2
-on them. The wire enumerations (control modes, flux-weakening modes, load modes) come from
-the DBC choices, not from this module.
+sequence of segments), a load profile (events at absolute times), faults (``[[faults]]``,
+``rig.faults``), the initial rotor state, the duration and the pass criteria. ``load()``
+validates a file and reports every schema error with the file, the line and the field
+(``file:line: field: message``); the CLI exits 2 on them. The wire enumerations (control
+modes, flux-weakening modes, load modes) come from the DBC choices, not from this module.
 
 Times are simulated seconds from the start of PWM period 0 and are rounded to the PWM
 period (100 µs) when the scenario is planned.
