@@ -26,8 +26,8 @@ from functools import cache
 from typing import Any, Protocol
 
 from rig import protocols
+from rig.capture import TS
 
-TS = 100e-6  # PWM period (docs/interfaces.md)
 HEARTBEAT_LOSS = "heartbeat_loss"
 FRAME_KINDS = ("frame_loss", "frame_delay", "frame_corrupt")
 # the frames of the virtual I/O the plant's side of the wires handles (plant_link.h)
