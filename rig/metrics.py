@@ -500,6 +500,95 @@ def _slopes(w: Window, p: Mapping[str, float]) -> float:
     return float(np.mean(s == 2)) if s.size else float("nan")
 
 
+# --------------------------------------------------------------------------------------
+# Faults: what the firmware's protection made of an injected fault (window t0 = the fault)
+
+
+def _drive_status_choice(signal: str, name: str) -> int:
+    from rig import protocols
+
+    sig = protocols.database("drive").get_message_by_name("DRIVE_STATUS").get_signal_by_name(
+        signal)
+    return next(int(v) for v, n in (sig.choices or {}).items() if str(n) == name)
+
+
+def firmware_state(name: str) -> int:
+    """A drive state's number (DRIVE_STATUS.state in protocols/drive.dbc; FW_TRACE.state
+    carries the same values)."""
+    return _drive_status_choice("state", name)
+
+
+def fault_code(name: str) -> int:
+    """A fault code's number (DRIVE_STATUS.fault_code in protocols/drive.dbc; the counter
+    ``firmware.fault_code`` of a run carries the same values)."""
+    return _drive_status_choice("fault_code", name)
+
+
+def first_index(mask: npt.ArrayLike) -> float:
+    """Index of the first true element; inf when there is none."""
+    hits = np.flatnonzero(np.asarray(mask, dtype=bool))
+    return float(hits[0]) if hits.size else math.inf
+
+
+def periods_until_held(ok: npt.ArrayLike) -> float:
+    """Periods from the start until ``ok`` holds in every later period (0 when it holds
+    throughout, inf when it does not hold at the end)."""
+    good = np.asarray(ok, dtype=bool)
+    if good.size == 0:
+        return math.nan
+    if good.all():
+        return 0.0
+    if not good[-1]:
+        return math.inf
+    return float(np.flatnonzero(~good)[-1] + 1)
+
+
+def phase_current_peak(ia: npt.ArrayLike, ib: npt.ArrayLike) -> FloatArray:
+    """max(|ia|, |ib|, |ic|) per sample, ic = -ia - ib (isolated star point)."""
+    a = np.abs(np.asarray(ia, dtype=np.float64))
+    b = np.abs(np.asarray(ib, dtype=np.float64))
+    c = np.abs(np.asarray(ia, dtype=np.float64) + np.asarray(ib, dtype=np.float64))
+    return np.maximum(np.maximum(a, b), c)
+
+
+@_register("detect_periods", "periods",
+           "periods from the window's start (the fault) until the firmware is in its FAULT "
+           "state (FW_TRACE.state; 0: its ISR of that very period); inf: not within the window")
+def _detect(w: Window, p: Mapping[str, float]) -> float:
+    return first_index(w.get("fw.state") == firmware_state("FAULT"))
+
+
+@_register("fw_state_start", "",
+           "firmware state in the window's first period (DRIVE_STATUS.state values: 3 RUN, "
+           "4 FAULT, ...)")
+def _state_start(w: Window, p: Mapping[str, float]) -> float:
+    s = w.get("fw.state")
+    return float(s[0]) if s.size else math.nan
+
+
+@_register("fw_state_end", "",
+           "firmware state in the window's last period (DRIVE_STATUS.state values: 3 RUN, "
+           "4 FAULT, ...)")
+def _state_end(w: Window, p: Mapping[str, float]) -> float:
+    s = w.get("fw.state")
+    return float(s[-1]) if s.size else math.nan
+
+
+@_register("i_phase_peak_a", "A", "max |phase current| of the three phases (truth)")
+def _i_phase_peak(w: Window, p: Mapping[str, float]) -> float:
+    return _stat(phase_current_peak(w.get("truth.ia"), w.get("truth.ib")), "max")
+
+
+@_register("safe_state_periods", "periods",
+           "periods from the window's start until the drive is safe to the window's end: "
+           "the firmware in FAULT (its outputs off) and every phase current within i_safe_a "
+           "(truth); inf: not within the window", params={"i_safe_a": 0.1})
+def _safe(w: Window, p: Mapping[str, float]) -> float:
+    safe = (w.get("fw.state") == firmware_state("FAULT")) & (
+        phase_current_peak(w.get("truth.ia"), w.get("truth.ib")) <= p["i_safe_a"])
+    return periods_until_held(safe)
+
+
 @_register("capture_lost", "", "capture loss: missing periods over all traces", scope="run")
 def _lost(w: Window, p: Mapping[str, float]) -> float:
     return float(w.counters.get("capture.lost", float("nan")))
@@ -508,6 +597,14 @@ def _lost(w: Window, p: Mapping[str, float]) -> float:
 @_register("capture_duplicates", "", "capture duplicates over all traces", scope="run")
 def _dups(w: Window, p: Mapping[str, float]) -> float:
     return float(w.counters.get("capture.duplicates", float("nan")))
+
+
+# What an infinite value means, per metric (the criterion's note).
+INFINITE_NOTES: dict[str, str] = {
+    "recovery_time_s": "never settled",
+    "detect_periods": "no FAULT state within the window (not detected)",
+    "safe_state_periods": "no safe state within the window",
+}
 
 
 def is_counter(name: str) -> bool:

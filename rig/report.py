@@ -52,6 +52,15 @@ def scenario_report(result: Mapping[str, Any]) -> str:
     ]
     if result.get("figure"):
         lines.append(f"| paper | {result['figure']} |")
+    injected = result.get("faults") or []
+    if injected:
+        lines += ["", "## Faults injected", ""]
+        for f in injected:
+            what = ", ".join(f"{k} {v}" for k, v in f.items()
+                             if k not in ("kind", "at", "duration"))
+            until = f"for {f['duration']:g} s" if f.get("duration") else "to the end"
+            lines.append(f"- {f.get('kind')} at {f.get('at'):g} s {until}"
+                         + (f" ({what})" if what else ""))
     failure = result.get("failure")
     if failure:
         lines += ["", "## Failure", "", f"**{failure.get('kind')}**: {failure.get('message')}"]
@@ -113,7 +122,8 @@ def scenario_report(result: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-_OUTCOME = {"pass": "pass", "fail": "**FAIL**", "xfail": "XFAIL", "xpass": "**XPASS**"}
+_OUTCOME = {"pass": "pass", "fail": "**FAIL**", "xfail": "XFAIL", "xpass": "**XPASS**",
+            "not_evaluated": "**NOT EVALUATED**"}
 _TABLE2 = re.compile(r"table2_(\d+)rpm_([0-9p]+)nm")
 
 
@@ -143,7 +153,8 @@ def _metric(s: Mapping[str, Any], metric: str) -> Mapping[str, Any] | None:
 def _cell(c: Mapping[str, Any] | None) -> str:
     if c is None:
         return "—"
-    mark = {"fail": " ✗", "xfail": " (xfail)", "xpass": " (XPASS)"}.get(_outcome(c), "")
+    mark = {"fail": " ✗", "xfail": " (xfail)", "xpass": " (XPASS)",
+            "not_evaluated": " (not evaluated)"}.get(_outcome(c), "")
     return f"{_fmt(c.get('value'), 3)}{mark}"
 
 
@@ -203,7 +214,9 @@ def _figures(entries: list[Mapping[str, Any]]) -> list[str]:
                 lines.append(f"| {c.get('name')} | {_fmt(c.get('value'))} {c.get('unit') or ''}"
                              f" | {_bound(c)} | {_OUTCOME.get(_outcome(c), _outcome(c))} |")
             for c in crits:
-                if c.get("xfail"):
+                if _outcome(c) == "not_evaluated":
+                    lines.append(f"\n- {c.get('name')}: {c.get('note')}")
+                elif c.get("xfail"):
                     lines.append(f"\n- {c.get('name')}: expected failure: {c['xfail']}")
         if s.get("failure"):
             lines += ["", f"run failure: {s['failure']}"]
@@ -224,7 +237,9 @@ def _comparisons(comps: list[Mapping[str, Any]]) -> list[str]:
             f"{c['b']}: {_fmt(c.get('value_b'))}{unit} | {c['relation']} | "
             f"{_OUTCOME.get(c['outcome'], c['outcome'])} |")
     for c in comps:
-        if c.get("xfail"):
+        if c.get("note"):
+            lines.append(f"\n- {c['name']}: {c['note']}")
+        elif c.get("xfail"):
             lines.append(f"\n- {c['name']}: expected failure: {c['xfail']}")
     return [*lines, ""]
 
@@ -232,7 +247,7 @@ def _comparisons(comps: list[Mapping[str, Any]]) -> list[str]:
 def suite_report(summary: Mapping[str, Any]) -> str:
     verdict = "PASS" if summary.get("passed") else "FAIL"
     entries = list(summary.get("scenarios", []))
-    counts = {"pass": 0, "fail": 0, "xfail": 0, "xpass": 0}
+    counts = {"pass": 0, "fail": 0, "xfail": 0, "xpass": 0, "not_evaluated": 0}
     for s in entries:
         for c in s.get("criteria") or []:
             o = _outcome(c)
@@ -246,7 +261,7 @@ def suite_report(summary: Mapping[str, Any]) -> str:
         "",
         f"{sum(1 for s in entries if s.get('passed'))}/{len(entries)} scenarios passed; "
         f"criteria: {counts['pass']} pass, {counts['fail']} fail, {counts['xfail']} xfail, "
-        f"{counts['xpass']} xpass.",
+        f"{counts['xpass']} xpass, {counts['not_evaluated']} not evaluated.",
         "",
     ]
     lines += _table2(entries)

@@ -1,14 +1,15 @@
 """Runs a scenario (or a suite) end to end: plant and firmware up, commands, capture, verdict.
 
-Lockstep (default): before each grant the rig sends DRIVE_LIMITS, DRIVE_CMD, LOAD_CMD and
-then BENCH_STEP; the plant simulates up to ``run_until`` and answers BENCH_PROGRESS. Grants
-last at most ``grant_max_s`` (100 ms) of simulated time and end exactly at every profile
-breakpoint, so commands take effect on an exact period. Speed ramps are the firmware's own
-ramp: at a segment start the rig sets ``speed_ref`` to the segment's target and
-``accel_max`` to the segment's slope (a step uses the DBC maximum of ``accel_max``); the
-expected reference (``speed_ref_rpm`` in the capture) is the same rate limiter evaluated
-here. Torque ramps of the load are sent as 1 ms steps. DRIVE_CMD goes out with every grant,
-which also keeps the firmware's command time-out alive.
+Lockstep (default): before each grant the rig sends DRIVE_LIMITS, DRIVE_CMD, LOAD_CMD, the
+FAULT_CMDs of faults that start or end on its first period (``rig.faults``; faults on the
+rig's own frames act in ``rig.drive_link``) and then BENCH_STEP; the plant simulates up to
+``run_until`` and answers BENCH_PROGRESS. Grants last at most ``grant_max_s`` (100 ms) of
+simulated time and end exactly at every profile breakpoint, so commands take effect on an
+exact period. Speed ramps are the firmware's own ramp: at a segment start the rig sets
+``speed_ref`` to the segment's target and ``accel_max`` to the segment's slope (a step uses
+the DBC maximum of ``accel_max``); the expected reference (``speed_ref_rpm`` in the capture)
+is the same rate limiter evaluated here. Torque ramps of the load are sent as 1 ms steps.
+DRIVE_CMD goes out with every grant, which also keeps the firmware's command time-out alive.
 
 Real-time: the same commands on the wall clock against the plant's period counter
 (estimated from BENCH_PROGRESS), DRIVE_CMD every 10 ms.
@@ -17,8 +18,9 @@ In process (``--bus inproc``, ``rig.sil``): no programs and no bus; the same fra
 in-process bench before each of the same grants, and a grant runs the bench to its
 ``run_until`` (lockstep only). The traces are the same files.
 
-Afterwards the traces are merged (``rig.capture``), the criteria evaluated
-(``rig.metrics``), and ``result.json``, ``report.md`` and ``recording.rrd`` written.
+Afterwards the traces are merged (``rig.capture``), the criteria evaluated on the data the
+run produced (``rig.verdict``, ``rig.metrics``), and ``result.json``, ``report.md`` and
+``recording.rrd`` written.
 """
 
 from __future__ import annotations
@@ -33,7 +35,6 @@ import platform
 import shutil
 import sys
 import time
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -43,12 +44,26 @@ from typing import Any
 import can
 import numpy as np
 
-from rig import __version__, _paths, capture, metrics, output, protocols, recording, report, sil
+from rig import (
+    __version__,
+    _paths,
+    capture,
+    drive_link,
+    faults,
+    metrics,
+    output,
+    protocols,
+    recording,
+    report,
+    scenario,
+    sil,
+)
 from rig.firmware_from_profile import firmware_settings
 from rig.frames import FrameDecoder
 from rig.progress import Progress
-from rig.scenario import Comparison, Criterion, Scenario, Suite
+from rig.scenario import Comparison, Scenario, Suite
 from rig.supervisor import ChildFailed, StopReport, Supervisor, Terminated
+from rig.verdict import AGAINST, NOT_EVALUATED, Coverage, evaluate_one, outcome, outcome_of
 
 TS = capture.TS
 PROGRESS_RESEND_S = 1.0  # re-send a grant when the plant has said nothing for this long
@@ -120,8 +135,9 @@ class RunResult:
         return list(self.data.get("criteria", []))
 
     def failed_criteria(self) -> list[dict[str, Any]]:
-        """Criteria that count against the run (an XFAIL does not, an XPASS does not)."""
-        return [c for c in self.criteria if outcome(c) == "fail"]
+        """Criteria that count against the run: failed or not evaluated (an XFAIL does not,
+        an XPASS does not)."""
+        return [c for c in self.criteria if outcome(c) in AGAINST]
 
     def expected_failures(self) -> list[dict[str, Any]]:
         return [c for c in self.criteria if outcome(c) in ("xfail", "xpass")]
@@ -154,6 +170,9 @@ class RunResult:
             if failure.get("log_tail"):
                 lines += ["    " + x for x in str(failure["log_tail"]).splitlines()[-15:]]
         for c in self.failed_criteria():
+            if outcome(c) == NOT_EVALUATED:
+                lines.append(f"  NOT EVALUATED {c['name']}: {c.get('note')}")
+                continue
             lines.append(
                 f"  FAIL {c['name']}: {c['metric']} over {c['window']} = {c['value']} "
                 f"(limit {c['comparison']} {c['limit']})"
@@ -231,6 +250,10 @@ class Plan:
     load_events: dict[int, LoadState]
     boundaries: list[int]
     grant_max: int
+    # FAULT_CMD signals to send before the grant that starts on a period (plant-side faults)
+    fault_cmds: dict[int, list[dict[str, float | int]]] = field(default_factory=dict)
+    # the faults on the rig's own frames (rig.drive_link)
+    link_windows: list[drive_link.Window] = field(default_factory=list)
 
     @classmethod
     def build(cls, sc: Scenario) -> Plan:
@@ -257,9 +280,30 @@ class Plan:
         loads: dict[int, LoadState] = {}
         for lc in sc.load_commands():
             loads[at(lc.t)] = LoadState(lc.mode, lc.torque, lc.speed, lc.k_speed)
-        bps = {at(t) for t in sc.breakpoints(step)} | set(drive) | set(loads)
-        bounds = [*sorted(p for p in bps if 0 < p < n), n]
-        return cls(n, drive, loads, bounds, max(1, round(sc.grant_max_s / TS)))
+        fault_cmds: dict[int, list[dict[str, float | int]]] = {}
+        slot = 0
+        for f in sc.faults:
+            if not f.on_plant:
+                continue
+            start, end = f.periods(n)
+            fault_cmds.setdefault(start, []).append(f.fault_cmd(slot))
+            if end < n:
+                fault_cmds.setdefault(end, []).append(faults.Fault.clear_cmd(slot))
+            slot += 1
+        link_windows = drive_link.windows(sc.faults, n)
+        bps = {at(t) for t in sc.breakpoints(step)} | set(drive) | set(loads) | set(fault_cmds)
+        for w in link_windows:
+            bps |= {w.start, w.end}
+        plan = cls(n, drive, loads, [], max(1, round(sc.grant_max_s / TS)), fault_cmds,
+                   link_windows)
+        while True:
+            # a frame the rig holds back arrives exactly before its due period: make every
+            # due period a grant start (due periods of those starts too, up to a fixed point)
+            plan.boundaries = [*sorted(p for p in bps if 0 < p < n), n]
+            due = drive_link.due_periods(link_windows, (g[0] for g in plan.grants()), n)
+            if due <= bps:
+                return plan
+            bps |= due
 
     def grants(self) -> list[tuple[int, int]]:
         """(start, run_until) pairs covering [0, n)."""
@@ -276,16 +320,22 @@ class Plan:
 class Commander:
     """Encodes and sends the rig's frames (cantools; layouts only from the DBC)."""
 
-    def __init__(self, bus: can.BusABC | sil.BenchPort) -> None:
+    def __init__(self, bus: can.BusABC | sil.BenchPort,
+                 link: drive_link.DriveLink | None = None) -> None:
         self.bus = bus
         self.alive = 0
         self.load_seq = 0
         self.step_seq = 0
+        self.fault_seq = 0
         self.tx = 0
+        self.link = link if link is not None else drive_link.DriveLink()
+        # the frames sent since the last at(), and whether a fault corrupted each
+        self.batch: list[tuple[can.Message, bool]] = []
         self._m = {
             "DRIVE_CMD": _msg("drive", "DRIVE_CMD"),
             "DRIVE_LIMITS": _msg("drive", "DRIVE_LIMITS"),
             "LOAD_CMD": _msg("bench", "LOAD_CMD"),
+            "FAULT_CMD": _msg("bench", "FAULT_CMD"),
             "BENCH_STEP": _msg("bench", "BENCH_STEP"),
         }
         self._ctrl = _choices("drive", "DRIVE_CMD", "ctrl_mode")
@@ -294,12 +344,45 @@ class Commander:
 
     def _send(self, name: str, values: Mapping[str, float | int]) -> None:
         m = self._m[name]
-        data = m.encode(dict(values), scaling=True, strict=True)
-        self.bus.send(
-            can.Message(arbitration_id=m.frame_id, is_extended_id=m.is_extended_frame,
-                        data=data, is_fd=bool(m.is_fd), bitrate_switch=False)
-        )
+        data = bytes(m.encode(dict(values), scaling=True, strict=True))
+        if name in faults.RIG_MESSAGES:
+            sent = self.link.filter(name, data)
+            if sent is None:
+                return  # dropped or held back by a fault (rig.drive_link)
+            self._send_raw(name, sent, faulted=sent != data)
+            return
+        self._send_raw(name, data)
+
+    def _send_raw(self, name: str, data: bytes, faulted: bool = False) -> None:
+        m = self._m[name]
+        msg = can.Message(arbitration_id=m.frame_id, is_extended_id=m.is_extended_frame,
+                          data=data, is_fd=bool(m.is_fd), bitrate_switch=False)
+        self._put(msg, faulted)
+        self.batch.append((msg, faulted))
+
+    def _put(self, msg: can.Message, faulted: bool) -> None:
+        if faulted and isinstance(self.bus, sil.BenchPort):
+            self.bus.send_faulted(msg)
+        else:
+            self.bus.send(msg)
         self.tx += 1
+
+    def at(self, period: int) -> None:
+        """The sends that follow are before ``period``: frames held back until then go
+        first."""
+        self.batch = []
+        self.link.at(period)
+        for name, data, corrupted in self.link.due():
+            self._send_raw(name, data, faulted=corrupted)
+
+    def resend(self) -> None:
+        """The frames sent since the last ``at()`` again, byte for byte (a lost grant)."""
+        for msg, faulted in list(self.batch):
+            self._put(msg, faulted)
+
+    def fault(self, values: Mapping[str, float | int]) -> None:
+        self.fault_seq = (self.fault_seq + 1) % 256
+        self._send("FAULT_CMD", {**values, "seq": self.fault_seq})
 
     def drive(self, s: DriveState) -> None:
         self._send("DRIVE_LIMITS", {"i_max": s.i_max, "speed_max": s.speed_max,
@@ -504,20 +587,7 @@ def profile_values(sc: Scenario) -> tuple[Path | None, dict[str, Any]]:
         path = _paths.data_dir("profiles") / f"{sc.profile}.toml"
     except FileNotFoundError:
         return None, dict(sc.overrides)
-    values: dict[str, Any] = {}
-    if path.is_file():
-        data = tomllib.loads(path.read_text())
-
-        def walk(prefix: str, d: Mapping[str, Any]) -> None:
-            for k, v in d.items():
-                if isinstance(v, Mapping):
-                    walk(f"{prefix}{k}.", v)
-                else:
-                    values[f"{prefix}{k}"] = v
-
-        walk("", data)
-    values.update(sc.overrides)
-    return (path if path.is_file() else None), values
+    return (path if path.is_file() else None), scenario.profile_values(sc.profile, sc.overrides)
 
 
 def pole_pairs(values: Mapping[str, Any]) -> int:
@@ -650,6 +720,17 @@ def initial_drive(sc: Scenario) -> DriveState:
                       i_max=sc.i_max, speed_max=sc.speed_max, accel=_step_accel())
 
 
+def send_grant_frames(cmd: Commander, plan: Plan, start: int, drive: DriveState,
+                      load: LoadState) -> None:
+    """What goes out before the grant that starts at ``start`` (lockstep, bus and in process
+    alike): frames the rig held back that are due, its commands, the fault commands."""
+    cmd.at(start)
+    cmd.drive(drive)
+    cmd.load(load)
+    for values in plan.fault_cmds.get(start, []):
+        cmd.fault(values)
+
+
 def execute_inproc(sc: Scenario, plan: Plan, bench: sil.SilBench, cmd: Commander,
                    prog: Progress, clock: _Clock, deadline: float) -> int:
     """The lockstep grants on the in-process bench: the same frames before each grant, then
@@ -662,8 +743,7 @@ def execute_inproc(sc: Scenario, plan: Plan, bench: sil.SilBench, cmd: Commander
         if start in plan.load_events:
             load = plan.load_events[start]
         t_grant = time.monotonic()
-        cmd.drive(drive)
-        cmd.load(load)
+        send_grant_frames(cmd, plan, start, drive, load)
         try:
             bench.run_until(until)
         except sil.BenchError as exc:
@@ -688,8 +768,7 @@ def execute_lockstep(
         if start in plan.load_events:
             load = plan.load_events[start]
         t_grant = time.monotonic()
-        cmd.drive(drive)
-        cmd.load(load)
+        send_grant_frames(cmd, plan, start, drive, load)
         cmd.step(until)
         last_change = time.monotonic()
         last_period = mon.progress_period
@@ -720,10 +799,9 @@ def execute_lockstep(
             waiting = mon.latest.get("BENCH_PROGRESS", {}).get("state") == 0.0
             if (now - last_change > PROGRESS_RESEND_S and now - last_resend > PROGRESS_RESEND_S
                     and (waiting or mon.progress_frames == 0)):
-                # the plant waits for a grant it should have: the frame was lost, send again
-                cmd.drive(drive)
-                cmd.load(load)
-                cmd.step(until, new=False)
+                # the plant waits for a grant it should have: the frame was lost, send the
+                # grant's frames again, byte for byte
+                cmd.resend()
                 mon.grant_resends += 1
                 last_resend = now
             if now - last_change > stall_s:
@@ -744,7 +822,7 @@ def execute_realtime(
     """Sends the plan's commands on the wall clock; returns the last period commanded."""
     drive = initial_drive(sc)
     load = LoadState()
-    events = sorted(set(plan.drive_events) | set(plan.load_events))
+    events = sorted(set(plan.drive_events) | set(plan.load_events) | set(plan.fault_cmds))
     t_origin = time.monotonic()
 
     def period_now() -> float:
@@ -762,7 +840,9 @@ def execute_realtime(
         if time.monotonic() > deadline:
             raise RunError("timeout", "real-time run time-out")
         now_p = period_now()
+        cmd.at(int(now_p))
         changed_drive = changed_load = False
+        fault_now: list[dict[str, float | int]] = []
         while i < len(events) and events[i] <= now_p:
             p = events[i]
             for fn in plan.drive_events.get(p, []):
@@ -771,7 +851,10 @@ def execute_realtime(
             if p in plan.load_events:
                 load = plan.load_events[p]
                 changed_load = True
+            fault_now += plan.fault_cmds.get(p, [])
             i += 1
+        for values in fault_now:
+            cmd.fault(values)
         if changed_drive:
             cmd.drive(drive)
             next_cmd = time.monotonic() + CMD_PERIOD_S
@@ -792,60 +875,6 @@ def execute_realtime(
         if mon.live is not None:
             mon.live.flush()
     return plan.n_periods
-
-
-def evaluate(sc: Scenario, cap: capture.Capture, counters: Mapping[str, float]) -> list[
-    dict[str, Any]
-]:
-    out: list[dict[str, Any]] = []
-    for cr in sc.criteria:
-        out.append(evaluate_one(cr, cap, counters))
-    return out
-
-
-def evaluate_one(cr: Criterion, cap: capture.Capture | None,
-                 counters: Mapping[str, float]) -> dict[str, Any]:
-    note = ""
-    value = math.nan
-    if cap is None and not metrics.is_counter(cr.metric):
-        note = "no capture"
-    else:
-        cols: metrics.ColumnSource = cap if cap is not None else {}
-        first = cap.first_period if cap is not None else 0
-        w = metrics.Window(cols, cr.window[0], cr.window[1], ts=TS, first_period=first,
-                           counters=counters)
-        try:
-            value = metrics.compute(cr.metric, w, cr.params)
-        except KeyError as exc:
-            note = f"missing data: {exc}"
-        if math.isnan(value) and not note:
-            note = "no data in the window"
-        elif math.isinf(value):
-            note = "never settled" if cr.metric == "recovery_time_s" else "infinite"
-    passed = metrics.compare(value, cr.comparison, cr.limit)
-    result = outcome_of(passed, cr.xfail)
-    return {
-        "name": cr.name,
-        "metric": cr.metric,
-        "window": [cr.window[0], cr.window[1]],
-        "value": value if math.isfinite(value) else None,
-        "limit": cr.limit if math.isfinite(cr.limit) else None,
-        "comparison": cr.comparison,
-        "unit": metrics.unit_of(cr.metric),
-        "params": dict(cr.params),
-        "passed": passed,
-        "outcome": result,
-        "xfail": cr.xfail,
-        "note": note,
-    }
-
-
-def outcome(c: Mapping[str, Any]) -> str:
-    """pass | fail | xfail (known failure, reason in the scenario) | xpass (a known failure
-    that passed: its xfail should be removed)."""
-    if "outcome" in c:
-        return str(c["outcome"])
-    return "pass" if c.get("passed") else "fail"
 
 
 def _dir_size(path: Path) -> int:
@@ -909,6 +938,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
         "profile": sc.profile,
         "overrides": dict(sc.overrides),
         "firmware_params": dict(sc.firmware),
+        "faults": [f.to_json() for f in sc.faults],
         "ctrl_mode": sc.ctrl_mode,
         "fw_mode": sc.fw_mode,
         "mode": "realtime" if realtime else "lockstep",
@@ -979,7 +1009,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                     sup.wait_ready(sc.ready_timeout_s)
                     clock.t0 = time.monotonic()
                     deadline = clock.t0 + timeout
-                    cmd = Commander(bus)
+                    cmd = Commander(bus, drive_link.DriveLink(plan.link_windows))
                     runner = execute_realtime if realtime else execute_lockstep
                     grace = opts.grace_s
                     try:
@@ -995,6 +1025,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                         prog.finish()
                         stops = sup.stop(grace_s=grace)
                     counters["rig.tx_frames"] = float(cmd.tx)
+                    counters.update(cmd.link.counters())
             finally:
                 sys.setswitchinterval(switch)
                 bus.shutdown()
@@ -1090,9 +1121,10 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                        f"end of the scenario ({periods_done - 1})"}
 
     result["counters"] = counters
-    crit_results = [evaluate_one(cr, cap, counters) for cr in sc.criteria]
+    coverage = _coverage(plan, cap, loss, periods_done, realtime, interrupted, failure)
+    crit_results = [evaluate_one(cr, cap, counters, coverage) for cr in sc.criteria]
     result["criteria"] = crit_results
-    all_ok = all(outcome(c) != "fail" for c in crit_results)
+    all_ok = all(outcome(c) not in AGAINST for c in crit_results)
     if failure is None:
         result["status"] = "passed" if all_ok else "failed"
         result["passed"] = all_ok
@@ -1159,6 +1191,26 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     return res
 
 
+def _coverage(plan: Plan, cap: capture.Capture | None, loss: capture.LossReport | None,
+              periods_done: int, realtime: bool, interrupted: BaseException | None,
+              failure: Mapping[str, Any] | None) -> Coverage:
+    """What data the run produced, for the verdicts (rig.verdict): the periods the capture
+    holds without a hole and whether the run reached its planned end."""
+    reached = interrupted is None and periods_done >= plan.n_periods
+    why = "" if failure is None else f"{failure['kind']}: {str(failure['message'])[:200]}"
+    # a hole (missing, duplicate, stray or short records) could be anywhere; a partial
+    # record at the end of a trace is where a killed writer stopped: the range holds before it
+    holes = loss is None or not all(m.ok for m in loss.messages)
+    if cap is None or loss is None or holes or cap.n == 0:
+        if loss is not None and holes:
+            why = why or loss.summary()
+        return Coverage(plan.n_periods, None, None, reached, why or "no capture")
+    first, last = cap.first_period, cap.first_period + cap.n - 1
+    if reached and loss.ok and not realtime:
+        last = plan.n_periods - 1  # complete by the loss report (the firmware's last ISR)
+    return Coverage(plan.n_periods, first, last, reached, why)
+
+
 def _run_inproc(sc: Scenario, plan: Plan, out: Path, opts: RunOptions, result: dict[str, Any],
                 clock: _Clock, counters: dict[str, float]) -> int:
     """The run on the in-process bench: the plant_rt/fw_host configuration of ``build_argv``
@@ -1190,7 +1242,7 @@ def _run_inproc(sc: Scenario, plan: Plan, out: Path, opts: RunOptions, result: d
         raise RunError("config", f"in-process bench: {exc}") from exc
     try:
         clock.t0 = time.monotonic()
-        cmd = Commander(sil.BenchPort(bench))
+        cmd = Commander(sil.BenchPort(bench), drive_link.DriveLink(plan.link_windows))
         cpu0 = time.process_time()
         try:
             periods = execute_inproc(sc, plan, bench, cmd, prog, clock, clock.t0 + timeout)
@@ -1201,7 +1253,11 @@ def _run_inproc(sc: Scenario, plan: Plan, out: Path, opts: RunOptions, result: d
             for name in ("plant", "firmware"):
                 _flatten(name, bench_counters.get(name, {}), counters)
             counters["rig.tx_frames"] = float(cmd.tx)
+            counters.update(cmd.link.counters())
             counters["rig.bench_rejected"] = float(len(bench.rejected))
+            port = cmd.bus
+            if isinstance(port, sil.BenchPort):
+                counters["rig.bench_refused_faulted"] = float(len(port.refused_faulted))
     finally:
         try:
             bench.close()
@@ -1269,28 +1325,28 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
 
 def evaluate_comparison(cmp: Comparison,
                         entries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """A suite comparison on the criterion values recorded in the entries of two runs: a run
-    that is missing (interrupted suite) or has no value fails the comparison."""
+    """A suite comparison on the criterion values recorded in the entries of two runs. A run
+    that is missing (interrupted suite) or whose criterion was not evaluated leaves the
+    comparison not evaluated; a criterion without a value fails it."""
 
-    def criterion(run: str) -> Mapping[str, Any]:
+    def criterion(run: str) -> Mapping[str, Any] | None:
         return next((c for e in entries if e["name"] == run
-                     for c in e.get("criteria") or [] if c.get("name") == cmp.criterion), {})
+                     for c in e.get("criteria") or [] if c.get("name") == cmp.criterion), None)
 
     ca, cb = criterion(cmp.a), criterion(cmp.b)
-    a, b = ca.get("value"), cb.get("value")
+    a = ca.get("value") if ca is not None else None
+    b = cb.get("value") if cb is not None else None
     passed = a is not None and b is not None and metrics.compare(a, cmp.relation, b)
+    missing = [run for run, c in ((cmp.a, ca), (cmp.b, cb))
+               if c is None or outcome(c) == NOT_EVALUATED]
     return {
         "name": cmp.name, "criterion": cmp.criterion, "a": cmp.a, "b": cmp.b,
-        "relation": cmp.relation, "value_a": a, "value_b": b, "unit": ca.get("unit") or "",
-        "passed": passed, "outcome": outcome_of(passed, cmp.xfail), "xfail": cmp.xfail,
+        "relation": cmp.relation, "value_a": a, "value_b": b,
+        "unit": (ca or cb or {}).get("unit") or "", "passed": passed,
+        "outcome": NOT_EVALUATED if missing else outcome_of(passed, cmp.xfail),
+        "xfail": cmp.xfail,
+        "note": f"not evaluated: no value from {', '.join(missing)}" if missing else "",
     }
-
-
-def outcome_of(passed: bool, xfail: str) -> str:
-    """pass/fail, or for a known failure (xfail reason given) xfail/xpass."""
-    if xfail:
-        return "xpass" if passed else "xfail"
-    return "pass" if passed else "fail"
 
 
 def exit_code(passed: bool, status: str) -> int:

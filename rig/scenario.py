@@ -1,11 +1,11 @@
 """Scenarios as data: one TOML file per scenario, suites as files listing scenarios.
 
 A scenario names a fidelity profile (plus overrides), the drive modes, a speed profile (a
-sequence of segments), a load profile (events at absolute times), the initial rotor state,
-the duration and the pass criteria. ``load()`` validates a file and reports every schema
-error with the file, the line and the field (``file:line: field: message``); the CLI exits 2
-on them. The wire enumerations (control modes, flux-weakening modes, load modes) come from
-the DBC choices, not from this module.
+sequence of segments), a load profile (events at absolute times), faults (``[[faults]]``,
+``rig.faults``), the initial rotor state, the duration and the pass criteria. ``load()``
+validates a file and reports every schema error with the file, the line and the field
+(``file:line: field: message``); the CLI exits 2 on them. The wire enumerations (control
+modes, flux-weakening modes, load modes) come from the DBC choices, not from this module.
 
 Times are simulated seconds from the start of PWM period 0 and are rounded to the PWM
 period (100 µs) when the scenario is planned.
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rig import _paths, metrics, params, plant_schema
+from rig import _paths, faults, metrics, params, plant_schema
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 SUITE_DIR = SCENARIO_DIR / "suites"
@@ -350,6 +350,7 @@ class Scenario:
     initial_speed_rpm: float = 0.0
     speed: tuple[SpeedSegment, ...] = ()
     load: tuple[LoadEvent, ...] = ()
+    faults: tuple[faults.Fault, ...] = ()
     criteria: tuple[Criterion, ...] = ()
     grant_max_s: float = 0.1
     timeout_s: float = 0.0  # 0: derived from the duration
@@ -368,6 +369,15 @@ class Scenario:
                 text = ""
             c = _Checker(self.file, text)
             _check_overrides(c, profile, self.overrides)
+            if c.issues:
+                raise ScenarioError(c.issues)
+        if self.faults and profile != self.profile:
+            try:
+                text = read_text(self.file)
+            except OSError:
+                text = ""
+            c = _Checker(self.file, text)
+            _check_stuck_codes(c, profile, self.overrides, self.faults)
             if c.issues:
                 raise ScenarioError(c.issues)
         base = self.name.split("@", 1)[0]
@@ -468,6 +478,10 @@ class Scenario:
         ts = {0.0, self.enable_at}
         ts.update(c.t for c in self.speed_commands(step_accel))
         ts.update(c.t for c in self.load_commands())
+        for f in self.faults:
+            ts.add(f.at)
+            if f.duration is not None:
+                ts.add(f.at + f.duration)
         return sorted(t for t in ts if 0.0 <= t < self.duration)
 
 
@@ -661,8 +675,34 @@ def _check_firmware(c: _Checker, firmware: Mapping[str, Any]) -> None:
 
 TOP_KEYS = (
     "name", "description", "profile", "duration", "figure", "tags", "overrides", "firmware",
-    "drive", "limits", "initial", "speed", "load", "criteria", "run",
+    "drive", "limits", "initial", "speed", "load", "faults", "criteria", "run",
 )
+
+
+def profile_values(profile: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """The flat ``section.key`` values of a fidelity profile with the overrides ({} when the
+    profile file is not there)."""
+    values: dict[str, Any] = {}
+    try:
+        path = _paths.data_dir("profiles") / f"{profile}.toml"
+        data = tomllib.loads(path.read_text())
+    except (FileNotFoundError, OSError, tomllib.TOMLDecodeError):
+        data = {}
+    values.update(_flatten(data))
+    values.update(overrides)
+    return values
+
+
+def _check_stuck_codes(c: _Checker, profile: str, overrides: Mapping[str, Any],
+                       events: Sequence[faults.Fault]) -> None:
+    """A stuck converter's code must be one the converter has, on this profile."""
+    bits = faults.adc_bits_of(profile_values(profile, overrides))
+    for i, f in enumerate(events):
+        if f.kind == "adc_stuck" and f.channel in bits:
+            top = (1 << bits[f.channel]) - 1
+            if f.value > top:
+                c.err(("faults", i, "code"), f"code {f.value:g} is beyond the {f.channel} "
+                      f"converter of profile {profile!r} (0 .. {top})")
 
 
 def _segment(c: _Checker, raw: Any, path: Path_) -> SpeedSegment | None:
@@ -876,6 +916,18 @@ def parse_scenario(file: Path, text: str) -> Scenario:
         if ev is not None:
             events.append(ev)
 
+    events_f: list[faults.Fault] = []
+    raw_faults = data.get("faults", [])
+    if not isinstance(raw_faults, list):
+        c.err(("faults",), "must be a list of events ([[faults]] tables)")
+        raw_faults = []
+    adc_bits = faults.adc_bits_of(profile_values(profile, overrides)) if profile else {}
+    for i, raw in enumerate(raw_faults):
+        fe = faults.parse(c, raw, ("faults", i), duration, adc_bits)
+        if fe is not None:
+            events_f.append(fe)
+    faults.check_all(c, events_f, ("faults",))
+
     crits: list[Criterion] = []
     raw_crit = data.get("criteria", [])
     if not isinstance(raw_crit, list):
@@ -912,7 +964,8 @@ def parse_scenario(file: Path, text: str) -> Scenario:
         figure=figure, tags=tags, overrides=overrides, firmware=firmware, ctrl_mode=ctrl_mode,
         fw_mode=fw_mode, enable_at=enable_at, iq_ref=iq_ref, i_max=i_max, speed_max=speed_max,
         step_accel=step_accel, initial_theta_deg=theta0, initial_speed_rpm=speed0,
-        speed=tuple(segments), load=tuple(events), criteria=tuple(crits), grant_max_s=grant,
+        speed=tuple(segments), load=tuple(events), faults=tuple(events_f),
+        criteria=tuple(crits), grant_max_s=grant,
         timeout_s=timeout, ready_timeout_s=ready_timeout, realtime_ok=realtime_ok,
     )
 

@@ -168,6 +168,15 @@ class BenchPort:
 
     def __init__(self, bench: SilBench) -> None:
         self.bench = bench
+        self.refused_faulted: list[str] = []
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self.bench.frame(int(msg.arbitration_id), bytes(msg.data), bool(msg.is_fd))
+
+    def send_faulted(self, msg: can.Message) -> None:
+        """A frame the rig corrupted on purpose (a scenario fault): its refusal is the
+        receiver's protection at work, kept apart from the rig's own errors."""
+        n = len(self.bench.rejected)
+        self.send(msg)
+        self.refused_faulted += self.bench.rejected[n:]
+        del self.bench.rejected[n:]

@@ -63,7 +63,8 @@ sil_bench_t *sil_bench_open(const sil_bench_config_t *cfg, char *err, size_t err
 /* Flushes and closes the traces; 0, or -1 when a trace write failed. */
 int sil_bench_close(sil_bench_t *b);
 
-/* A frame to the bench (drive protocol: DRIVE_CMD, DRIVE_LIMITS; bench: LOAD_CMD), as the
+/* A frame to the bench (drive protocol: DRIVE_CMD, DRIVE_LIMITS; bench: LOAD_CMD, FAULT_CMD
+ * (fault injection, plant_link.h: the exchange of each period then follows it), as the
  * bus would carry it (can_id without flags, fd = CAN FD frame). Returns 0 when taken, 1 when
  * ignored (not for a bench node, as on the bus; or a PARAM_REQ: parameters are set at open,
  * reason in err), -1 when rejected (counted, reason in err when err is not NULL). */

@@ -20,12 +20,16 @@
 #include "hiltrace.h"
 #include "param_file.h"
 #include "plant_core.h"
+#include "plant_link.h"
 #include "plant_vio.h"
 #include "vio_codec.h"
 
 struct sil_bench {
     fw_core_t core; /* first: the large, aligned member */
     plant_t *plant;
+    plant_link_t link;      /* frame faults and the exchange of each period (plant_link.h) */
+    /* the ADC frames of a period as they leave the plant (with held-back ones now due) */
+    struct canfd_frame out[PLANT_VIO_ADC_FRAMES_MAX + PLANT_LINK_HELD_MAX];
     fwh_adc_asm_t adc;
     plant_pwm_cmd_t pwm;    /* command of the plant's next period */
     plant_truth_t truth;    /* at the start of the last simulated period */
@@ -208,6 +212,7 @@ sil_bench_t *sil_bench_open(const sil_bench_config_t *cfg, char *err, size_t err
         return NULL;
     }
     plant_startup_command(&b->pwm); /* period 0 runs on the start-up command */
+    plant_link_init(&b->link);
     return b;
 }
 
@@ -293,6 +298,18 @@ int sil_bench_frame(sil_bench_t *b, uint32_t can_id, int fd, const uint8_t *data
     f.can_id = can_id;
     f.len = len;
     memcpy(f.data, data, len);
+    if (id == HIL_BENCH_FAULT_CMD_FRAME_ID) {
+        char why[256] = "";
+        const int r = plant_link_fault(&b->link, b->plant, fd, f.data, f.len, why, sizeof(why));
+        if (r != PLANT_REJ_NONE) {
+            b->plant_rejects[r]++;
+            b->st.plant_rejected++;
+            fail(err, errlen, "plant rejected FAULT_CMD: %s%s%s", plant_reject_name(r),
+                 why[0] ? ": " : "", why);
+            return -1;
+        }
+        return 0;
+    }
     if (id == HIL_BENCH_LOAD_CMD_FRAME_ID) {
         plant_load_cmd_t m;
         const int r = plant_decode_load_cmd(fd, f.data, f.len, &m);
@@ -449,7 +466,15 @@ int sil_bench_step(sil_bench_t *b)
 {
     plant_samples_t s;
     struct canfd_frame adc[PLANT_VIO_ADC_FRAMES_MAX], truth[2], pwm;
-    int n, k, got_pwm = 0, rej;
+    const int max_out = (int)(sizeof(b->out) / sizeof(b->out[0]));
+    int n, n_out, k, barrier, rc;
+    /* the command with the faults in force now (plant_link.h; a FAULT_CMD given between
+     * periods acts from the next one, as on the bus) */
+    rc = plant_link_commit(&b->link, &b->pwm, &b->pwm);
+    if (rc != PLANT_REJ_NONE) {
+        b->plant_rejects[rc]++;
+        b->st.plant_rejected++;
+    }
     b->pwm.period = plant_next_period(b->plant);
     if (b->timing) {
         const double t0 = now_ns();
@@ -462,32 +487,43 @@ int sil_bench_step(sil_bench_t *b)
     b->st.adc_clipped += s.clipped;
     n = plant_pack_adc(&s, adc);
     plant_pack_truth(&b->truth, truth);
+    /* the frames as they leave the plant under the frame faults (plant_link.h, as plant_rt) */
+    n_out = plant_link_adc_out(&b->link, s.period, adc, n, b->out, max_out);
+    barrier = plant_link_barrier(&b->link);
     if (b->trace_vio) {
-        for (k = 0; k < n; k++) {
-            trace(b, b->plant_trace, &adc[k]);
+        for (k = 0; k < n_out; k++) {
+            trace(b, b->plant_trace, &b->out[k]);
         }
     }
     trace(b, b->plant_trace, &truth[0]);
     trace(b, b->plant_trace, &truth[1]);
-    for (k = 0; k < n && !got_pwm; k++) {
-        const int r = firmware_adc(b, &adc[k], &pwm);
-        if (r < 0) {
-            return -1;
+    for (k = 0; k < n_out; k++) {
+        int rej;
+        const int r = firmware_adc(b, &b->out[k], &pwm);
+        if (r < 0 && !barrier) {
+            return -1; /* refused without a fault on the wires: on the bus the lockstep stalls */
         }
-        got_pwm = r;
+        if (r != 1) {
+            continue;
+        }
+        if (b->trace_vio) {
+            trace(b, b->plant_trace, &pwm);
+        }
+        rej = plant_link_pwm(&b->link, &pwm, 1);
+        if (rej != PLANT_REJ_NONE) {
+            b->plant_rejects[rej]++;
+            b->st.plant_rejected++;
+            if (!barrier && !plant_link_decided(&b->link)) {
+                return -1; /* the plant would wait for a PWM it accepts */
+            }
+        }
     }
-    if (!got_pwm) {
-        return -1; /* no complete ADC data (n_soc 0): on the bus the lockstep would stall */
+    if (barrier) {
+        /* the barrier: everything the firmware made of these frames is in */
+        plant_link_resolve(&b->link);
     }
-    if (b->trace_vio) {
-        trace(b, b->plant_trace, &pwm);
-    }
-    rej = plant_decode_pwm(pwm.can_id, 1, pwm.data, pwm.len, plant_next_period(b->plant),
-                           &b->pwm);
-    if (rej != PLANT_REJ_NONE) {
-        b->plant_rejects[rej]++;
-        b->st.plant_rejected++;
-        return -1; /* the plant would wait for a PWM it accepts */
+    if (!plant_link_decided(&b->link)) {
+        return -1; /* no PWM(k+1): on the bus the lockstep would stall */
     }
     return 0;
 }
@@ -586,10 +622,15 @@ int sil_bench_counters_json(const sil_bench_t *b, char *buf, size_t len)
                (unsigned long long)b->plant_rejects[k]);
     }
     APPEND("}, \"adc_clipped\": %llu, \"load_cmds\": %llu, \"conduction_events\": %llu, "
-           "\"newton_failures\": %llu, \"mode_loops_cut\": %llu}, ",
+           "\"newton_failures\": %llu, \"mode_loops_cut\": %llu, \"late_cmds\": %llu, ",
            (unsigned long long)b->st.adc_clipped, (unsigned long long)b->st.load_cmds,
            (unsigned long long)ps.conduction_events, (unsigned long long)ps.newton_failures,
-           (unsigned long long)ps.mode_loops_cut);
+           (unsigned long long)ps.mode_loops_cut, (unsigned long long)b->link.st.held);
+    {
+        char link[512];
+        plant_link_stats_json(&b->link, link, sizeof(link));
+        APPEND("%s}, ", link);
+    }
     APPEND("\"firmware\": {\"program\": \"sil_bench\", \"mode\": \"inproc\", \"isr\": %llu, "
            "\"isr_no_data\": %llu, \"pwm_invalid\": %llu, \"rx_rejected\": %llu, \"rejects\": {",
            (unsigned long long)b->st.isr, (unsigned long long)b->st.isr_no_data,

@@ -5,7 +5,10 @@
  * with the same PWM(k+1). Periods whose data never came run the ISR without data (the core
  * counts the ADC loss and faults after adc_loss_max); their PWM is not sent (the plant is
  * past them). Every ISR writes one FW_TRACE record; every 10*tlm_div-th period (the 1 kHz
- * speed-loop rate, in ISR time) sends the TLM_* frames.
+ * speed-loop rate, in ISR time) sends the TLM_* frames. A VIO_SYNC (the plant's lockstep
+ * barrier after a faulted exchange, protocols/vio.dbc) is answered with VIO_SYNC_ACK once
+ * everything received before it is handled: frames are handled in order, so its PWM (if any)
+ * went out first.
  */
 #include <stdio.h>
 #include <string.h>
@@ -159,12 +162,40 @@ static void feed(fwh_t *app, int index, uint32_t period, uint8_t n_soc, int32_t 
     }
 }
 
+static void answer_sync(fwh_t *app, const struct canfd_frame *f, int fd)
+{
+    struct hil_vio_vio_sync_t m;
+    struct hil_vio_vio_sync_ack_t ack;
+    struct canfd_frame out;
+    if (!fd || f->len != HIL_VIO_VIO_SYNC_LENGTH) {
+        fwh_reject(app, fd ? FWH_REJ_BAD_LENGTH : FWH_REJ_WRONG_FRAME_TYPE,
+                   "VIO_SYNC: %s frame of length %u, expected CAN FD of %u",
+                   fd ? "CAN FD" : "classic", f->len, (unsigned)HIL_VIO_VIO_SYNC_LENGTH);
+        return;
+    }
+    hil_vio_vio_sync_unpack(&m, f->data, f->len);
+    memset(&ack, 0, sizeof(ack));
+    ack.period = m.period;
+    ack.seq = m.seq;
+    memset(&out, 0, sizeof(out));
+    out.can_id = HIL_VIO_VIO_SYNC_ACK_FRAME_ID;
+    out.len = HIL_VIO_VIO_SYNC_ACK_LENGTH;
+    hil_vio_vio_sync_ack_pack(out.data, &ack, sizeof(out.data));
+    (void)hilbus_send(app->bus, &out, 1); /* failures and drops are counted by hilbus */
+    app->cnt.syncs++;
+}
+
 void fwh_bus_vio_frame(fwh_t *app, const struct canfd_frame *f, int fd, int64_t t_rx_ns)
 {
     fwh_vio_adc_t m;
     char why[160];
     int reason = 0;
-    int r = fwh_vio_adc_decode(f, fd, &m, &reason, why, sizeof(why));
+    int r;
+    if ((f->can_id & CAN_SFF_MASK) == HIL_VIO_VIO_SYNC_FRAME_ID) {
+        answer_sync(app, f, fd);
+        return;
+    }
+    r = fwh_vio_adc_decode(f, fd, &m, &reason, why, sizeof(why));
     if (r > 0 && !fwh_vio_adc_codes_ok(&app->core, &m, &reason, why, sizeof(why))) {
         r = -1;
     }

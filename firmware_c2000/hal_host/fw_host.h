@@ -47,7 +47,7 @@ typedef struct {
 
 typedef struct {
     uint64_t rejects[FWH_REJ_COUNT];
-    uint64_t isr, isr_no_data, repeats, pwm_sent, pwm_invalid, overruns, resyncs;
+    uint64_t isr, isr_no_data, repeats, pwm_sent, pwm_invalid, overruns, resyncs, syncs;
     uint64_t non_data_frames; /* extended, remote or error frames: not this protocol's */
     int64_t max_latency_ns;
     uint64_t drive_cmds, cmds_refused, limits, param_reqs, status_frames, heartbeats;

@@ -526,7 +526,8 @@ static void print_counters(void)
                 (unsigned long long)c->rejects[k]);
     }
     fprintf(stderr,
-            "}, \"resyncs\": %llu, \"drive_cmds\": %llu, \"cmds_refused\": %llu, "
+            "}, \"resyncs\": %llu, \"syncs\": %llu, \"drive_cmds\": %llu, "
+            "\"cmds_refused\": %llu, "
             "\"limits\": %llu, \"param_reqs\": %llu, \"status_frames\": %llu, "
             "\"heartbeats\": %llu, \"tlm_frames\": %llu, \"trace_records\": %llu, "
             "\"trace_sent\": %llu, \"trace_errors\": %llu, \"console_sessions\": %llu, "
@@ -537,7 +538,8 @@ static void print_counters(void)
             "\"tx_errors\": %llu, \"rx_frames\": %llu, \"rx_overflows\": %llu, "
             "\"rx_malformed\": %llu, \"rx_filtered\": %llu, \"non_data_frames\": %llu, "
             "\"foreign_entries\": %llu, \"peers_beyond_limit\": %llu, \"rt\": \"%s\"}\n",
-            (unsigned long long)c->resyncs, (unsigned long long)c->drive_cmds,
+            (unsigned long long)c->resyncs, (unsigned long long)c->syncs,
+            (unsigned long long)c->drive_cmds,
             (unsigned long long)c->cmds_refused, (unsigned long long)c->limits,
             (unsigned long long)c->param_reqs, (unsigned long long)c->status_frames,
             (unsigned long long)c->heartbeats, (unsigned long long)c->tlm_frames,

@@ -25,7 +25,10 @@ int fwh_vio_adc_decode(const struct canfd_frame *f, int fd, fwh_vio_adc_t *out, 
         break;
     case HIL_VIO_VIO_PWM_FRAME_ID:
     case HIL_VIO_FW_TRACE_FRAME_ID:
+    case HIL_VIO_VIO_SYNC_ACK_FRAME_ID:
         return 0; /* what a firmware sends: not for us */
+    case HIL_VIO_VIO_SYNC_FRAME_ID:
+        return 0; /* the lockstep barrier: no ADC data (fw_host answers it, bus_io.c) */
     default:
         *reason = FWH_REJ_UNKNOWN_ID;
         snprintf(why, whylen, "id 0x%03X: no such virtual-I/O message", (unsigned)id);

@@ -26,7 +26,8 @@ typedef struct {
 
 /* A virtual-I/O frame (id 0x10-0x2F, flags already checked by the caller):
  *   1  a VIO_ADC frame, *out filled;
- *   0  not for the firmware (VIO_PWM, FW_TRACE: what a firmware sends);
+ *   0  not ADC data (VIO_PWM, FW_TRACE, VIO_SYNC_ACK: what a firmware sends; VIO_SYNC:
+ *      the plant's lockstep barrier, answered by the HAL);
  *  -1  rejected: *reason (FWH_REJ_*) and a message in why. */
 int fwh_vio_adc_decode(const struct canfd_frame *f, int fd, fwh_vio_adc_t *out, int *reason,
                        char *why, size_t whylen);

@@ -200,6 +200,25 @@ void plant_set_state(plant_t *plant, double theta_e, double omega_m, double id, 
 void plant_set_load(plant_t *plant, int mode, double torque_nm, double speed_rpm,
                     double k_speed_nms);
 
+/* ---------------------------------------------------------------- fault injection */
+
+/* Fault slots (FAULT_CMD.slot in protocols/bench.dbc; a C test holds the DBC's range to it). */
+#define PLANT_FAULT_SLOTS 16
+
+/* A physical fault in slot 'slot' from the next simulated period on (scenario [[faults]],
+ * FAULT_CMD). kind, channel, phase and gate are FAULT_CMD's enums (generated from
+ * protocols/bench.dbc: HIL_BENCH_FAULT_CMD_KIND_*_CHOICE, ...): ADC_OFFSET (value A, or V on
+ * the VDC channel, added to the ADC input), ADC_GAIN (the input times value), ADC_STUCK (the
+ * converter returns code value), ADC_SATURATION (the input clipped to +-value), SENSOR_LOSS
+ * (the current sensor of channel IA or IB outputs 0 A), OPEN_PHASE (phase disconnected: its
+ * current is cut at once), GATE_OFF (that gate of phase never turns on), DC_LINK (the DC link
+ * moves to value V, linearly over 'periods' periods). NONE, or a frame kind (those act on the
+ * wires, plant_link.h), frees the slot. Slots add up in slot order (offsets add, gains
+ * multiply, the lowest saturation level and the last stuck code or DC link win). Returns 0,
+ * or -1 with a message for a slot, kind, target or value out of range. */
+int plant_set_fault(plant_t *plant, int slot, int kind, int channel, int phase, int gate,
+                    double value, uint32_t periods, char *err, size_t errlen);
+
 /* The flux map of the configured machine: psi[2] = (psi_d, psi_q), linc[3] = (Ldd, Lqq, Ldq). */
 void plant_flux_map(const plant_t *plant, double id, double iq, double psi[2], double linc[3]);
 /* Inverse flux map. Returns the Newton iterations used (negative if not converged). */

@@ -1,8 +1,10 @@
 /* plant_rt: the bench emulator on the bus (DESIGN.md section 4, docs/interfaces.md).
  *
- * Receives VIO_PWM, LOAD_CMD and BENCH_STEP; sends VIO_ADC_x per period, BENCH_TRUTH and
- * BENCH_TRUTH_MAG (decimated on the bus, every period in the trace), BENCH_COUNTERS,
- * BENCH_REJECTS and BENCH_PROGRESS every 100 ms. Lockstep (default) or real-time pacing.
+ * Receives VIO_PWM, LOAD_CMD, FAULT_CMD, BENCH_STEP and VIO_SYNC_ACK; sends VIO_ADC_x per
+ * period (under frame faults through plant_link.h, then with the VIO_SYNC barrier in
+ * lockstep), BENCH_TRUTH and BENCH_TRUTH_MAG (decimated on the bus, every period in the
+ * trace), BENCH_COUNTERS, BENCH_REJECTS and BENCH_PROGRESS every 100 ms. Lockstep (default)
+ * or real-time pacing.
  *
  * Period 0 runs with the start-up command: gates disabled, one SOC at tick 0, so that
  * ADC(0) reaches the firmware, which answers with PWM(1).
@@ -31,6 +33,7 @@
 #include "hilbus.h"
 #include "hiltrace.h"
 #include "plant_core.h"
+#include "plant_link.h"
 #include "plant_vio.h"
 
 #define NS_PER_S 1000000000LL
@@ -70,7 +73,7 @@ typedef struct counters {
     uint64_t periods, late_cmds, overruns, adc_clipped, resends;
     uint64_t rejects[PLANT_REJ_COUNT];
     uint64_t max_late_us;
-    uint64_t load_cmds, steps;
+    uint64_t load_cmds, steps, sync_acks;
     uint64_t non_data_frames; /* extended, remote or error frames: not this protocol's */
     const char *rt_note;
     /* real time: wake-up lateness after clock_nanosleep, and periods slipped on overruns */
@@ -88,8 +91,12 @@ typedef struct app {
     uint32_t run_until;
     uint8_t step_seq;
     hil_log_limit_t log_limit; /* rejection lines on stderr */
-    /* last period's ADC frames, for the lockstep re-send */
-    struct canfd_frame adc_frames[PLANT_VIO_ADC_FRAMES_MAX];
+    plant_link_t link;         /* frame faults and the exchange of each period (plant_link.h) */
+    plant_pwm_cmd_t current;   /* the command the last period ran on */
+    uint8_t sync_seq;
+    int waiting_sync;          /* lockstep: VIO_SYNC sent, its VIO_SYNC_ACK not yet here */
+    /* what went out for the last period (the lockstep re-send repeats it) */
+    struct canfd_frame adc_frames[PLANT_VIO_ADC_FRAMES_MAX + PLANT_LINK_HELD_MAX];
     int n_adc_frames;
 } app_t;
 
@@ -184,7 +191,7 @@ static void send_housekeeping(app_t *a, int state)
         struct hil_bench_bench_counters_t m;
         memset(&m, 0, sizeof(m));
         m.period = period;
-        m.late_cmds = sat32(a->cnt.late_cmds);
+        m.late_cmds = sat32(a->cnt.late_cmds + a->link.st.held);
         m.overruns = sat32(a->cnt.overruns);
         m.rejected = sat32(total_rejects(&a->cnt));
         m.adc_clipped = sat32(a->cnt.adc_clipped);
@@ -231,10 +238,26 @@ static void send_progress(app_t *a, int state)
     send_frame(a, HIL_BENCH_BENCH_PROGRESS_FRAME_ID, buf, HIL_BENCH_BENCH_PROGRESS_LENGTH, 0);
 }
 
+static void send_sync(app_t *a)
+{
+    uint8_t buf[8];
+    struct hil_vio_vio_sync_t m;
+    memset(&m, 0, sizeof(m));
+    m.period = a->link.expect - 1u;
+    m.seq = a->sync_seq;
+    hil_vio_vio_sync_pack(buf, &m, sizeof(buf));
+    send_frame(a, HIL_VIO_VIO_SYNC_FRAME_ID, buf, HIL_VIO_VIO_SYNC_LENGTH, 0);
+}
+
+/* The ADC frames of the period as they leave under the frame faults (plant_link.h); in
+ * lockstep a faulted exchange ends with the VIO_SYNC barrier. */
 static void send_adc(app_t *a, const plant_samples_t *s)
 {
+    struct canfd_frame raw[PLANT_VIO_ADC_FRAMES_MAX];
+    const int n = plant_pack_adc(s, raw);
     int k;
-    a->n_adc_frames = plant_pack_adc(s, a->adc_frames);
+    a->n_adc_frames = plant_link_adc_out(&a->link, s->period, raw, n, a->adc_frames,
+                                         (int)(sizeof(a->adc_frames) / sizeof(a->adc_frames[0])));
     for (k = 0; k < a->n_adc_frames; ++k) {
         send_frame(a, a->adc_frames[k].can_id, a->adc_frames[k].data, 64, 0);
     }
@@ -243,11 +266,21 @@ static void send_adc(app_t *a, const plant_samples_t *s)
             trace_frame(a, a->adc_frames[k].can_id, a->adc_frames[k].data, 64);
         }
     }
+    if (!a->opt.realtime && plant_link_barrier(&a->link)) {
+        a->sync_seq++;
+        a->waiting_sync = 1;
+        send_sync(a);
+    }
 }
 
 static void resend_adc(app_t *a)
 {
     int k;
+    if (a->waiting_sync) {
+        send_sync(a); /* the barrier again: the faulted frames themselves went out once */
+        a->cnt.resends++;
+        return;
+    }
     for (k = 0; k < a->n_adc_frames; ++k) {
         send_frame(a, a->adc_frames[k].can_id, a->adc_frames[k].data, 64, 0);
     }
@@ -293,6 +326,9 @@ static int known_id(uint32_t id)
     case HIL_BENCH_BENCH_STEP_FRAME_ID:
     case HIL_BENCH_BENCH_PROGRESS_FRAME_ID:
     case HIL_BENCH_LOAD_CMD_FRAME_ID:
+    case HIL_BENCH_FAULT_CMD_FRAME_ID:
+    case HIL_VIO_VIO_SYNC_FRAME_ID:
+    case HIL_VIO_VIO_SYNC_ACK_FRAME_ID:
         return 1;
     default:
         return 0;
@@ -313,20 +349,20 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
         return;
     }
     if (id == HIL_VIO_VIO_PWM_FRAME_ID) {
-        plant_pwm_cmd_t cmd;
         const uint32_t expected = plant_next_period(a->plant);
         const uint32_t raw_period = f->len >= 4 ? ((uint32_t)f->data[0] | ((uint32_t)f->data[1] << 8) |
                                                    ((uint32_t)f->data[2] << 16) |
                                                    ((uint32_t)f->data[3] << 24))
                                                 : 0u;
-        const int r = plant_decode_pwm(id, fd, f->data, f->len, expected, &cmd);
+        const int r = plant_link_pwm(&a->link, f, fd);
         if (a->opt.trace_vio) {
             trace_frame(a, f->can_id, f->data, f->len);
         }
-        if (r == PLANT_REJ_NONE) {
+        if (r == PLANT_REJ_NONE && !a->waiting_sync) { /* under the barrier: at its answer */
             in->have_pwm = 1;
-            in->pwm = cmd;
             in->pwm_arrival_ns = now_ns();
+        }
+        if (r == PLANT_REJ_NONE) {
             return;
         }
         if (r == PLANT_REJ_STALE_PERIOD && a->opt.realtime) {
@@ -340,6 +376,31 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
             }
         }
         reject(a, r, id, raw_period);
+        return;
+    }
+    if (id == HIL_VIO_VIO_SYNC_ACK_FRAME_ID) {
+        struct hil_vio_vio_sync_ack_t m;
+        if (!fd || f->len != HIL_VIO_VIO_SYNC_ACK_LENGTH) {
+            reject(a, fd ? PLANT_REJ_BAD_LENGTH : PLANT_REJ_MALFORMED, id, 0);
+            return;
+        }
+        hil_vio_vio_sync_ack_unpack(&m, f->data, f->len);
+        if (a->waiting_sync && m.seq == a->sync_seq && m.period + 1u == a->link.expect) {
+            /* everything the firmware sent for this period is here: PWM(k+1) or none */
+            plant_link_resolve(&a->link);
+            in->have_pwm = 1;
+            in->pwm_arrival_ns = now_ns();
+            a->waiting_sync = 0;
+            a->cnt.sync_acks++;
+        }
+        return; /* (an answer to an earlier barrier's re-send: nothing left to decide) */
+    }
+    if (id == HIL_BENCH_FAULT_CMD_FRAME_ID) {
+        char why[256];
+        const int r = plant_link_fault(&a->link, a->plant, fd, f->data, f->len, why, sizeof(why));
+        if (r != PLANT_REJ_NONE) {
+            reject(a, r, id, 0);
+        }
         return;
     }
     if (id == HIL_BENCH_LOAD_CMD_FRAME_ID) {
@@ -396,6 +457,7 @@ static void run_period(app_t *a, const plant_pwm_cmd_t *cmd)
     plant_pwm_cmd_t c = *cmd;
     c.period = plant_next_period(a->plant);
     plant_step(a->plant, &c, &s, &t);
+    a->current = c;
     a->cnt.periods++;
     a->cnt.adc_clipped += s.clipped;
     send_adc(a, &s);
@@ -425,7 +487,14 @@ static int lockstep(app_t *a)
             next_housekeeping = t + HOUSEKEEPING_NS;
         }
         if (in.have_pwm && grant_open(a, k)) {
-            run_period(a, &in.pwm);
+            plant_pwm_cmd_t cmd;
+            /* the command with the faults in force now (the FAULT_CMD of this period came
+             * with its grant, the PWM frame may have come before it) */
+            const int rc = plant_link_commit(&a->link, &a->current, &cmd);
+            if (rc != PLANT_REJ_NONE) {
+                reject(a, rc, HIL_VIO_VIO_PWM_FRAME_ID, cmd.period);
+            }
+            run_period(a, &cmd);
             in.have_pwm = 0;
             waiting_pwm = 1;
             adc_sent_ns = now_ns();
@@ -572,9 +641,12 @@ static int realtime(app_t *a)
         while (hilbus_recv(a->bus, &f, &fd, 0) == 1) {
             handle_frame(a, &f, fd, &in, deadline);
         }
-        if (in.have_pwm) {
-            current = in.pwm;
-        } else if (k > 0) {
+        if (in.have_pwm || k == 0) {
+            const int rc = plant_link_commit(&a->link, &current, &current);
+            if (rc != PLANT_REJ_NONE) {
+                reject(a, rc, HIL_VIO_VIO_PWM_FRAME_ID, current.period);
+            }
+        } else {
             a->cnt.late_cmds++; /* the old compare values stay loaded */
         }
         run_period(a, &current);
@@ -695,7 +767,8 @@ static void print_counters(app_t *a)
             "\"max_late_us\": %llu, \"rejected\": %llu, \"rejects\": {",
             a->opt.realtime ? "realtime" : "lockstep", a->bus ? hilbus_transport(a->bus) : "none",
             (unsigned long long)a->cnt.periods, (unsigned)plant_next_period(a->plant),
-            (unsigned long long)a->cnt.late_cmds, (unsigned long long)a->cnt.overruns,
+            (unsigned long long)(a->cnt.late_cmds + a->link.st.held),
+            (unsigned long long)a->cnt.overruns,
             (unsigned long long)a->cnt.max_late_us, (unsigned long long)total_rejects(&a->cnt));
     for (k = 1; k < PLANT_REJ_COUNT; ++k) {
         fprintf(stderr, "%s\"%s\": %llu", k > 1 ? ", " : "", plant_reject_name(k),
@@ -718,6 +791,11 @@ static void print_counters(app_t *a)
             (unsigned long long)a->cnt.steps, (unsigned long long)ps.conduction_events,
             (unsigned long long)ps.newton_failures, (unsigned long long)ps.mode_loops_cut,
             a->cnt.rt_note ? a->cnt.rt_note : "not requested (lockstep)");
+    {
+        char link[512];
+        plant_link_stats_json(&a->link, link, sizeof(link));
+        fprintf(stderr, ", %s, \"sync_acks\": %llu", link, (unsigned long long)a->cnt.sync_acks);
+    }
     if (a->opt.realtime) {
         const counters_t *c = &a->cnt;
         fprintf(stderr,
@@ -927,6 +1005,8 @@ int main(int argc, char **argv)
     }
     a.cfg = plant_config(a.plant);
     a.run_until = a.opt.run_until;
+    plant_link_init(&a.link);
+    plant_startup_command(&a.current);
 
     memset(&sa, 0, sizeof(sa));
     sa.sa_handler = on_signal;

@@ -31,6 +31,9 @@ struct plant {
     double max_step;
     uint32_t next_period;
     plant_stats_t stats;
+    plant_faults_t flt;  /* physical faults in force (faults.c) */
+    double vdc_from;     /* DC link at the start of its ramp to flt.vdc_target */
+    uint32_t vdc_step;   /* periods of that ramp done */
 };
 
 /* ------------------------------------------------------------------ creation */
@@ -87,6 +90,8 @@ plant_t *plant_new(const plant_config_t *cfg, char *err, size_t errlen)
     p->sen.tau = cfg->sensors.bandwidth_hz > 0.0 ? 1.0 / (PLANT_TWO_PI * cfg->sensors.bandwidth_hz)
                                                  : 0.0;
     plant_rng_seed(&p->sen.rng, (uint64_t)cfg->sensors.seed);
+    plant_faults_init(&p->flt, cfg->inverter.vdc_v);
+    p->vdc_from = cfg->inverter.vdc_v;
     for (k = 0; k < 3; ++k) {
         p->mach.gate[k] = GATE_NONE;
     }
@@ -166,6 +171,34 @@ void plant_set_load(plant_t *p, int mode, double torque_nm, double speed_rpm, do
     plant_machine_rhs(&p->mach, &p->x, &p->d);
 }
 
+int plant_set_fault(plant_t *p, int slot, int kind, int channel, int phase, int gate,
+                    double value, uint32_t periods, char *err, size_t errlen)
+{
+    const double target = p->flt.vdc_target;
+    if (plant_faults_set(&p->flt, p->cfg.inverter.vdc_v, slot, kind, channel, phase, gate,
+                         value, periods, err, errlen) != 0) {
+        return -1;
+    }
+    if (p->flt.vdc_target != target) {
+        p->vdc_from = p->mach.vdc; /* a new ramp starts where the link is */
+        p->vdc_step = 0;
+    }
+    return 0;
+}
+
+/* DC link of the next period under a DC_LINK fault (a step, or a linear ramp). */
+static void dc_link_step(plant_t *p)
+{
+    const plant_faults_t *f = &p->flt;
+    if (f->vdc_ramp == 0 || p->vdc_step >= f->vdc_ramp) {
+        p->mach.vdc = f->vdc_target;
+        return;
+    }
+    p->vdc_step++;
+    p->mach.vdc = p->vdc_from + (f->vdc_target - p->vdc_from) * ((double)p->vdc_step /
+                                                                 (double)f->vdc_ramp);
+}
+
 void plant_flux_map(const plant_t *plant, double id, double iq, double psi[2], double linc[3])
 {
     plant_mag_flux(&plant->mag, id, iq, psi, linc);
@@ -203,7 +236,7 @@ static void fill_truth(plant_t *p, double t_in_period, plant_truth_t *t)
     t->ia = d->i_ph[0];
     t->ib = d->i_ph[1];
     t->ic = d->i_ph[2];
-    t->vdc = p->cfg.inverter.vdc_v;
+    t->vdc = p->mach.vdc;
     t->psi_d = p->x.psi_d;
     t->psi_q = p->x.psi_q;
     t->ua = d->u_ph[0];
@@ -503,14 +536,24 @@ static void take_sample(plant_t *p, int idx, double t, const double i_true[2],
     /* Draw the noise whether or not it is used, so the sequence does not depend on it. */
     const double na = plant_rng_gauss(&p->sen.rng), nb = plant_rng_gauss(&p->sen.rng);
     const double nv = plant_rng_gauss(&p->sen.rng);
-    const double sa = c->sensors.gain_a * y[0] + c->sensors.offset_a_a;
-    const double sb = c->sensors.gain_b * y[1] + c->sensors.offset_b_a;
+    double sa = c->sensors.gain_a * y[0] + c->sensors.offset_a_a;
+    double sb = c->sensors.gain_b * y[1] + c->sensors.offset_b_a;
+    const plant_faults_t *f = &p->flt;
+    if (f->adc_active) {
+        sa = f->sensor_lost[0] ? 0.0 : sa;
+        sb = f->sensor_lost[1] ? 0.0 : sb;
+    }
     plant_ring_eval(&p->sen, c, t, ring);
     in_a = sa + ring[0] + c->sensors.noise_rms_a * na;
     in_b = sb + ring[1] + c->sensors.noise_rms_a * nb;
-    vdc = c->inverter.vdc_v + c->sensors.vdc_noise_rms_v * nv;
+    vdc = p->mach.vdc + c->sensors.vdc_noise_rms_v * nv;
     if (!out) {
         return;
+    }
+    if (f->adc_active) {
+        in_a = plant_faults_adc_in(f, 0, in_a);
+        in_b = plant_faults_adc_in(f, 1, in_b);
+        vdc = plant_faults_adc_in(f, 2, vdc);
     }
     out->ia_true[idx] = i_true[0];
     out->ib_true[idx] = i_true[1];
@@ -521,6 +564,23 @@ static void take_sample(plant_t *p, int idx, double t, const double i_true[2],
     out->ia_code[idx] = plant_adc_current_code(in_a, p->adc_bits, c->adc.range_a, &clip_a);
     out->ib_code[idx] = plant_adc_current_code(in_b, p->adc_bits, c->adc.range_a, &clip_b);
     out->vdc_code[idx] = plant_adc_vdc_code(vdc, p->vdc_bits, c->adc.vdc_range_v, &clip_v);
+    if (f->adc_active) {
+        /* a stuck converter: its code whatever the input (clamped to what it can output) */
+        const int32_t top[3] = {(int32_t)(ldexp(1.0, p->adc_bits) - 1.0),
+                                (int32_t)(ldexp(1.0, p->adc_bits) - 1.0),
+                                (int32_t)(ldexp(1.0, p->vdc_bits) - 1.0)};
+        int32_t *code[3];
+        int *clip[3];
+        int ch;
+        code[0] = &out->ia_code[idx], code[1] = &out->ib_code[idx], code[2] = &out->vdc_code[idx];
+        clip[0] = &clip_a, clip[1] = &clip_b, clip[2] = &clip_v;
+        for (ch = 0; ch < 3; ++ch) {
+            if (f->stuck[ch]) {
+                *code[ch] = f->stuck_code[ch] < top[ch] ? f->stuck_code[ch] : top[ch];
+                *clip[ch] = 0;
+            }
+        }
+    }
     out->clipped += (uint32_t)(clip_a + clip_b + clip_v);
 }
 
@@ -533,7 +593,10 @@ static void ring_on_jumps(plant_t *p, const double u_before[3], double t)
     }
     for (k = 0; k < 3; ++k) {
         const double du = p->d.u_leg[k] - u_before[k];
-        if (fabs(du) > 0.5 * p->cfg.inverter.vdc_v) {
+        if (p->mach.gate[k] == GATE_OPEN) {
+            continue; /* a disconnected phase: no current, no ringing in its sensor */
+        }
+        if (fabs(du) > 0.5 * p->mach.vdc) {
             plant_ring_add(&p->sen, t, k, du > 0.0 ? 1.0 : -1.0);
         }
     }
@@ -661,7 +724,18 @@ int plant_step(plant_t *p, const plant_pwm_cmd_t *cmd, plant_samples_t *samples,
         samples->period = p->next_period;
         samples->n_soc = (uint32_t)n_soc;
     }
+    if (p->flt.dc_active || p->mach.vdc != p->flt.vdc_target) {
+        dc_link_step(p);
+    }
     plant_inverter_schedule(cmd, p->dead_ticks, &p->gmem, legs);
+    if (p->flt.open_mask | p->flt.gate_off_mask) {
+        plant_faults_legs(&p->flt, legs);
+        for (k = 0; k < 3; ++k) {
+            if (((p->flt.open_mask >> k) & 1u) && p->mach.mode[k] != LEG_ZERO) {
+                p->mach.mode[k] = LEG_ZERO; /* its current is cut (apply_gates projects it) */
+            }
+        }
+    }
 
     /* period start: gate states after the edges at tick 0 */
     for (k = 0; k < 3; ++k) {

@@ -39,7 +39,10 @@ int plant_mag_invert(const plant_mag_t *mag, double psi_d, double psi_q, double 
 
 /* ------------------------------------------------------------------ inverter.c */
 
-enum plant_gate_state { GATE_NONE = 0, GATE_UPPER = 1, GATE_LOWER = 2 };
+/* GATE_OPEN: the phase is disconnected from its leg (fault injection, OPEN_PHASE): whatever
+ * the leg does, the phase carries no current and its terminal may take any voltage. */
+enum plant_gate_state { GATE_NONE = 0, GATE_UPPER = 1, GATE_LOWER = 2, GATE_OPEN = 3 };
+#define PLANT_OPEN_BAND_V 1e30
 /* Conduction mode of a leg: current out of the leg (POS), into it (NEG), or zero (open or
  * clamped at zero inside the leg's voltage band). */
 enum plant_leg_mode { LEG_POS = 0, LEG_NEG = 1, LEG_ZERO = 2 };
@@ -75,6 +78,10 @@ static inline void plant_leg_band(int gate, double vdc, double vdrop, double *lo
         *lo = -vdrop;
         *hi = vdrop;
         break;
+    case GATE_OPEN:
+        *lo = -PLANT_OPEN_BAND_V;
+        *hi = PLANT_OPEN_BAND_V;
+        break;
     default:
         *lo = -vdrop;
         *hi = vdc + vdrop;
@@ -89,6 +96,43 @@ static inline double plant_leg_voltage(int gate, int mode, double vdc, double vd
     plant_leg_band(gate, vdc, vdrop, &lo, &hi);
     return mode == LEG_NEG ? hi : lo;
 }
+
+/* ------------------------------------------------------------------ faults.c */
+
+/* One fault slot of FAULT_CMD (protocols/bench.dbc): kind and targets as its enums. */
+typedef struct plant_fault_slot {
+    int kind; /* HIL_BENCH_FAULT_CMD_KIND_*_CHOICE; NONE: the slot is free */
+    int channel, phase, gate;
+    double value;
+    uint32_t periods;
+} plant_fault_slot_t;
+
+/* The physical faults in force, from the slots (plant_faults_set). Channels 0 ia, 1 ib,
+ * 2 vdc; phases 0..2; gate bit 2x the upper and 2x+1 the lower gate of phase x. */
+typedef struct plant_faults {
+    plant_fault_slot_t slot[PLANT_FAULT_SLOTS];
+    int adc_active;           /* some ADC channel or sensor fault is in force */
+    double adc_gain[3], adc_offset[3], adc_clip[3];
+    int stuck[3];
+    int32_t stuck_code[3];
+    int sensor_lost[2];
+    unsigned open_mask;       /* bit x: phase x disconnected */
+    unsigned gate_off_mask;   /* bit 2x / 2x+1: that gate never turns on */
+    int dc_active;            /* a DC_LINK slot is in force */
+    double vdc_target;        /* V: the DC link the slots ask for (the profile's without one) */
+    uint32_t vdc_ramp;        /* periods to get there (0: at once) */
+} plant_faults_t;
+
+void plant_faults_init(plant_faults_t *f, double vdc_nominal);
+/* Sets a slot (see plant_set_fault) and recomputes what is in force. */
+int plant_faults_set(plant_faults_t *f, double vdc_nominal, int slot, int kind, int channel,
+                     int phase, int gate, double value, uint32_t periods, char *err,
+                     size_t errlen);
+/* The analog input of ADC channel ch under the channel faults (gain, offset, saturation). */
+double plant_faults_adc_in(const plant_faults_t *f, int ch, double x);
+/* Rewrites the legs' gate schedules: disconnected phases (GATE_OPEN for the whole period),
+ * gates that stay off. */
+void plant_faults_legs(const plant_faults_t *f, plant_leg_schedule_t legs[3]);
 
 /* ------------------------------------------------------------------ sensors.c */
 

@@ -10,9 +10,10 @@ from pathlib import Path
 from typing import Any
 
 EPILOG_RUN = """\
-exit status: 0 every criterion passed; 1 a criterion failed or the run failed (crash,
-stall, time-out, capture loss); 2 usage or scenario schema error; 3 the run could not
-start here (programs not built, bus unavailable); 130 interrupted.
+exit status: 0 every criterion passed; 1 a criterion failed or was not evaluated (its
+window was not captured), or the run failed (crash, stall, time-out, capture loss); 2 usage
+or scenario schema error; 3 the run could not start here (programs not built, bus
+unavailable); 130 interrupted.
 
 output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
 DIR/recording.rrd (open with `rig view DIR`), DIR/capture/ (merged full-rate columns),
@@ -134,7 +135,8 @@ def _print_verdict(data: dict[str, Any]) -> None:
             for line in str(tail).splitlines()[-15:]:
                 print(f"    | {line}", file=sys.stderr)
     for c in data.get("criteria", []):
-        mark = {"pass": "ok   ", "fail": "FAIL ", "xfail": "XFAIL", "xpass": "XPASS"}.get(
+        mark = {"pass": "ok   ", "fail": "FAIL ", "xfail": "XFAIL", "xpass": "XPASS",
+                "not_evaluated": "NOT EVALUATED"}.get(
             str(c.get("outcome")), "ok   " if c.get("passed") else "FAIL ")
         value = c.get("value")
         shown = "n/a" if value is None else f"{value:.4g}"
@@ -142,7 +144,9 @@ def _print_verdict(data: dict[str, Any]) -> None:
         bound = "reported" if limit is None else f"{c['comparison']} {limit:g}"
         print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
               f"({bound}) over {c['window']}", file=sys.stderr)
-        if c.get("xfail"):
+        if c.get("outcome") == "not_evaluated" or (value is None and c.get("note")):
+            print(f"        {c.get('note')}", file=sys.stderr)
+        if c.get("xfail") and c.get("outcome") != "not_evaluated":
             print(f"        expected failure: {c['xfail']}", file=sys.stderr)
 
 

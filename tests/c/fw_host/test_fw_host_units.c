@@ -1,11 +1,16 @@
-/* Unit tests of the host HAL's pure parts: the ADC frame assembly rules (adc_assembly.h) and
- * the parameter file (param_file.h). Usage: fw_host_test_units SCRATCH_DIR */
+/* Unit tests of the host HAL's pure parts: the ADC frame assembly rules (adc_assembly.h),
+ * the parameter file (param_file.h), and the fault codes the core reports against the wire's
+ * table (DRIVE_STATUS.fault_code in protocols/drive.dbc). Usage: fw_host_test_units
+ * SCRATCH_DIR */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "adc_assembly.h"
+#include "fw_core.h"
+#include "fw_host.h"
+#include "hil_drive.h"
 #include "param_file.h"
 
 static int failures;
@@ -233,8 +238,41 @@ static void test_param_file(const char *dir)
     remove(path);
 }
 
+/* The core's fault codes are the DBC's (its value table is what the rig reads). */
+static void test_fault_codes(void)
+{
+    static const struct {
+        unsigned core, dbc;
+        const char *name;
+    } codes[] = {
+        {FW_FAULT_NONE, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_NONE_CHOICE, "NONE"},
+        {FW_FAULT_OVERCURRENT, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_OVERCURRENT_CHOICE,
+         "OVERCURRENT"},
+        {FW_FAULT_DC_OVERVOLTAGE, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_DC_OVERVOLTAGE_CHOICE,
+         "DC_OVERVOLTAGE"},
+        {FW_FAULT_DC_UNDERVOLTAGE, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_DC_UNDERVOLTAGE_CHOICE,
+         "DC_UNDERVOLTAGE"},
+        {FW_FAULT_ESTIMATOR, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_ESTIMATOR_CHOICE, "ESTIMATOR"},
+        {FW_FAULT_CMD_TIMEOUT, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_CMD_TIMEOUT_CHOICE,
+         "CMD_TIMEOUT"},
+        {FW_FAULT_ADC_LOSS, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_ADC_LOSS_CHOICE, "ADC_LOSS"},
+        {FW_FAULT_POLARITY, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_POLARITY_CHOICE, "POLARITY"},
+        {FW_FAULT_POLARITY_LOST, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_POLARITY_LOST_CHOICE,
+         "POLARITY_LOST"},
+        {FW_FAULT_OVERSPEED, HIL_DRIVE_DRIVE_STATUS_FAULT_CODE_OVERSPEED_CHOICE, "OVERSPEED"},
+    };
+    size_t k;
+    for (k = 0; k < sizeof(codes) / sizeof(codes[0]); k++) {
+        CHECK(codes[k].core == codes[k].dbc, "%s: core %u, drive.dbc %u", codes[k].name,
+              codes[k].core, codes[k].dbc);
+        CHECK(strcmp(fwh_fault_name((uint16_t)codes[k].core), codes[k].name) == 0,
+              "%s: fw_host calls it %s", codes[k].name, fwh_fault_name((uint16_t)codes[k].core));
+    }
+}
+
 int main(int argc, char **argv)
 {
+    test_fault_codes();
     test_assembly();
     test_numbers();
     test_param_file(argc > 1 ? argv[1] : ".");

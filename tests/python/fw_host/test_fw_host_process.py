@@ -12,7 +12,7 @@ from fwhost_support import Peer, StartFw, fw_binary
 
 COUNTER_KEYS = {
     "program", "mode", "transport", "isr", "isr_no_data", "repeats", "last_period", "pwm_sent",
-    "pwm_invalid", "overruns", "max_latency_us", "rx_rejected", "rejects", "resyncs",
+    "pwm_invalid", "overruns", "max_latency_us", "rx_rejected", "rejects", "resyncs", "syncs",
     "drive_cmds", "cmds_refused", "limits", "param_reqs", "status_frames", "heartbeats",
     "tlm_frames", "trace_records", "trace_sent", "trace_errors", "console_sessions",
     "console_lines", "console_errors", "console_keepalive_lapses", "console_out_dropped",

@@ -142,3 +142,38 @@ def test_current_codes_outside_the_converter_are_rejected(start_fw: StartFw,
     c = fw.counters()
     assert c["rejects"]["out_of_range"] == 4
     assert c["isr_no_data"] == 0 and c["fault_name"] == "NONE"
+
+
+def test_sync_is_answered_after_everything_before_it(start_fw: StartFw, peer: Peer) -> None:
+    """The plant's lockstep barrier under frame faults (docs/interfaces.md, "Fault
+    injection"): VIO_SYNC is answered with VIO_SYNC_ACK (period and seq echoed), after the PWM
+    its preceding ADC frames caused; a refused frame before it causes no PWM."""
+    fw = start_fw()
+    pwm_id, ack_id = peer.msg("VIO_PWM").frame_id, peer.msg("VIO_SYNC_ACK").frame_id
+    pwms = peer.run(20, 2)
+    n_soc = int(pwms[-1]["n_soc"])
+    peer.send_adc(22, n_soc)
+    peer.send("VIO_SYNC", {"period": 22, "seq": 7})
+    got = []
+    while len(got) < 2:
+        m = peer.recv_until(lambda f: f.arbitration_id in (pwm_id, ack_id), timeout=5.0)
+        assert m is not None, got
+        got.append(peer.decode(m) | {"id": m.arbitration_id})
+    assert [g["id"] for g in got] == [pwm_id, ack_id]
+    assert got[0]["period"] == 23 and (got[1]["period"], got[1]["seq"]) == (22, 7)
+    # an ADC frame of period 23 with a code beyond the converter: refused, no PWM, the ACK
+    frame_id, data = peer.adc_frames(23, n_soc, ia=1 << 20)[0]
+    peer.send_raw(frame_id, data, fd=True)
+    peer.send("VIO_SYNC", {"period": 23, "seq": 8})
+    ack = peer.recv_until(lambda f: f.arbitration_id in (pwm_id, ack_id), timeout=5.0)
+    assert ack is not None and ack.arbitration_id == ack_id
+    assert peer.decode(ack)["seq"] == 8
+    # a VIO_SYNC of the wrong length is refused (the next one shows it was handled)
+    peer.send_raw(peer.msg("VIO_SYNC").frame_id, bytes(4), fd=True)
+    peer.send("VIO_SYNC", {"period": 23, "seq": 9})
+    ack = peer.recv_until(lambda f: f.arbitration_id == ack_id, timeout=5.0)
+    assert ack is not None and peer.decode(ack)["seq"] == 9
+    assert fw.stop() == 0
+    c = fw.counters()
+    assert c["syncs"] == 3 and c["rejects"]["out_of_range"] == 1
+    assert c["rejects"]["bad_length"] == 1

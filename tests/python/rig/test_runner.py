@@ -19,7 +19,7 @@ import psutil
 import pytest
 import rerun as rr
 
-from rig import recording, runner
+from rig import recording, runner, verdict
 from rig import scenario as sc
 
 TINY = """\
@@ -340,7 +340,8 @@ def test_xfail_xpass_and_report_outcomes() -> None:
     xfail = sc.Criterion("b", "rig.x", (0.0, 1.0), 1.0, xfail="measured 3: reason")
     xpass = sc.Criterion("c", "rig.x", (0.0, 1.0), 5.0, xfail="measured 6 once: reason")
     rep = sc.Criterion("d", "rig.x", (0.0, 1.0), float("nan"), "report")
-    out = [runner.evaluate_one(c, None, counters) for c in (fail, xfail, xpass, rep)]
+    whole = verdict.Coverage.whole(10000)
+    out = [verdict.evaluate_one(c, None, counters, whole) for c in (fail, xfail, xpass, rep)]
     assert [runner.outcome(c) for c in out] == ["fail", "xfail", "xpass", "pass"]
     assert out[3]["limit"] is None and out[3]["value"] == 3.0
     res = runner.RunResult(Path("."), {"criteria": out})
@@ -375,10 +376,16 @@ def test_suite_comparison_outcomes() -> None:
     assert (r["outcome"], r["value_a"], r["value_b"], r["unit"]) == ("pass", 18.0, 21.8, "%")
     assert runner.evaluate_comparison(cmp, [entry("a", 21.8), entry("b", 18.0)])["outcome"] \
         == "fail"
-    # a run without a value (crashed, or missing from an interrupted suite) fails it
+    # a criterion without a value fails it; a run missing from an interrupted suite, or a
+    # criterion that was not evaluated, leaves it not evaluated (never a pass)
     assert runner.evaluate_comparison(cmp, [entry("a", None), entry("b", 1.0)])["outcome"] \
         == "fail"
-    assert runner.evaluate_comparison(cmp, [entry("b", 1.0)])["outcome"] == "fail"
+    assert runner.evaluate_comparison(cmp, [entry("b", 1.0)])["outcome"] == "not_evaluated"
+    unseen = {"name": "a", "criteria": [{"name": "drop", "value": None,
+                                         "outcome": "not_evaluated"}]}
+    r = runner.evaluate_comparison(cmp, [unseen, entry("b", 1.0)])
+    assert (r["outcome"], r["passed"]) == ("not_evaluated", False)
+    assert "no value from a" in r["note"]
     known = sc.Comparison("a drops less", "drop", "a", "b", "<", xfail="measured 30 vs 20")
     assert runner.evaluate_comparison(known, [entry("a", 30.0), entry("b", 20.0)])["outcome"] \
         == "xfail"

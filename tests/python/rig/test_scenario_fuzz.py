@@ -95,3 +95,22 @@ def test_any_bytes_in_a_file_are_loaded_or_reported(data: bytes) -> None:
             sc.load_scenario(fh.name)
         except sc.ScenarioError as exc:
             assert all(i.file == fh.name for i in exc.issues)
+
+
+FAULT_KEYS = ["at", "duration", "kind", "channel", "phase", "gate", "value", "code", "ramp",
+              "message", "delay", "signal", "xor", "other"]
+FAULT_WORDS = st.sampled_from(['"adc_offset"', '"adc_stuck"', '"gate_off"', '"dc_link"',
+                               '"frame_corrupt"', '"frame_delay"', '"heartbeat_loss"', '"ia"',
+                               '"vdc"', '"c"', '"lower"', '"VIO_ADC_0"', '"DRIVE_CMD"',
+                               '"ia_0"', '"speed_ref"', "0.5", "3", "65536", "0x10000"])
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.dictionaries(st.sampled_from(FAULT_KEYS), st.one_of(FAULT_WORDS, toml_value),
+                                max_size=6), min_size=1, max_size=3))
+def test_any_faults_event_is_loaded_or_reported(events: list[dict[str, str]]) -> None:
+    """[[faults]] tables of any keys and values (issue 15.1): a scenario or file:line:field."""
+    text = 'description = "p"\nprofile = "paper"\nduration = 1.0\n'
+    for event in events:
+        text += "[[faults]]\n" + "".join(f"{k} = {v}\n" for k, v in event.items())
+    check(text)

@@ -1,5 +1,6 @@
 """The in-process bench (``--bus inproc``) against the bus in lockstep, on a sample of
-scenarios: the same verdict, the same criterion values, the same trace files.
+scenarios and of fault scenarios: the same verdict, the same criterion values, the same trace
+files.
 
 Both paths are deterministic in lockstep and hand the plant and the firmware the same frames
 (the bench links the bus programs' frame code), so they agree exactly: any difference is a
@@ -29,12 +30,8 @@ def _first_period(result: RunResult, column: str, level: float) -> int:
     return int(hits[0]) + result.capture.first_period
 
 
-@pytest.mark.parametrize("name", SAMPLE)
-def test_inproc_agrees_with_lockstep_bus(name: str, hil_run) -> None:  # type: ignore[no-untyped-def]
-    sc = scenario.load(name)
-    assert isinstance(sc, scenario.Scenario)
-    on_bus = hil_run(sc, record=False)
-    inproc = hil_run(sc, record=False, bus="inproc")
+def _assert_agree(on_bus: RunResult, inproc: RunResult) -> None:
+    """The same verdict, criterion outcomes and values, and byte-identical traces."""
     assert on_bus.data["bus"] != "inproc" and inproc.data["bus"] == "inproc"
     assert (inproc.status, inproc.passed) == (on_bus.status, on_bus.passed), (
         on_bus.explain() + "\n" + inproc.explain())
@@ -52,6 +49,15 @@ def test_inproc_agrees_with_lockstep_bus(name: str, hil_run) -> None:  # type: i
         a, b = Path(on_bus.out_dir, trace), Path(inproc.out_dir, trace)
         assert a.read_bytes() == b.read_bytes(), f"{trace} differs"
     assert inproc.data["capture"]["lost"] == 0
+
+
+@pytest.mark.parametrize("name", SAMPLE)
+def test_inproc_agrees_with_lockstep_bus(name: str, hil_run) -> None:  # type: ignore[no-untyped-def]
+    sc = scenario.load(name)
+    assert isinstance(sc, scenario.Scenario)
+    on_bus = hil_run(sc, record=False)
+    inproc = hil_run(sc, record=False, bus="inproc")
+    _assert_agree(on_bus, inproc)
     assert inproc.data["counters"]["firmware.rx_rejected"] == 0
     assert inproc.data["counters"]["plant.rejected"] == 0
     # a load step lands on the period the scenario names, on both paths
@@ -62,3 +68,23 @@ def test_inproc_agrees_with_lockstep_bus(name: str, hil_run) -> None:  # type: i
             assert _first_period(inproc, "truth.tl", level) == want
             assert _first_period(on_bus, "truth.tl", level) == want
             break
+
+
+# Faults (issue 15.1): physical ones in the plant, frame faults on both sides of the virtual
+# I/O (the VIO_ADC ones pace every exchange with the VIO_SYNC barrier) and on the rig's own
+# frames; the same frames reach the same periods on the bus and in process.
+FAULT_SAMPLE = ("fault_open_phase", "fault_adc_frame_corrupt", "fault_pwm_frame_delay",
+                "fault_pwm_frame_corrupt", "fault_drive_cmd_corrupt_range")
+
+
+@pytest.mark.parametrize("name", FAULT_SAMPLE)
+def test_faults_agree_between_inproc_and_lockstep_bus(name: str, hil_run) -> None:  # type: ignore[no-untyped-def]
+    sc = scenario.load(name)
+    assert isinstance(sc, scenario.Scenario) and sc.faults
+    on_bus = hil_run(sc, record=False)
+    inproc = hil_run(sc, record=False, bus="inproc")
+    _assert_agree(on_bus, inproc)
+    for key in ("firmware.fault_code", "plant.late_cmds", "plant.faults.frames_dropped",
+                "plant.faults.frames_corrupted", "plant.faults.frames_delayed",
+                "plant.faults.barriers", "rig.faults.frames_corrupted"):
+        assert inproc.data["counters"][key] == on_bus.data["counters"][key], key
