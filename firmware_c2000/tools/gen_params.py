@@ -4,7 +4,7 @@
 The CSV is the single source of truth (columns: id, name, unit, min, max, default, access,
 description). This script writes two files into the build directory (never committed):
 
-* ``fw_params_gen.h``: ``FW_PARAM_COUNT``, one index macro ``FW_PI_<NAME>`` (position in the
+* ``fw_params_gen.h``: ``FW_PARAM_COUNT``, one index macro ``FW_IDX_<NAME>`` (position in the
   core's value array) and one id macro ``FW_PID_<NAME>`` (wire id) per parameter;
 * ``fw_params_gen.c``: the constant metadata table the core range-checks every set against.
 
@@ -107,7 +107,7 @@ def header(params: list[Param]) -> str:
     ]
     for i, p in enumerate(params):
         up = p.name.upper()
-        out.append(f"#define FW_PI_{up} {i}")
+        out.append(f"#define FW_IDX_{up} {i}")
         out.append(f"#define FW_PID_{up} {p.pid}u")
     out += ["", "#endif", ""]
     return "\n".join(out)

@@ -112,7 +112,7 @@ typedef struct {
     real_t e_mean, e_var; /* innovation mean and mean square */
     real_t last_err;    /* rad */
     uint16_t stamp;     /* tick of the reference instant within the period of the last update */
-} fw_pll_t;
+} fw_tracker_t;
 
 typedef struct {
     real_t kp, ki, x;   /* gains and integrator (output units) */
@@ -214,7 +214,7 @@ struct fw_core {
 
     /* estimation */
     fw_est_out_t est;
-    fw_pll_t pll;
+    fw_tracker_t trk;
     fw_param_est_t pe;
     fw_flux_t flux;
     int16_t est_valid;
@@ -254,8 +254,8 @@ struct fw_core {
     real_t iq_demand;
     real_t iq_sal_lim;           /* A, q-current limit from current, voltage and saliency */
     real_t id_ref_base;          /* A, d reference of MTPA/FW before the reluctance extension */
-    real_t fw_did;               /* A, voltage-feedback d-current */
-    int16_t fw_active;
+    real_t fluxweak_did;         /* A, voltage-feedback d-current */
+    int16_t fluxweak_active;     /* flux weakening active (voltage limit reached) */
     real_t te_hat;
     real_t te_model;             /* N*m, torque of the references through the current loop */
     real_t te_ripple;            /* N*m, reluctance torque of the next pattern's current ripple */

@@ -6,17 +6,19 @@
 #include "fw_params_gen.h"
 
 #define FW_TICK_S (FW_REAL(1.0) / FW_TBCLK_HZ)
+#define FW_SIX_STEP ((real_t)0.63661977236758134308) /* six-step fundamental per Vdc, 2/pi */
+#define FW_FLUX_VALID_UPDATES 2000 /* 0.2 s of plausible flux before MTPA/FW use it */
 #define FW_P_TICKS ((int32_t)FW_PERIOD_TICKS)
 #define FW_H_TICKS ((int32_t)FW_TBPRD)
 #define FW_RPM_PER_RADS ((real_t)9.54929658551372014613) /* 60 / (2 pi) */
 
 /* ---- svpwm.c: pattern, stretching, sampling plan ------------------------------------------ */
 /* Unit vector of active vector k (1..6) at phi_k = (k-1)*pi/3 and of 2*phi_k. */
-fw_cplx_t fw_vec_unit(int16_t k);
-fw_cplx_t fw_vec_unit2(int16_t k);
-int16_t fw_vec_state(int16_t k); /* switching state bits (a = 1, b = 2, c = 4) */
+fw_cplx_t fw_svpwm_vec_unit(int16_t k);
+fw_cplx_t fw_svpwm_vec_unit2(int16_t k);
+int16_t fw_svpwm_vec_state(int16_t k); /* switching state bits (a = 1, b = 2, c = 4) */
 /* alpha-beta voltage of a switching state with an isolated neutral */
-fw_cplx_t fw_state_voltage(int16_t state_bits, real_t vdc);
+fw_cplx_t fw_svpwm_state_voltage(int16_t state_bits, real_t vdc);
 /* Largest voltage magnitude that still leaves a V7 window of tmin in every direction. */
 real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks);
 /* Plan period pattern for average voltage v_ref (alpha-beta, V). mod: carry and last sector
@@ -31,69 +33,90 @@ void fw_svpwm_plan_off(fw_plan_t *plan, real_t vdc);
 void fw_svpwm_om_init(real_t ref[FW_OM_N], real_t fund[FW_OM_N]);
 /* Reference magnitude whose projected pattern has fundamental v1 (same units). */
 real_t fw_svpwm_om_ref(const real_t ref[FW_OM_N], const real_t fund[FW_OM_N], real_t v1);
-/* volt-seconds (V*s, ideal inverter) of the pattern between period ticks t0 and t1 */
-void fw_plan_to_pwm(const fw_plan_t *plan, uint32_t period, int16_t gate, fw_pwm_t *pwm);
+/* the pattern as the PWM command of a period (compares, SOCs, gate enable) */
+void fw_svpwm_to_pwm(const fw_plan_t *plan, uint32_t period, int16_t gate, fw_pwm_t *pwm);
 
-/* ---- fw_core.c: inverter model ----------------------------------------------------------- */
+/* ---- inverter_model.c: dead time and device drop ------------------------------------------ */
+/* phase currents (a, b, c) of an alpha-beta current, and alpha-beta of phase voltages */
+void fw_inverter_phase_currents(fw_cplx_t i, real_t iph[3]);
+fw_cplx_t fw_inverter_phase_to_ab(const real_t v[3]);
+/* the device drop over a stretch in which the current moves linearly from i0 to i1, V */
+fw_cplx_t fw_inverter_drop_voltage(const fw_core_t *c, fw_cplx_t i0, fw_cplx_t i1);
+/* the device drop over the sampled stretch of window w of c->plan_cur, V */
+fw_cplx_t fw_inverter_window_drop(const fw_core_t *c, int16_t w);
 /* Mean inverter voltage error of the period of c->plan_cur at current c->i_avg (dead time
  * deadtime_us, device drop vdrop_v), alpha-beta, V: applied minus pattern voltage. */
 fw_cplx_t fw_inverter_error(const fw_core_t *c);
 
+/* ---- current_recon.c: the period's current from its samples ------------------------------- */
+/* c->i_avg (period mean) and c->i_end from the samples of c->plan_cur and the slopes */
+void fw_recon_current(fw_core_t *c, const fw_adc_t *adc);
+/* mean over pattern pl of the product of the dq components of its current ripple, A^2 */
+real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl);
+
+/* ---- outer_loop.c: the 1 kHz tasks -------------------------------------------------------- */
+/* ld_use, lq_use, lambda_use of the selected MTPA/FW mode */
+void fw_outer_select_parameters(fw_core_t *c);
+/* speed ramp, speed PI, MTPA/FW current references and the voltage feedback */
+void fw_outer_step(fw_core_t *c);
+
 /* ---- slope_estimator.c: slopes and the least-squares position estimate --------------------- */
 /* LS slope of window w: A/s alpha-beta, mean sample time (ticks), current at that time (A). */
+/* Gamma(theta) v = Gamma0 v + g conj(v), g = Gamma1 exp(j 2 theta) */
+fw_cplx_t fw_slope_gamma_times(real_t gamma0, fw_cplx_t g, fw_cplx_t v);
 int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, int32_t adc_half,
                         real_t lsb, fw_cplx_t *slope, real_t *t_mean_ticks, fw_cplx_t *i_mean);
 /* Section 4.5: rotate the zero-state slope to the active window's time before differencing. */
 fw_cplx_t fw_slope_diff(fw_cplx_t s_active, real_t t_active, fw_cplx_t s_zero, real_t t_zero,
                         real_t omega);
 /* Section 3 with the rotation of g between windows; n_active 1 uses gamma0_prior. */
-void fw_est_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
+void fw_slope_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
                   const real_t t[2], real_t kv, real_t omega, real_t gamma0_prior,
                   fw_est_out_t *out);
 
 /* ---- position_tracker.c: mechanical observer, speed-scheduled, branch selection --------- */
 /* bw_hz: the fastest loop (convergence, high speed), zeta its damping */
-void fw_pll_config(fw_pll_t *pll, real_t bw_hz, real_t zeta);
+void fw_tracker_config(fw_tracker_t *pll, real_t bw_hz, real_t zeta);
 /* the floor low_bw_hz, the speed schedule wn = speed_ratio * |omega_e|, and the disturbance
  * detector's threshold boost_sigma (0: none); without it the loop runs at bw_hz */
-void fw_pll_config_schedule(fw_pll_t *pll, real_t low_bw_hz, real_t speed_ratio,
+void fw_tracker_config_schedule(fw_tracker_t *pll, real_t low_bw_hz, real_t speed_ratio,
                             real_t boost_sigma);
 /* once per period before the update: gains for the present speed and convergence state;
  * returns wn, rad/s */
-real_t fw_pll_schedule(fw_pll_t *pll);
+real_t fw_tracker_schedule(fw_tracker_t *pll);
 /* acceleration the torque model predicts until the next update, electrical rad/s^2 */
-void fw_pll_set_accel(fw_pll_t *pll, real_t a_ff);
-void fw_pll_reset(fw_pll_t *pll, real_t theta, real_t omega, uint16_t stamp);
-void fw_pll_advance(fw_pll_t *pll, int32_t ticks);
-real_t fw_pll_predict(const fw_pll_t *pll, int32_t tick_in_period);
+void fw_tracker_set_accel(fw_tracker_t *pll, real_t a_ff);
+void fw_tracker_reset(fw_tracker_t *pll, real_t theta, real_t omega, uint16_t stamp);
+void fw_tracker_advance(fw_tracker_t *pll, int32_t ticks);
+real_t fw_tracker_predict(const fw_tracker_t *pll, int32_t tick_in_period);
 /* Branch nearest the prediction (docs/estimator.md §7); returns the error epsilon (rad) and the
  * selected measurement in *theta_meas. */
-real_t fw_pll_update(fw_pll_t *pll, real_t theta_raw_mod_pi, uint16_t stamp, real_t *theta_meas);
-void fw_pll_flip(fw_pll_t *pll);
+real_t fw_tracker_update(fw_tracker_t *pll, real_t theta_raw_mod_pi, uint16_t stamp, real_t *theta_meas);
+void fw_tracker_flip(fw_tracker_t *pll);
 
 /* ---- param_estimator.c: Ld, Lq (incremental) and the apparent values -------------------- */
-void fw_pe_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max);
-void fw_pe_update(fw_param_est_t *pe, const fw_est_out_t *est, real_t theta_ref, real_t iq,
+void fw_paramest_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max);
+void fw_paramest_update(fw_param_est_t *pe, const fw_est_out_t *est, real_t theta_ref, real_t iq,
                   real_t alpha, real_t l_lo, real_t l_hi);
-void fw_pe_apparent(fw_param_est_t *pe, real_t iq);
+void fw_paramest_apparent(fw_param_est_t *pe, real_t iq);
 /* Gamma0 for the single-vector fallback at q current iq (section 3): the fast-filtered value
  * moved along the learnt Gamma0(iq) curve from the current it was measured at */
-real_t fw_pe_gamma0_prior(const fw_param_est_t *pe, real_t iq);
+real_t fw_paramest_gamma0_prior(const fw_param_est_t *pe, real_t iq);
 /* Gamma1 along the d axis at theta: Re(g exp(-j 2 theta)), so 1/Ld_inc = Gamma0 + it and
  * 1/Lq_inc = Gamma0 - it (docs/estimator.md §3) */
-real_t fw_est_gamma1_at(const fw_est_out_t *est, real_t theta);
+real_t fw_paramest_gamma1_at(const fw_est_out_t *est, real_t theta);
 /* Largest |iq| at which the learnt incremental saliency Gamma1 stays above gamma1_min (linear
  * extrapolation of the measured bins); i_max when no measured bin approaches it. */
 /* d(1/Lq_inc)/d iq at iq from the learnt curve, 1/(H*A) (0 until two points are learnt) */
-real_t fw_pe_inv_lq_slope(const fw_param_est_t *pe, real_t iq);
+real_t fw_paramest_inv_lq_slope(const fw_param_est_t *pe, real_t iq);
 /* 1 when the Lq bin of |iq| has had at least min_updates slope estimates */
-int16_t fw_pe_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_updates);
-real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max);
+int16_t fw_paramest_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_updates);
+real_t fw_paramest_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max);
 /* Turn of the saliency axes by cross-saturation at q current iq, rad, for an incremental Ldq
  * of ldq_per_a * iq (H) and the learnt Lq curve */
-real_t fw_pe_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a);
+real_t fw_paramest_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a);
 /* one period's turn e (rad) of the saliency axes against the flux angle: into the mean */
-void fw_pe_xsat_learn(fw_param_est_t *pe, real_t e, real_t alpha);
+void fw_paramest_xsat_learn(fw_param_est_t *pe, real_t e, real_t alpha);
 
 /* ---- flux_estimator.c -------------------------------------------------------------------- */
 void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);
@@ -105,46 +128,45 @@ int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gat
                        real_t omega_min, real_t theta_end, fw_cplx_t i_end, real_t ld_app,
                        real_t lambda_nom, real_t alpha);
 
-/* ---- mtpa_fw.c (paper eqs. 10, 50, 53) ----------------------------------------------------- */
-real_t fw_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda);
-real_t fw_mtpa_id_on_circle(real_t i_max, real_t ld, real_t lq, real_t lambda);
-real_t fw_fw_id(real_t iq, real_t omega, real_t vmax, real_t ld, real_t lq, real_t lambda);
-int16_t fw_circle_ellipse_id(real_t i_max, real_t omega, real_t vmax, real_t ld, real_t lq,
+/* ---- current_refs.c (paper eqs. 10, 50, 53) ----------------------------------------------------- */
+real_t fw_refs_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda);
+real_t fw_refs_mtpa_id_on_circle(real_t i_max, real_t ld, real_t lq, real_t lambda);
+real_t fw_refs_fluxweak_id(real_t iq, real_t omega, real_t vmax, real_t ld, real_t lq, real_t lambda);
+int16_t fw_refs_circle_ellipse_id(real_t i_max, real_t omega, real_t vmax, real_t ld, real_t lq,
                              real_t lambda, real_t *id);
-real_t fw_torque(real_t id, real_t iq, real_t ld, real_t lq, real_t lambda, real_t pole_pairs);
+real_t fw_refs_torque(real_t id, real_t iq, real_t ld, real_t lq, real_t lambda, real_t pole_pairs);
 /* d current that makes the q current iq (|iq| <= |iq_demand|, same sign) produce the torque of
  * the MTPA point of iq_demand through the reluctance term (<= 0; 0 without saliency). */
-real_t fw_id_for_torque(real_t iq_demand, real_t iq, real_t ld, real_t lq, real_t lambda);
+real_t fw_refs_id_for_torque(real_t iq_demand, real_t iq, real_t ld, real_t lq, real_t lambda);
 /* Current references from a q-current demand (mode FW_FWMODE_*). Returns 1 when the voltage
  * limit (flux weakening) is active. did_fb: extra d-current from the voltage feedback (<= 0). */
-int16_t fw_current_refs(int16_t mode, real_t iq_demand, real_t omega, real_t vmax, real_t i_max,
+int16_t fw_refs_select(int16_t mode, real_t iq_demand, real_t omega, real_t vmax, real_t i_max,
                         real_t ld, real_t lq, real_t lambda, real_t did_fb, real_t *id_ref,
                         real_t *iq_ref);
 
 /* ---- current_ctrl.c / speed_ctrl.c --------------------------------------------------------- */
-void fw_pi_reset(fw_pi_t *pi);
 /* dq current PI with decoupling, vector voltage limit and back-calculation anti-windup. */
 void fw_current_ctrl(fw_pi_t *pid, fw_pi_t *piq, real_t id_ref, real_t iq_ref, real_t id,
                      real_t iq, real_t omega, real_t ld, real_t lq, real_t lambda, real_t rs,
                      real_t v_lim, real_t ts, real_t *vd, real_t *vq);
-real_t fw_ramp(real_t y, real_t target, real_t step);
+real_t fw_speed_ctrl_ramp(real_t y, real_t target, real_t step);
 real_t fw_speed_ctrl(fw_pi_t *pi, real_t ref_rpm, real_t speed_rpm, real_t iq_lim, real_t ts);
 
 /* ---- protection.c ------------------------------------------------------------------------- */
-real_t fw_adc_offset(int32_t code, int32_t adc_half); /* code - adc_half, no int overflow */
-int16_t fw_adc_codes_in_range(const fw_adc_t *adc, int32_t adc_half); /* all in 0..2^N-1 */
-uint16_t fw_protect_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb, real_t oc_trip,
+real_t fw_protection_adc_offset(int32_t code, int32_t adc_half); /* code - adc_half, no int overflow */
+int16_t fw_protection_codes_in_range(const fw_adc_t *adc, int32_t adc_half); /* all in 0..2^N-1 */
+uint16_t fw_protection_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb, real_t oc_trip,
                             real_t *i_peak);
-uint16_t fw_protect_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);
+uint16_t fw_protection_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);
 
 /* ---- polarity_detect.c -------------------------------------------------------------------- */
 typedef struct {
     real_t id, iq;     /* current references along the estimated frame, A */
-} fw_pol_out_t;
-void fw_pol_start(fw_polarity_t *pol);
+} fw_polarity_out_t;
+void fw_polarity_start(fw_polarity_t *pol);
 /* One period; returns pol->result (0 running, 1 done, -1 failed). */
-int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
-                    fw_pol_out_t *out);
+int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
+                    fw_polarity_out_t *out);
 
 /* ---- params.c ----------------------------------------------------------------------------- */
 extern const fw_param_info_t fw_param_table[FW_PARAM_COUNT];

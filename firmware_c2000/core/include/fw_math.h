@@ -11,10 +11,10 @@
 #include <math.h>
 #include "fw_types.h"
 
-#define FW_PI_R ((real_t)3.14159265358979323846)
-#define FW_2PI_R ((real_t)6.28318530717958647692)
-#define FW_SQRT3_R ((real_t)1.73205080756887729353)
-#define FW_INV_SQRT3_R ((real_t)0.57735026918962576451)
+#define FW_M_PI ((real_t)3.14159265358979323846)
+#define FW_M_2PI ((real_t)6.28318530717958647692)
+#define FW_M_SQRT3 ((real_t)1.73205080756887729353)
+#define FW_M_INV_SQRT3 ((real_t)0.57735026918962576451)
 #define FW_REAL_MAX FLT_MAX
 
 /* alpha-beta (or d-q) vector; also used as a complex number re + j*im */
@@ -43,13 +43,13 @@ static inline int16_t fw_is_finite(real_t x)
 /* angle to (-pi, pi] */
 static inline real_t fw_wrap_pi(real_t x)
 {
-    return x + FW_2PI_R * fw_floor((FW_PI_R - x) / FW_2PI_R);
+    return x + FW_M_2PI * fw_floor((FW_M_PI - x) / FW_M_2PI);
 }
 /* angle to [0, 2pi) */
 static inline real_t fw_wrap_2pi(real_t x)
 {
-    real_t y = x - FW_2PI_R * fw_floor(x / FW_2PI_R);
-    return (y >= FW_2PI_R) ? FW_REAL(0.0) : y;
+    real_t y = x - FW_M_2PI * fw_floor(x / FW_M_2PI);
+    return (y >= FW_M_2PI) ? FW_REAL(0.0) : y;
 }
 
 static inline fw_cplx_t fw_c(real_t re, real_t im)

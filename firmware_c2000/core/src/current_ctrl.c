@@ -2,8 +2,6 @@
  * back-calculation anti-windup. */
 #include "fw_internal.h"
 
-void fw_pi_reset(fw_pi_t *pi) { pi->x = FW_REAL(0.0); }
-
 void fw_current_ctrl(fw_pi_t *pid, fw_pi_t *piq, real_t id_ref, real_t iq_ref, real_t id,
                      real_t iq, real_t omega, real_t ld, real_t lq, real_t lambda, real_t rs,
                      real_t v_lim, real_t ts, real_t *vd, real_t *vq)

@@ -14,7 +14,6 @@
 #define FW_RPM(omega_e, pp) ((omega_e) / (pp) * FW_RPM_PER_RADS)
 #define FW_FLUX_NEG_PERIODS 50   /* 5 ms of negative lambda_d: polarity lost */
 #define FW_EST_VALID_MAX_RUN 50  /* est_valid drops after 5 ms without a good estimate */
-#define FW_FLUX_VALID_UPDATES 2000 /* 0.2 s of plausible flux before MTPA/FW use it */
 #define FW_FULL_LEARNT_UPDATES 150 /* Lq bin updates before FULL mode stops measuring there */
 /* current-loop voltage in FULL modulation, fraction of six-step: the last few per cent add
  * mostly 5th/7th harmonics (measured at 2600 r/min, i_max 4.5 A: 4.77 A peaks at 1.0, 4.57 A
@@ -22,7 +21,6 @@
 #define FW_FULL_VLIM ((real_t)0.97)
 /* the current loop's response (400 Hz design bandwidth) per period, for the torque model */
 #define FW_TE_MODEL_ALPHA ((real_t)0.222)
-#define FW_SIX_STEP ((real_t)0.63661977236758134308) /* six-step fundamental per Vdc, 2/pi */
 /* cross-saturation identification: from this speed and q current on (once the Lq bin of the
  * current is learnt), the mean of the turn over ~0.2 s */
 #define FW_XSAT_MIN_RPM ((real_t)200.0)
@@ -43,13 +41,13 @@ static void enter_fault(fw_core_t *c, uint16_t code)
 static void reset_estimation(fw_core_t *c)
 {
     const real_t *p = c->p;
-    c->pll.init = 0;
-    c->pll.omega = FW_REAL(0.0);
-    c->pll.theta = FW_REAL(0.0);
-    c->pll.theta_unwrapped = FW_REAL(0.0);
-    c->pll.age_ticks = 0;
-    fw_pe_reset(&c->pe, p[FW_PI_LD_H], p[FW_PI_LQ_H], p[FW_PI_I_MAX_A]);
-    fw_flux_reset(&c->flux, p[FW_PI_LAMBDA_M_WB]);
+    c->trk.init = 0;
+    c->trk.omega = FW_REAL(0.0);
+    c->trk.theta = FW_REAL(0.0);
+    c->trk.theta_unwrapped = FW_REAL(0.0);
+    c->trk.age_ticks = 0;
+    fw_paramest_reset(&c->pe, p[FW_IDX_LD_H], p[FW_IDX_LQ_H], p[FW_IDX_I_MAX_A]);
+    fw_flux_reset(&c->flux, p[FW_IDX_LAMBDA_M_WB]);
     c->flux_pos_active = 0;
     c->est_valid = 0;
     c->est_fail_run = 0;
@@ -60,15 +58,15 @@ static void reset_estimation(fw_core_t *c)
 
 static void reset_control(fw_core_t *c)
 {
-    fw_pi_reset(&c->pi_d);
-    fw_pi_reset(&c->pi_q);
-    fw_pi_reset(&c->pi_spd);
+    c->pi_d.x = FW_REAL(0.0); /* the PI integrators */
+    c->pi_q.x = FW_REAL(0.0);
+    c->pi_spd.x = FW_REAL(0.0);
     c->id_ref = c->iq_ref = FW_REAL(0.0);
     c->id_ref_base = FW_REAL(0.0);
     c->vd = c->vq = FW_REAL(0.0);
     c->iq_demand = FW_REAL(0.0);
-    c->fw_did = FW_REAL(0.0);
-    c->fw_active = 0;
+    c->fluxweak_did = FW_REAL(0.0);
+    c->fluxweak_active = 0;
     c->v_mag_f = FW_REAL(0.0);
     c->mod.carry = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     c->mod.sector = 0;
@@ -86,16 +84,16 @@ void fw_core_init(fw_core_t *c)
     c->fault_code = FW_FAULT_NONE;
     c->cmd.ctrl_mode = FW_CTRL_SPEED;
     c->cmd.fw_mode = FW_FWMODE_REALTIME;
-    c->vdc = c->p[FW_PI_VDC_NOM_V];
+    c->vdc = c->p[FW_IDX_VDC_NOM_V];
     c->vdc_f = c->vdc;
     fw_svpwm_om_init(c->om_ref, c->om_fund);
     fw_svpwm_plan_off(&c->plan_cur, c->vdc);
     fw_svpwm_plan_off(&c->plan_next, c->vdc);
     reset_estimation(c);
     reset_control(c);
-    c->ld_use = c->p[FW_PI_LD_H];
-    c->lq_use = c->p[FW_PI_LQ_H];
-    c->lambda_use = c->p[FW_PI_LAMBDA_M_WB];
+    c->ld_use = c->p[FW_IDX_LD_H];
+    c->lq_use = c->p[FW_IDX_LQ_H];
+    c->lambda_use = c->p[FW_IDX_LAMBDA_M_WB];
 }
 
 void fw_core_note_overrun(fw_core_t *c)
@@ -120,8 +118,8 @@ int16_t fw_core_command(fw_core_t *c, const fw_cmd_t *cmd)
         st = FW_STATUS_OUT_OF_RANGE;
     } else if (!fw_is_finite(cmd->speed_ref_rpm) || !fw_is_finite(cmd->iq_ref)) {
         st = FW_STATUS_OUT_OF_RANGE;
-    } else if (fw_fabs(cmd->speed_ref_rpm) > c->p[FW_PI_SPEED_MAX_RPM] ||
-               fw_fabs(cmd->iq_ref) > c->p[FW_PI_I_MAX_A]) {
+    } else if (fw_fabs(cmd->speed_ref_rpm) > c->p[FW_IDX_SPEED_MAX_RPM] ||
+               fw_fabs(cmd->iq_ref) > c->p[FW_IDX_I_MAX_A]) {
         st = FW_STATUS_OUT_OF_RANGE;
     }
     c->cmd_status = st;
@@ -145,379 +143,26 @@ int16_t fw_core_command(fw_core_t *c, const fw_cmd_t *cmd)
 
 int16_t fw_core_set_limits(fw_core_t *c, real_t i_max, real_t speed_max_rpm, real_t accel_rpm_s)
 {
-    const fw_param_info_t *pi_i = &fw_param_table[FW_PI_I_MAX_A];
-    const fw_param_info_t *pi_s = &fw_param_table[FW_PI_SPEED_MAX_RPM];
-    const fw_param_info_t *pi_a = &fw_param_table[FW_PI_ACCEL_RPM_S];
+    const fw_param_info_t *pi_i = &fw_param_table[FW_IDX_I_MAX_A];
+    const fw_param_info_t *pi_s = &fw_param_table[FW_IDX_SPEED_MAX_RPM];
+    const fw_param_info_t *pi_a = &fw_param_table[FW_IDX_ACCEL_RPM_S];
     if (c == 0) {
         return FW_STATUS_BAD_ARG;
     }
     if (!fw_is_finite(i_max) || !fw_is_finite(speed_max_rpm) || !fw_is_finite(accel_rpm_s) ||
-        i_max < pi_i->min || i_max > pi_i->max || !(i_max < c->p[FW_PI_OC_TRIP_A]) ||
+        i_max < pi_i->min || i_max > pi_i->max || !(i_max < c->p[FW_IDX_OC_TRIP_A]) ||
         speed_max_rpm < pi_s->min || speed_max_rpm > pi_s->max || accel_rpm_s < pi_a->min ||
         accel_rpm_s > pi_a->max) {
         return FW_STATUS_OUT_OF_RANGE;
     }
-    c->p[FW_PI_I_MAX_A] = i_max;
-    c->p[FW_PI_SPEED_MAX_RPM] = speed_max_rpm;
-    c->p[FW_PI_ACCEL_RPM_S] = accel_rpm_s;
+    c->p[FW_IDX_I_MAX_A] = i_max;
+    c->p[FW_IDX_SPEED_MAX_RPM] = speed_max_rpm;
+    c->p[FW_IDX_ACCEL_RPM_S] = accel_rpm_s;
     return FW_STATUS_OK;
 }
 
 /* ---------------------------------------------------------------------------------------- */
 /* measurement and estimation of period k                                                    */
-
-/* Period-mean and period-end current from the zero-window anchor and the slope of every
- * segment: measured slopes where measured, else s0 + Gamma*v (Gamma from the estimate). With
- * w(tau) = P - tau after the anchor and -tau before it, mean = i(t_a) + (1/P) sum s_seg *
- * integral_seg w. */
-/* Without a measured zero window (FULL modulation): every sample is i(t) = i0 + s (t - t_bar)
- * + r(t), where r is the ripple of the pattern about its mean voltage, Gamma(theta) (v_seg -
- * v_mean) integrated, which needs no back-EMF; i0 and the mean slope s are fitted by least
- * squares to the samples minus r, and the period mean and end follow from the fit plus r. */
-static void reconstruct_current_fit(fw_core_t *c, const fw_adc_t *adc)
-{
-    const fw_plan_t *pl = &c->plan_cur;
-    const real_t P = (real_t)FW_P_TICKS;
-    real_t th = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
-    fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
-    real_t gamma0 = c->pe.gamma0_f;
-    fw_cplx_t vbar = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    fw_cplx_t r_at[FW_MAX_SEG + 1]; /* ripple at the segment starts, A */
-    fw_cplx_t r_sum = fw_c(FW_REAL(0.0), FW_REAL(0.0)); /* integral of r over the period, A*tick */
-    fw_cplx_t slope_seg[FW_MAX_SEG];
-    fw_cplx_t y_sum = fw_c(FW_REAL(0.0), FW_REAL(0.0)), ty_sum = y_sum;
-    real_t t_sum = FW_REAL(0.0), tt_sum = FW_REAL(0.0);
-    int16_t s, k, n = 0;
-    for (s = 0; s < pl->n_seg; s++) {
-        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
-        vbar = fw_cadd(vbar, fw_cscale(fw_state_voltage(pl->seg_state[s], pl->vdc), len / P));
-    }
-    r_at[0] = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    for (s = 0; s < pl->n_seg; s++) {
-        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
-        fw_cplx_t dv = fw_csub(fw_state_voltage(pl->seg_state[s], pl->vdc), vbar);
-        slope_seg[s] = fw_cscale(fw_cadd(fw_cscale(dv, gamma0), fw_cmul(g, fw_cconj(dv))),
-                                 FW_TICK_S); /* A per tick */
-        r_at[s + 1] = fw_cadd(r_at[s], fw_cscale(slope_seg[s], len));
-        r_sum = fw_cadd(r_sum, fw_cscale(fw_cadd(r_at[s], r_at[s + 1]), FW_REAL(0.5) * len));
-    }
-    for (k = 0; k < adc->n_soc && k < FW_MAX_SOC; k++) {
-        real_t t = (real_t)pl->soc[k];
-        real_t ia = fw_adc_offset(adc->ia[k], c->adc_half) * c->adc_i_lsb;
-        real_t ib = fw_adc_offset(adc->ib[k], c->adc_half) * c->adc_i_lsb;
-        fw_cplx_t y = fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_INV_SQRT3_R);
-        fw_cplx_t r = r_at[0];
-        for (s = 0; s < pl->n_seg; s++) {
-            if (t >= (real_t)pl->seg_t[s] && t < (real_t)pl->seg_t[s + 1]) {
-                r = fw_cadd(r_at[s], fw_cscale(slope_seg[s], t - (real_t)pl->seg_t[s]));
-            }
-        }
-        y = fw_csub(y, r);
-        y_sum = fw_cadd(y_sum, y);
-        ty_sum = fw_cadd(ty_sum, fw_cscale(y, t));
-        t_sum += t;
-        tt_sum += t * t;
-        n++;
-    }
-    {
-        real_t t_bar = t_sum / (real_t)n;
-        fw_cplx_t y_bar = fw_cscale(y_sum, FW_REAL(1.0) / (real_t)n);
-        real_t stt = tt_sum - (real_t)n * t_bar * t_bar;
-        fw_cplx_t slope = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-        if (stt > FW_REAL(100.0)) { /* samples spread over more than ~1 us */
-            slope = fw_cscale(fw_csub(ty_sum, fw_cscale(y_sum, t_bar)), FW_REAL(1.0) / stt);
-        }
-        c->i_avg = fw_cadd(fw_cadd(y_bar, fw_cscale(slope, FW_REAL(0.5) * P - t_bar)),
-                           fw_cscale(r_sum, FW_REAL(1.0) / P));
-        c->i_end = fw_cadd(fw_cadd(y_bar, fw_cscale(slope, P - t_bar)), r_at[pl->n_seg]);
-    }
-}
-
-/* Phase currents (a, b, c) of an alpha-beta current */
-static void phase_currents(fw_cplx_t i, real_t iph[3])
-{
-    iph[0] = i.re;
-    iph[1] = FW_REAL(-0.5) * i.re + FW_REAL(0.5) * FW_SQRT3_R * i.im;
-    iph[2] = FW_REAL(-0.5) * i.re - FW_REAL(0.5) * FW_SQRT3_R * i.im;
-}
-
-/* Alpha-beta voltage of per-phase voltages (isolated neutral) */
-static fw_cplx_t phase_to_ab(const real_t v[3])
-{
-    return fw_c((FW_REAL(2.0) / FW_REAL(3.0)) * (v[0] - FW_REAL(0.5) * (v[1] + v[2])),
-                (v[1] - v[2]) * FW_INV_SQRT3_R);
-}
-
-/* The devices' forward drop over a stretch of time in which the current moves linearly from
- * i0 to i1 (alpha-beta): every leg loses vdrop in the direction of its current in every
- * switching state (transistor or diode), so it only shapes the current where a phase current
- * changes sign within the period. Per leg the mean of sign(i) over a linear stretch is
- * (|i1| - |i0|) / (i1 - i0); within 1 mA of a zero the sign goes soft. */
-static fw_cplx_t drop_voltage(const fw_core_t *c, fw_cplx_t i0, fw_cplx_t i1)
-{
-    real_t a[3], b[3], v[3];
-    int16_t x;
-    phase_currents(i0, a);
-    phase_currents(i1, b);
-    for (x = 0; x < 3; x++) {
-        real_t d = b[x] - a[x];
-        real_t sgn = (fw_fabs(d) > FW_REAL(1e-3))
-                         ? (fw_fabs(b[x]) - fw_fabs(a[x])) / d
-                         : fw_clamp((a[x] + b[x]) / FW_REAL(2e-3), FW_REAL(-1.0), FW_REAL(1.0));
-        v[x] = -c->p[FW_PI_VDROP_V] * sgn;
-    }
-    return phase_to_ab(v);
-}
-
-/* the current of window w at its first and last sample (the stretch its slope was fitted on) */
-static void window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1)
-{
-    const fw_window_t *win = &c->plan_cur.win[w];
-    real_t t0 = (real_t)c->plan_cur.soc[win->soc_first] - c->slope_t[w];
-    real_t t1 = (real_t)c->plan_cur.soc[win->soc_first + win->soc_count - 1] - c->slope_t[w];
-    *i0 = fw_cadd(c->i_win[w], fw_cscale(c->slope[w], t0 * FW_TICK_S));
-    *i1 = fw_cadd(c->i_win[w], fw_cscale(c->slope[w], t1 * FW_TICK_S));
-}
-
-/* drop voltage over the sampled stretch of window w */
-static fw_cplx_t window_drop(const fw_core_t *c, int16_t w)
-{
-    fw_cplx_t i0, i1;
-    window_span(c, w, &i0, &i1);
-    return drop_voltage(c, i0, i1);
-}
-
-/* Gamma(theta) v = Gamma0 v + g conj(v), g = Gamma1 exp(j 2 theta) */
-static fw_cplx_t gamma_times(real_t gamma0, fw_cplx_t g, fw_cplx_t v)
-{
-    return fw_cadd(fw_cscale(v, gamma0), fw_cmul(g, fw_cconj(v)));
-}
-
-/* Mean and end of the current over the period from an anchor current i_a at tick ta and the
- * slope of every segment between the boundaries tb[0..n] (A per tick). With w(tau) = P - tau
- * after the anchor and -tau before it, mean = i_a + (1/P) sum slope * integral_seg w. */
-static void integrate_segments(const real_t *tb, const fw_cplx_t *slope, int16_t n, real_t ta,
-                               fw_cplx_t i_a, fw_cplx_t *i_mean, fw_cplx_t *i_end)
-{
-    const real_t P = (real_t)FW_P_TICKS;
-    fw_cplx_t acc_mean = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    fw_cplx_t acc_end = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    int16_t s;
-    for (s = 0; s < n; s++) {
-        real_t u = tb[s];
-        real_t v = tb[s + 1];
-        if (v <= u) {
-            continue;
-        }
-        if (v <= ta) {
-            acc_mean = fw_cadd(acc_mean, fw_cscale(slope[s], -(v - u) * FW_REAL(0.5) * (u + v)));
-        } else if (u >= ta) {
-            acc_mean =
-                fw_cadd(acc_mean, fw_cscale(slope[s], (v - u) * (P - FW_REAL(0.5) * (u + v))));
-            acc_end = fw_cadd(acc_end, fw_cscale(slope[s], v - u));
-        } else {
-            acc_mean = fw_cadd(acc_mean, fw_cscale(slope[s], -(ta - u) * FW_REAL(0.5) * (u + ta)));
-            acc_mean =
-                fw_cadd(acc_mean, fw_cscale(slope[s], (v - ta) * (P - FW_REAL(0.5) * (ta + v))));
-            acc_end = fw_cadd(acc_end, fw_cscale(slope[s], v - ta));
-        }
-    }
-    *i_mean = fw_cadd(i_a, fw_cscale(acc_mean, FW_REAL(1.0) / P));
-    *i_end = fw_cadd(i_a, acc_end);
-}
-
-/* Current at tick t of the trajectory anchored at (ta, i_a) */
-static fw_cplx_t current_at(const real_t *tb, const fw_cplx_t *slope, int16_t n, real_t ta,
-                            fw_cplx_t i_a, real_t t)
-{
-    fw_cplx_t i = i_a;
-    int16_t s;
-    for (s = 0; s < n; s++) {
-        real_t lo = fw_max(tb[s], fw_min(ta, t));
-        real_t hi = fw_min(tb[s + 1], fw_max(ta, t));
-        if (hi > lo) {
-            i = fw_cadd(i, fw_cscale(slope[s], (t >= ta) ? (hi - lo) : (lo - hi)));
-        }
-    }
-    return i;
-}
-
-static void reconstruct_current(fw_core_t *c, const fw_adc_t *adc)
-{
-    const fw_plan_t *pl = &c->plan_cur;
-    real_t ta = c->slope_t[FW_WIN_ZERO];
-    real_t td = c->p[FW_PI_DEADTIME_US] * FW_REAL(100.0); /* ticks */
-    real_t tb[FW_MAX_SEG + 1];
-    fw_cplx_t slope[FW_MAX_SEG];
-    int16_t modelled[FW_MAX_SEG];
-    fw_cplx_t g;
-    real_t gamma0;
-    int16_t s;
-
-    if (!c->slope_ok[FW_WIN_ZERO] && pl->layout != FW_LAYOUT_OFF && adc->n_soc >= 2) {
-        reconstruct_current_fit(c, adc);
-        return;
-    }
-    if (!c->slope_ok[FW_WIN_ZERO]) {
-        /* no zero window (gates off): plain mean of the samples */
-        fw_cplx_t sum = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-        int16_t k;
-        for (k = 0; k < adc->n_soc && k < FW_MAX_SOC; k++) {
-            real_t ia = fw_adc_offset(adc->ia[k], c->adc_half) * c->adc_i_lsb;
-            real_t ib = fw_adc_offset(adc->ib[k], c->adc_half) * c->adc_i_lsb;
-            sum = fw_cadd(sum, fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_INV_SQRT3_R));
-        }
-        c->i_avg = (adc->n_soc > 0) ? fw_cscale(sum, FW_REAL(1.0) / (real_t)adc->n_soc) : sum;
-        c->i_end = c->i_avg;
-        return;
-    }
-    if (c->est.n_active == 2 && c->est.ok) {
-        gamma0 = c->est.gamma0;
-        g = c->est.g;
-    } else {
-        gamma0 = c->pe.gamma0_f;
-        g = fw_cscale(fw_cexpj(FW_REAL(2.0) * c->theta_hat), c->pe.gamma1_f);
-    }
-    /* the slope of every switching state: measured where it was, else s0 + Gamma(theta) v */
-    for (s = 0; s < pl->n_seg; s++) {
-        int16_t bits = pl->seg_state[s];
-        int16_t w;
-        int16_t found = -1;
-        for (w = 0; w < 3; w++) {
-            if (c->slope_ok[w] && pl->win[w].start <= pl->seg_t[s] &&
-                pl->win[w].end >= pl->seg_t[s + 1]) {
-                found = w;
-            }
-        }
-        if (found >= 0) {
-            slope[s] = c->slope[found];
-        } else if (bits == 0 || bits == 7) {
-            slope[s] = c->slope[FW_WIN_ZERO];
-        } else {
-            slope[s] = fw_cadd(c->slope[FW_WIN_ZERO],
-                               gamma_times(gamma0, g, fw_state_voltage(bits, pl->vdc)));
-        }
-        slope[s] = fw_cscale(slope[s], FW_TICK_S); /* A per tick */
-        tb[s] = (real_t)pl->seg_t[s];
-        modelled[s] = (int16_t)(found < 0);
-    }
-    tb[pl->n_seg] = (real_t)pl->seg_t[pl->n_seg];
-    /* a modelled state whose phase currents have other signs than in the zero window sees
-     * another device drop than the s0 it was built on */
-    if (c->p[FW_PI_VDROP_V] > FW_REAL(0.0)) {
-        fw_cplx_t u0 = window_drop(c, FW_WIN_ZERO);
-        fw_cplx_t corr[FW_MAX_SEG];
-        for (s = 0; s < pl->n_seg; s++) {
-            corr[s] = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-            if (modelled[s]) {
-                fw_cplx_t i0 = current_at(tb, slope, pl->n_seg, ta, c->i_win[FW_WIN_ZERO], tb[s]);
-                fw_cplx_t i1 = current_at(tb, slope, pl->n_seg, ta, c->i_win[FW_WIN_ZERO],
-                                          tb[s + 1]);
-                corr[s] = fw_cscale(gamma_times(gamma0, g, fw_csub(drop_voltage(c, i0, i1), u0)),
-                                    FW_TICK_S);
-            }
-        }
-        for (s = 0; s < pl->n_seg; s++) {
-            slope[s] = fw_cadd(slope[s], corr[s]);
-        }
-    }
-    /* Dead time: a leg's turn-on edge takes effect td late when its current flows out of the
-     * leg (the lower diode holds it low), its turn-off edge td late when the current flows in
-     * (the upper diode holds it high). The states between the edges are the planned ones, so
-     * the trajectory keeps its slopes and moves its corners; the anchor's own samples sit
-     * soc_on >= td after their edge. Unmodelled, the shifted corners of the unmeasured states
-     * put up to 5 mA of pattern-dependent bias into the period mean (paper profile, 2 us),
-     * torque noise the position tracker cannot see at low speed. The current at each edge
-     * comes from the trajectory without dead time (a soft sign over 10 mA). */
-    if (td > FW_REAL(0.0)) {
-        real_t shift[FW_MAX_SEG + 1];
-        for (s = 1; s < pl->n_seg; s++) {
-            int16_t changed = (int16_t)(pl->seg_state[s] ^ pl->seg_state[s - 1]);
-            fw_cplx_t i_b = current_at(tb, slope, pl->n_seg, ta, c->i_win[FW_WIN_ZERO], tb[s]);
-            real_t iph[3];
-            real_t sum = FW_REAL(0.0);
-            int16_t x, cnt = 0;
-            phase_currents(i_b, iph);
-            for (x = 0; x < 3; x++) {
-                if ((changed >> x) & 1) {
-                    real_t sgn = fw_clamp(iph[x] / FW_REAL(0.01), FW_REAL(-1.0), FW_REAL(1.0));
-                    int16_t rising = (int16_t)((pl->seg_state[s] >> x) & 1);
-                    sum += td * FW_REAL(0.5) *
-                           (rising ? (FW_REAL(1.0) + sgn) : (FW_REAL(1.0) - sgn));
-                    cnt++;
-                }
-            }
-            shift[s] = (cnt > 0) ? sum / (real_t)cnt : FW_REAL(0.0);
-        }
-        for (s = 1; s < pl->n_seg; s++) {
-            tb[s] += shift[s];
-        }
-    }
-    integrate_segments(tb, slope, pl->n_seg, ta, c->i_win[FW_WIN_ZERO], &c->i_avg, &c->i_end);
-}
-
-/* Mean over a pattern of r_d * r_q, the product of the dq components of its current ripple
- * r(t) = Gamma(theta) * integral (v - v_mean) (A^2): with saliency a ripple makes torque of its
- * own, 1.5 p (Ld - Lq) <r_d r_q> (the products of the two axes' excursions do not average
- * out). The A and B halves of a pair have opposite ripples and the same product. At
- * standstill it is ~1e-4 N*m and changes with the sector: unmodelled, it moved the shaft by
- * ~1 r/min against a position tracker of 0.5 Hz. */
-static real_t ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
-{
-    const real_t P = (real_t)FW_P_TICKS;
-    real_t th = c->pll.init ? fw_pll_predict(&c->pll, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
-    fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
-    fw_cplx_t rot = fw_cexpj(-th);
-    fw_cplx_t vbar = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    fw_cplx_t r0 = fw_c(FW_REAL(0.0), FW_REAL(0.0)); /* ripple at the segment start, dq */
-    real_t acc = FW_REAL(0.0);
-    int16_t s;
-    if (pl->layout == FW_LAYOUT_OFF) {
-        return FW_REAL(0.0);
-    }
-    for (s = 0; s < pl->n_seg; s++) {
-        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
-        vbar = fw_cadd(vbar, fw_cscale(fw_state_voltage(pl->seg_state[s], pl->vdc), len / P));
-    }
-    for (s = 0; s < pl->n_seg; s++) {
-        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
-        fw_cplx_t dv = fw_csub(fw_state_voltage(pl->seg_state[s], pl->vdc), vbar);
-        fw_cplx_t slope = fw_cadd(fw_cscale(dv, c->pe.gamma0_f), fw_cmul(g, fw_cconj(dv)));
-        fw_cplx_t r1 = fw_cadd(r0, fw_cmul(fw_cscale(slope, len * FW_TICK_S), rot));
-        /* exact integral of the product of two linear segments */
-        acc += len * (r0.re * r0.im / FW_REAL(3.0) +
-                      (r0.re * r1.im + r1.re * r0.im) / FW_REAL(6.0) + r1.re * r1.im / FW_REAL(3.0));
-        r0 = r1;
-    }
-    return acc / P;
-}
-
-/* Average voltage error of the inverter in the period of plan_cur (dead time on every rising
- * edge of a switching leg, device drop), alpha-beta: APPLIED MINUS PATTERN voltage, so a
- * positive phase current gives a negative error (it loses volt-seconds). It is ADDED to the
- * ideal pattern voltage; c->i_avg must be the mean current of that same period. */
-fw_cplx_t fw_inverter_error(const fw_core_t *c)
-{
-    const fw_plan_t *pl = &c->plan_cur;
-    real_t td = c->p[FW_PI_DEADTIME_US] * FW_REAL(1e-6);
-    real_t vdrop = c->p[FW_PI_VDROP_V];
-    real_t iph[3];
-    real_t dv[3];
-    int16_t x;
-    if (td <= FW_REAL(0.0) && vdrop <= FW_REAL(0.0)) {
-        return fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    }
-    phase_currents(c->i_avg, iph);
-    for (x = 0; x < 3; x++) {
-        int16_t nonempty = (int16_t)(pl->on[x] < pl->off[x]);
-        int16_t prev_on_at_end = (int16_t)(c->prev_on[x] < c->prev_off[x] &&
-                                           c->prev_off[x] >= (uint16_t)FW_P_TICKS);
-        int16_t rising = (int16_t)(nonempty && (pl->on[x] > 0u || !prev_on_at_end));
-        real_t sgn = fw_clamp(iph[x] / FW_REAL(0.05), FW_REAL(-1.0), FW_REAL(1.0));
-        dv[x] = -sgn * (td * pl->vdc * (real_t)rising / FW_TS + vdrop);
-    }
-    return phase_to_ab(dv);
-}
 
 /* Slopes, least-squares estimate and PLL for the period just measured; with pll_freeze the
  * flux estimator updates the PLL this period and only the branch is taken here. Returns 1 when
@@ -531,7 +176,7 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
     int16_t vec[2];
     fw_cplx_t di[2];
     real_t t[2];
-    real_t omega = c->pll.init ? c->pll.omega : FW_REAL(0.0);
+    real_t omega = c->trk.init ? c->trk.omega : FW_REAL(0.0);
     int16_t bad = 0;
     int16_t updated = 0;
 
@@ -549,8 +194,8 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
          * (kappa diq / 2) (v - exp(j 2 theta) conj(v)) to the slope difference of a window
          * at voltage v. Measured without it on the paper profile at 1 r/min, 2 N*m: a raw
          * bias of +0.95 deg in odd and -0.82 deg in even sectors. */
-        real_t kappa = c->pll.init ? fw_pe_inv_lq_slope(&c->pe, c->iq) : FW_REAL(0.0);
-        real_t th_mid = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
+        real_t kappa = c->trk.init ? fw_paramest_inv_lq_slope(&c->pe, c->iq) : FW_REAL(0.0);
+        real_t th_mid = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
         fw_cplx_t rot2 = fw_cexpj(FW_REAL(2.0) * th_mid);
         fw_cplx_t rot_m = fw_cexpj(-th_mid);
         for (w = FW_WIN_ODD; w <= FW_WIN_EVEN; w++) {
@@ -559,17 +204,18 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
                 t[n_act] = c->slope_t[w] * FW_TICK_S;
                 di[n_act] = fw_slope_diff(c->slope[w], t[n_act], c->slope[FW_WIN_ZERO],
                                           c->slope_t[FW_WIN_ZERO] * FW_TICK_S, omega);
-                if (c->p[FW_PI_VDROP_V] > FW_REAL(0.0)) {
+                if (c->p[FW_IDX_VDROP_V] > FW_REAL(0.0)) {
                     /* a phase current of another sign in the active window than in the zero
                      * window: the drop differs by 2 vdrop there (measured without this at 2
                      * N*m, 1 r/min: +-2.5 deg of raw bias for 0.3 s around each phase-current
                      * zero crossing) */
                     fw_cplx_t g_f = fw_cscale(rot2, c->pe.gamma1_f);
-                    fw_cplx_t du = fw_csub(window_drop(c, w), window_drop(c, FW_WIN_ZERO));
-                    di[n_act] = fw_csub(di[n_act], gamma_times(c->pe.gamma0_f, g_f, du));
+                    fw_cplx_t du = fw_csub(fw_inverter_window_drop(c, w),
+                                           fw_inverter_window_drop(c, FW_WIN_ZERO));
+                    di[n_act] = fw_csub(di[n_act], fw_slope_gamma_times(c->pe.gamma0_f, g_f, du));
                 }
                 if (kappa != FW_REAL(0.0)) {
-                    fw_cplx_t v = fw_cscale(fw_vec_unit(vec[n_act]),
+                    fw_cplx_t v = fw_cscale(fw_svpwm_vec_unit(vec[n_act]),
                                             FW_REAL(2.0) / FW_REAL(3.0) * pl->vdc);
                     real_t diq = fw_cmul(fw_csub(c->i_win[w], c->i_win[FW_WIN_ZERO]), rot_m).im;
                     fw_cplx_t dv = fw_csub(v, fw_cmul(rot2, fw_cconj(v)));
@@ -581,14 +227,14 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
     }
     c->slopes_ok = n_act;
     if (n_act > 0) {
-        fw_est_solve(n_act, vec, di, t, FW_REAL(2.0) / FW_REAL(3.0) * pl->vdc, omega,
-                     fw_pe_gamma0_prior(&c->pe, c->iq), &c->est);
+        fw_slope_solve(n_act, vec, di, t, FW_REAL(2.0) / FW_REAL(3.0) * pl->vdc, omega,
+                     fw_paramest_gamma0_prior(&c->pe, c->iq), &c->est);
         /* cross-saturation turns the saliency axes the slopes see by a load-dependent angle:
          * remove it (xsat_ldq_per_a, identified at speed: xsat_learn). Measured on the harsh
          * profile at 1 r/min, 2 N*m: +5 deg of bias without it, and the loop crept away */
         c->theta_raw_axes = c->est.theta_raw;
-        if (c->est.n_active > 0 && p[FW_PI_XSAT_LDQ_PER_A] != FW_REAL(0.0)) {
-            c->est.theta_raw += fw_pe_xsat_angle(&c->pe, c->iq, p[FW_PI_XSAT_LDQ_PER_A]);
+        if (c->est.n_active > 0 && p[FW_IDX_XSAT_LDQ_PER_A] != FW_REAL(0.0)) {
+            c->est.theta_raw += fw_paramest_xsat_angle(&c->pe, c->iq, p[FW_IDX_XSAT_LDQ_PER_A]);
         }
         /* plausibility: the residual of the 4th equation; for the position also enough
          * saliency left. The inductances along the tracked d axis need no saliency: while the
@@ -596,10 +242,10 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
          * all of it near 4 A on the paper machine, where the flux angle needs Lq_app most) */
         c->est_param_ok = (int16_t)(c->est.n_active == 2 && c->est.gamma0 > FW_REAL(0.0) &&
                                     fw_fabs(c->est.residual) <=
-                                        p[FW_PI_RESIDUAL_MAX] * c->est.gamma0);
+                                        p[FW_IDX_RESIDUAL_MAX] * c->est.gamma0);
         if (c->est.ok) {
             real_t g1_nom = c->pe.gamma1_f;
-            if (!c->est_param_ok || c->est.gamma1 < FW_REAL(0.25) * g1_nom) {
+            if (!c->est_param_ok || c->est.gamma1 < p[FW_IDX_EST_GAMMA1_MIN] * g1_nom) {
                 c->est.ok = 0;
             }
         }
@@ -612,31 +258,31 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
         uint16_t stamp = (uint16_t)fw_clamp(t_ref_ticks + FW_REAL(0.5), FW_REAL(0.0),
                                             (real_t)(FW_P_TICKS - 1));
         real_t theta_meas;
-        if (!c->pll.init) {
-            fw_pll_reset(&c->pll, c->est.theta_raw, FW_REAL(0.0), stamp);
+        if (!c->trk.init) {
+            fw_tracker_reset(&c->trk, c->est.theta_raw, FW_REAL(0.0), stamp);
             c->theta_raw_branch = fw_wrap_2pi(c->est.theta_raw);
             updated = 1;
         } else if (!pll_freeze) {
-            real_t eps = fw_pll_update(&c->pll, c->est.theta_raw, stamp, &theta_meas);
+            real_t eps = fw_tracker_update(&c->trk, c->est.theta_raw, stamp, &theta_meas);
             c->theta_raw_branch = theta_meas;
             updated = 1;
-            if (fw_fabs(eps) > p[FW_PI_PLL_ERR_MAX_DEG] * (FW_PI_R / FW_REAL(180.0))) {
+            if (fw_fabs(eps) > p[FW_IDX_PLL_ERR_MAX_DEG] * (FW_M_PI / FW_REAL(180.0))) {
                 bad = 1;
             }
         } else {
-            real_t pred = fw_pll_predict(&c->pll, (int32_t)stamp);
+            real_t pred = fw_tracker_predict(&c->trk, (int32_t)stamp);
             c->theta_raw_branch =
                 fw_wrap_2pi(pred + FW_REAL(0.5) *
                                        fw_wrap_pi(FW_REAL(2.0) * (c->est.theta_raw - pred)));
         }
         if (updated) {
             c->stamp = (int16_t)stamp;
-            c->theta_hat = c->pll.theta;
+            c->theta_hat = c->trk.theta;
         }
     }
     if (!updated) {
         c->stamp = (int16_t)FW_H_TICKS;
-        c->theta_hat = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
+        c->theta_hat = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
     }
     if (bad) {
         c->est_reject_count++;
@@ -656,26 +302,26 @@ static int16_t flux_carries_position(fw_core_t *c)
     /* only under load (|iq| above flux_pos_min_iq_a, 25 % hysteresis), where q saturation
      * erodes the saliency; at light load the slopes keep the position (measured: the hand-over
      * at no load let the PLL and the flux estimator's speed-dependent filter oscillate) */
-    real_t on = p[FW_PI_FLUX_POS_MIN_IQ_A];
+    real_t on = p[FW_IDX_FLUX_POS_MIN_IQ_A];
     real_t iq = fw_fabs(c->iq);
     if (iq > on) {
         c->flux_pos_load = 1;
-    } else if (iq < FW_REAL(0.75) * on) {
+    } else if (iq < p[FW_IDX_FLUX_POS_IQ_HYST] * on) {
         c->flux_pos_load = 0;
     }
     if (c->full_mod) {
         return (int16_t)(c->flux.active && c->state == FW_STATE_RUN);
     }
     return (int16_t)(c->flux.active && c->state == FW_STATE_RUN && c->flux_pos_load &&
-                     p[FW_PI_FLUX_POS_MIN_RPM] > FW_REAL(0.0) &&
-                     fw_fabs(c->speed_f_rpm) >= p[FW_PI_FLUX_POS_MIN_RPM]);
+                     p[FW_IDX_FLUX_POS_MIN_RPM] > FW_REAL(0.0) &&
+                     fw_fabs(c->speed_f_rpm) >= p[FW_IDX_FLUX_POS_MIN_RPM]);
 }
 
 /* PLL update from the active flux at the end of the period; 1 when plausible */
 static int16_t flux_position(fw_core_t *c)
 {
     const real_t *p = c->p;
-    real_t lam_min = FW_REAL(0.25) * p[FW_PI_LAMBDA_M_WB];
+    real_t lam_min = FW_REAL(0.25) * p[FW_IDX_LAMBDA_M_WB];
     fw_cplx_t act;
     real_t meas, eps;
     if (!c->flux.active) {
@@ -685,37 +331,38 @@ static int16_t flux_position(fw_core_t *c)
     if (fw_cabs2(act) < lam_min * lam_min) {
         return 0;
     }
-    eps = fw_pll_update(&c->pll, fw_atan2(act.im, act.re), (uint16_t)(FW_P_TICKS - 1), &meas);
+    eps = fw_tracker_update(&c->trk, fw_atan2(act.im, act.re), (uint16_t)(FW_P_TICKS - 1), &meas);
     c->theta_raw_branch = meas;
     c->stamp = (int16_t)(FW_P_TICKS - 1);
-    c->theta_hat = c->pll.theta;
-    return (int16_t)(fw_fabs(eps) <= p[FW_PI_PLL_ERR_MAX_DEG] * (FW_PI_R / FW_REAL(180.0)));
+    c->theta_hat = c->trk.theta;
+    return (int16_t)(fw_fabs(eps) <= p[FW_IDX_PLL_ERR_MAX_DEG] * (FW_M_PI / FW_REAL(180.0)));
 }
 
 static void update_parameters_and_flux(fw_core_t *c, int16_t run_flux)
 {
     const real_t *p = c->p;
-    real_t alpha = FW_TS / (p[FW_PI_PARAM_TAU_MS] * FW_REAL(1e-3));
-    real_t ld_nom = p[FW_PI_LD_H];
-    real_t lq_nom = p[FW_PI_LQ_H];
+    real_t alpha = FW_TS / (p[FW_IDX_PARAM_TAU_MS] * FW_REAL(1e-3));
+    real_t ld_nom = p[FW_IDX_LD_H];
+    real_t lq_nom = p[FW_IDX_LQ_H];
     if (((c->est.ok && c->est.n_active == 2) || (c->flux_pos_active && c->est_param_ok)) &&
-        c->pll.init) {
-        fw_pe_update(&c->pe, &c->est, c->theta_hat, c->iq, alpha, FW_REAL(0.2) * ld_nom,
-                     FW_REAL(5.0) * lq_nom);
+        c->trk.init) {
+        fw_paramest_update(&c->pe, &c->est, c->theta_hat, c->iq, alpha,
+                           p[FW_IDX_PARAM_L_MIN_RATIO] * ld_nom,
+                           p[FW_IDX_PARAM_L_MAX_RATIO] * lq_nom);
     }
     c->v_meas = fw_cadd(c->plan_cur.v_applied, fw_inverter_error(c));
-    if (run_flux && c->pll.init) {
-        fw_cplx_t u = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_PI_RS_OHM])), FW_TS);
-        real_t omega_min = p[FW_PI_FLUX_MIN_RPM] / FW_RPM_PER_RADS * p[FW_PI_POLE_PAIRS];
-        real_t theta_end = fw_pll_predict(&c->pll, FW_P_TICKS);
-        real_t omega_gate = c->speed_f_rpm / FW_RPM_PER_RADS * p[FW_PI_POLE_PAIRS];
-        (void)fw_flux_update(&c->flux, u, c->pll.omega, omega_gate, p[FW_PI_FLUX_LPF_RATIO],
-                             omega_min, theta_end, c->i_end, c->pe.ld_app, p[FW_PI_LAMBDA_M_WB],
+    if (run_flux && c->trk.init) {
+        fw_cplx_t u = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_IDX_RS_OHM])), FW_TS);
+        real_t omega_min = p[FW_IDX_FLUX_MIN_RPM] / FW_RPM_PER_RADS * p[FW_IDX_POLE_PAIRS];
+        real_t theta_end = fw_tracker_predict(&c->trk, FW_P_TICKS);
+        real_t omega_gate = c->speed_f_rpm / FW_RPM_PER_RADS * p[FW_IDX_POLE_PAIRS];
+        (void)fw_flux_update(&c->flux, u, c->trk.omega, omega_gate, p[FW_IDX_FLUX_LPF_RATIO],
+                             omega_min, theta_end, c->i_end, c->pe.ld_app, p[FW_IDX_LAMBDA_M_WB],
                              alpha);
     }
 }
 
-/* Cross-saturation identification (param_estimator.c, fw_pe_xsat_learn): at speed, with a
+/* Cross-saturation identification (param_estimator.c, fw_paramest_xsat_learn): at speed, with a
  * settled flux estimator and a two-vector slope estimate in the same period, the active-flux
  * angle less the slope angle (the saliency axes, brought to the period end): the correction
  * that, added to the slope angle, gives the flux angle (harsh profile, 300 r/min, id = 0:
@@ -728,96 +375,18 @@ static void xsat_learn(fw_core_t *c)
     if (!c->flux.active || c->flux.n_valid < FW_FLUX_VALID_UPDATES || !c->est_param_ok ||
         c->est.n_active != 2 || fw_fabs(c->speed_f_rpm) < FW_XSAT_MIN_RPM ||
         fw_fabs(c->iq) < FW_XSAT_MIN_IQ_A ||
-        !fw_pe_iq_learnt(&c->pe, c->iq, FW_XSAT_LEARNT_UPDATES)) {
+        !fw_paramest_iq_learnt(&c->pe, c->iq, FW_XSAT_LEARNT_UPDATES)) {
         return; /* (the model needs Lqq at this current: a new load waits for its Lq bin) */
     }
     act = fw_csub(c->flux.psi, fw_cscale(c->i_end, c->pe.lq_app));
-    if (fw_cabs2(act) < FW_REAL(0.0625) * p[FW_PI_LAMBDA_M_WB] * p[FW_PI_LAMBDA_M_WB]) {
+    if (fw_cabs2(act) < FW_REAL(0.0625) * p[FW_IDX_LAMBDA_M_WB] * p[FW_IDX_LAMBDA_M_WB]) {
         return;
     }
     th_f = fw_atan2(act.im, act.re);
-    th_s = c->theta_raw_axes + c->pll.omega * ((real_t)FW_P_TICKS - c->est.t_ref / FW_TICK_S) *
+    th_s = c->theta_raw_axes + c->trk.omega * ((real_t)FW_P_TICKS - c->est.t_ref / FW_TICK_S) *
                                    FW_TICK_S;
-    fw_pe_xsat_learn(&c->pe, FW_REAL(0.5) * fw_wrap_pi(FW_REAL(2.0) * (th_f - th_s)),
+    fw_paramest_xsat_learn(&c->pe, FW_REAL(0.5) * fw_wrap_pi(FW_REAL(2.0) * (th_f - th_s)),
                      FW_XSAT_ALPHA);
-}
-
-/* parameter set of the selected MTPA/FW mode */
-static void select_parameters(fw_core_t *c)
-{
-    const real_t *p = c->p;
-    if (c->cmd.fw_mode == FW_FWMODE_REALTIME) {
-        c->ld_use = c->pe.ld_app;
-        c->lq_use = c->pe.lq_app;
-        /* the online flux only once the voltage model has settled (FW_FLUX_VALID_UPDATES) */
-        c->lambda_use = (p[FW_PI_LAMBDA_MODE] > FW_REAL(0.5) &&
-                         c->flux.n_valid >= FW_FLUX_VALID_UPDATES)
-                            ? c->flux.lambda_f
-                            : p[FW_PI_LAMBDA_M_WB];
-    } else {
-        c->ld_use = p[FW_PI_LD_H];
-        c->lq_use = p[FW_PI_LQ_H];
-        c->lambda_use = p[FW_PI_LAMBDA_M_WB];
-    }
-}
-
-/* 1 kHz: speed ramp, speed PI, MTPA/FW references, voltage feedback */
-static void slow_tasks(fw_core_t *c)
-{
-    const real_t *p = c->p;
-    const real_t ts = FW_TS * (real_t)FW_SPEED_DIVIDER;
-    real_t i_max = p[FW_PI_I_MAX_A];
-    real_t vmax_fw = c->full_mod ? p[FW_PI_FULL_VS_FRACTION] * FW_SIX_STEP * c->vdc
-                                 : p[FW_PI_FW_VMARGIN] * c->v_lim;
-    real_t target = fw_clamp(c->cmd.speed_ref_rpm, -p[FW_PI_SPEED_MAX_RPM], p[FW_PI_SPEED_MAX_RPM]);
-    real_t iq_lim, iq_sal, iq_use;
-
-    fw_pe_apparent(&c->pe, c->iq);
-    select_parameters(c);
-    c->speed_ref_ramped = fw_ramp(c->speed_ref_ramped, target, p[FW_PI_ACCEL_RPM_S] * ts);
-    /* voltage feedback: integrate the excess of |v| over the flux-weakening voltage */
-    if (c->cmd.fw_mode != FW_FWMODE_ID_ZERO) {
-        c->fw_did += p[FW_PI_FW_FB_KI] * ts * (vmax_fw - c->v_mag_f);
-        c->fw_did = fw_clamp(c->fw_did, -i_max, FW_REAL(0.0));
-    } else {
-        c->fw_did = FW_REAL(0.0);
-    }
-    /* the q room the MTPA/FW d current leaves on the current circle; the d current the
-     * reluctance extension adds below must not shrink it, or the next cycle's demand falls
-     * under the saliency limit, the extension drops out and the two alternate at 500 Hz */
-    iq_lim = fw_sqrt(fw_max(i_max * i_max - c->id_ref_base * c->id_ref_base, FW_REAL(0.0)));
-    iq_sal = iq_lim;
-    if (p[FW_PI_SALIENCY_MIN] > FW_REAL(0.0) && !c->flux_pos_active) {
-        /* keep the q current where the saliency the slope estimator lives on is still there;
-         * not while the flux estimator carries the position (it needs no saliency): there the
-         * cap only made the reluctance extension below fight the speed loop (measured: a
-         * growing 24 Hz limit cycle, 3.2 deg and +-50 r/min at 1000 r/min, 2 N*m) */
-        real_t g1_nom = FW_REAL(0.5) * (FW_REAL(1.0) / p[FW_PI_LD_H] - FW_REAL(1.0) / p[FW_PI_LQ_H]);
-        iq_sal = fw_min(iq_lim, fw_pe_saliency_iq_limit(&c->pe, p[FW_PI_SALIENCY_MIN] * g1_nom,
-                                                        i_max));
-    }
-    c->iq_sal_lim = iq_sal;
-    /* the demand may exceed the saliency limit: the torque beyond it comes from more
-     * negative d current (reluctance torque) inside the current circle */
-    if (c->cmd.ctrl_mode == FW_CTRL_SPEED) {
-        c->iq_demand = fw_speed_ctrl(&c->pi_spd, c->speed_ref_ramped, c->speed_f_rpm, iq_lim, ts);
-    } else {
-        c->iq_demand = fw_clamp(c->cmd.iq_ref, -i_max, i_max);
-        c->pi_spd.x = c->iq_demand; /* bumpless change to speed mode */
-    }
-    iq_use = fw_clamp(c->iq_demand, -iq_sal, iq_sal);
-    c->fw_active = fw_current_refs(c->cmd.fw_mode, iq_use, c->pll.omega, vmax_fw, i_max,
-                                   c->ld_use, c->lq_use, c->lambda_use, c->fw_did, &c->id_ref,
-                                   &c->iq_ref);
-    c->id_ref_base = c->id_ref;
-    if (c->cmd.fw_mode != FW_FWMODE_ID_ZERO && fw_fabs(c->iq_demand) > fw_fabs(iq_use)) {
-        real_t id_t = fw_id_for_torque(c->iq_demand, c->iq_ref, c->ld_use, c->lq_use,
-                                       c->lambda_use);
-        if (id_t < c->id_ref) {
-            c->id_ref = fw_max(id_t, -fw_sqrt(fw_max(i_max * i_max - c->iq_ref * c->iq_ref,
-                                                     FW_REAL(0.0))));
-        }
-    }
 }
 
 /* FULL modulation above full_mod_min_rpm (10 % hysteresis), where the flux estimator carries
@@ -827,7 +396,7 @@ static void slow_tasks(fw_core_t *c)
 static void update_full_mod(fw_core_t *c)
 {
     const real_t *p = c->p;
-    real_t on = p[FW_PI_FULL_MOD_MIN_RPM];
+    real_t on = p[FW_IDX_FULL_MOD_MIN_RPM];
     real_t spd = fw_fabs(c->speed_f_rpm);
     if (!(on > FW_REAL(0.0)) || c->state != FW_STATE_RUN || !c->flux.active) {
         c->full_mod = 0;
@@ -842,16 +411,16 @@ static void polarity_lost_check(fw_core_t *c)
 {
     const real_t *p = c->p;
     c->flip_window_ticks++;
-    if (c->flip_window_ticks >= 10000) { /* one second */
+    if ((real_t)c->flip_window_ticks >= p[FW_IDX_POL_LOSS_WINDOW_MS] * FW_REAL(10.0)) {
         c->flip_window_ticks = 0;
         c->flips_in_window = 0;
     }
-    if (c->flux.active && fw_fabs(c->speed_f_rpm) > p[FW_PI_POL_LOSS_MIN_RPM] &&
+    if (c->flux.active && fw_fabs(c->speed_f_rpm) > p[FW_IDX_POL_LOSS_MIN_RPM] &&
         c->flux.neg_count >= FW_FLUX_NEG_PERIODS) {
         /* the tracked frame points to the south pole: turn it round; the PI integrators hold
          * dq voltages of the old frame, which are the negatives in the new one */
-        fw_pll_flip(&c->pll);
-        c->theta_hat = fw_wrap_2pi(c->theta_hat + FW_PI_R);
+        fw_tracker_flip(&c->trk);
+        c->theta_hat = fw_wrap_2pi(c->theta_hat + FW_M_PI);
         c->pi_d.x = -c->pi_d.x;
         c->pi_q.x = -c->pi_q.x;
         c->flux.neg_count = 0;
@@ -859,7 +428,7 @@ static void polarity_lost_check(fw_core_t *c)
             c->polarity_flips++;
         }
         c->flips_in_window++;
-        if ((real_t)c->flips_in_window > p[FW_PI_POL_LOSS_FLIPS_MAX]) {
+        if ((real_t)c->flips_in_window > p[FW_IDX_POL_LOSS_FLIPS_MAX]) {
             enter_fault(c, FW_FAULT_POLARITY_LOST);
         }
     }
@@ -868,14 +437,14 @@ static void polarity_lost_check(fw_core_t *c)
 static void output_off(fw_core_t *c, uint32_t next_period, fw_pwm_t *pwm)
 {
     fw_svpwm_plan_off(&c->plan_next, c->vdc);
-    fw_plan_to_pwm(&c->plan_next, next_period, 0, pwm);
+    fw_svpwm_to_pwm(&c->plan_next, next_period, 0, pwm);
     c->mod.carry = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     c->mod.sector = 0;
 }
 
 static void output_voltage(fw_core_t *c, fw_cplx_t v_ab, uint32_t next_period, fw_pwm_t *pwm)
 {
-    int16_t every = (int16_t)c->p[FW_PI_FULL_MEAS_EVERY];
+    int16_t every = (int16_t)c->p[FW_IDX_FULL_MEAS_EVERY];
     c->pwm_cfg.full_range = c->full_mod;
     c->pwm_cfg.carry_clipped = 0;
     if (c->full_mod && every > 0 && (next_period % (uint32_t)every) == 0u) {
@@ -886,9 +455,9 @@ static void output_voltage(fw_core_t *c, fw_cplx_t v_ab, uint32_t next_period, f
          * Lq curve at the present q current is still unlearnt (the deficit then costs some of
          * the overmodulation voltage: measured 2373 instead of 2522 r/min at 1.5 N*m) */
         real_t v_meas = fw_svpwm_vmax(c->vdc, c->pwm_cfg.tmin);
-        real_t v_lin = c->vdc * FW_INV_SQRT3_R;
+        real_t v_lin = c->vdc * FW_M_INV_SQRT3;
         if (fw_cabs(v_ab) * (real_t)every <= v_meas + (real_t)(every - 1) * v_lin ||
-            !fw_pe_iq_learnt(&c->pe, c->iq, FW_FULL_LEARNT_UPDATES)) {
+            !fw_paramest_iq_learnt(&c->pe, c->iq, FW_FULL_LEARNT_UPDATES)) {
             c->pwm_cfg.full_range = 0;
             c->pwm_cfg.carry_clipped = 1;
         }
@@ -896,14 +465,14 @@ static void output_voltage(fw_core_t *c, fw_cplx_t v_ab, uint32_t next_period, f
     if (c->pwm_cfg.full_range && c->vdc > FW_REAL(1.0)) {
         /* beyond the hexagon: ask for the reference whose projection has the wanted
          * fundamental (the current loop then sees the voltage it asked for, on average) */
-        real_t unit = c->vdc * FW_INV_SQRT3_R;
+        real_t unit = c->vdc * FW_M_INV_SQRT3;
         real_t m = fw_cabs(v_ab) / unit;
         if (m > FW_REAL(1.0)) {
             v_ab = fw_cscale(v_ab, fw_svpwm_om_ref(c->om_ref, c->om_fund, m) / m);
         }
     }
     fw_svpwm_plan(&c->pwm_cfg, c->vdc, v_ab, &c->mod, next_period, &c->plan_next);
-    fw_plan_to_pwm(&c->plan_next, next_period, 1, pwm);
+    fw_svpwm_to_pwm(&c->plan_next, next_period, 1, pwm);
 }
 
 /* current control in the estimated frame -> alpha-beta voltage for the next period */
@@ -914,15 +483,15 @@ static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data)
     real_t vd = c->vd;
     real_t vq = c->vq;
     if (have_data) {
-        fw_current_ctrl(&c->pi_d, &c->pi_q, c->id_ref, c->iq_ref, c->id, c->iq, c->pll.omega,
-                        c->ld_use, c->lq_use, c->lambda_use, p[FW_PI_RS_OHM], c->v_lim, FW_TS,
+        fw_current_ctrl(&c->pi_d, &c->pi_q, c->id_ref, c->iq_ref, c->id, c->iq, c->trk.omega,
+                        c->ld_use, c->lq_use, c->lambda_use, p[FW_IDX_RS_OHM], c->v_lim, FW_TS,
                         &vd, &vq);
     }
     c->vd = vd;
     c->vq = vq;
     c->v_mag_f += FW_REAL(0.05) * (fw_sqrt(vd * vd + vq * vq) - c->v_mag_f);
     /* the voltage acts during period k+1: rotate with the angle at its middle */
-    theta_apply = c->pll.init ? fw_pll_predict(&c->pll, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
+    theta_apply = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
     return fw_cmul(fw_c(vd, vq), fw_cexpj(theta_apply));
 }
 
@@ -932,7 +501,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     int16_t data_ok = 0;
     uint32_t k;
     int16_t bad_est = 0;
-    fw_pol_out_t pol_out;
+    fw_polarity_out_t pol_out;
     int16_t slow;
 
     if (c == 0 || pwm == 0) {
@@ -961,11 +530,11 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         k = adc->period;
         data_ok = (int16_t)(adc->period == c->period + 1u && adc->n_soc == c->plan_next.n_soc &&
                             adc->n_soc >= 0 && adc->n_soc <= FW_MAX_SOC &&
-                            fw_adc_codes_in_range(adc, c->adc_half));
+                            fw_protection_codes_in_range(adc, c->adc_half));
     }
-    if (c->have_period && c->pll.init) {
+    if (c->have_period && c->trk.init) {
         uint32_t gap = k - c->period;
-        fw_pll_advance(&c->pll, (gap >= 1u && gap < 100u) ? (int32_t)gap * FW_P_TICKS : FW_P_TICKS);
+        fw_tracker_advance(&c->trk, (gap >= 1u && gap < 100u) ? (int32_t)gap * FW_P_TICKS : FW_P_TICKS);
     }
     c->prev_on[0] = c->plan_cur.on[0];
     c->prev_on[1] = c->plan_cur.on[1];
@@ -981,7 +550,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         if (c->have_period && !(adc != 0 && c->state == FW_STATE_INIT)) {
             c->adc_loss_count++;
             c->adc_loss_run++;
-            if (c->adc_loss_run >= (int16_t)p[FW_PI_ADC_LOSS_MAX] && c->state != FW_STATE_INIT) {
+            if (c->adc_loss_run >= (int16_t)p[FW_IDX_ADC_LOSS_MAX] && c->state != FW_STATE_INIT) {
                 enter_fault(c, FW_FAULT_ADC_LOSS);
             }
         }
@@ -996,7 +565,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         uint16_t f;
         real_t vdc = (real_t)adc->vdc * c->adc_v_lsb;
         int16_t enabled = (int16_t)(c->state == FW_STATE_POLARITY || c->state == FW_STATE_RUN);
-        f = fw_protect_vdc(vdc, p[FW_PI_OV_TRIP_V], p[FW_PI_UV_TRIP_V], enabled);
+        f = fw_protection_vdc(vdc, p[FW_IDX_OV_TRIP_V], p[FW_IDX_UV_TRIP_V], enabled);
         if (f != FW_FAULT_NONE) {
             enter_fault(c, f);
         }
@@ -1004,7 +573,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             c->vdc = vdc;
             c->vdc_f += FW_REAL(0.01) * (vdc - c->vdc_f);
         }
-        f = fw_protect_samples(adc, c->adc_half, c->adc_i_lsb, p[FW_PI_OC_TRIP_A], &c->i_peak);
+        f = fw_protection_samples(adc, c->adc_half, c->adc_i_lsb, p[FW_IDX_OC_TRIP_A], &c->i_peak);
         if (f != FW_FAULT_NONE) {
             enter_fault(c, f);
         }
@@ -1016,21 +585,21 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     update_full_mod(c);
     c->v_lim = (c->full_mod ? FW_FULL_VLIM * FW_SIX_STEP * c->vdc
                             : fw_svpwm_vmax(c->vdc, c->pwm_cfg.tmin)) *
-               p[FW_PI_VLIM_FRACTION];
+               p[FW_IDX_VLIM_FRACTION];
 
     /* 3.-4. estimation (the tracker's gains for the present speed first) */
-    (void)fw_pll_schedule(&c->pll);
+    (void)fw_tracker_schedule(&c->trk);
     /* (the polarity test runs with the PLL tracking: polarity_detect.c) */
     if (data_ok) {
         int16_t by_flux = flux_carries_position(c);
         c->flux_pos_active = by_flux;
         bad_est = estimate_position(c, adc, by_flux);
-        reconstruct_current(c, adc);
+        fw_recon_current(c, adc);
         {
             /* the controlled current: the period mean without the ripple the pattern's dipole
              * adds (Gamma(theta) Q, svpwm.c), i.e. the mean of the period's start and end
              * currents; an A/B pair's dipoles cancel, so its mean torque is this current's */
-            real_t th_mid = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
+            real_t th_mid = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
             fw_cplx_t q = c->plan_cur.dipole;
             fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th_mid), c->pe.gamma1_f);
             fw_cplx_t i_ctl = fw_csub(c->i_avg, fw_cadd(fw_cscale(q, c->pe.gamma0_f),
@@ -1048,7 +617,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         c->slopes_ok = 0;
         c->slope_ok[0] = c->slope_ok[1] = c->slope_ok[2] = 0;
         c->stamp = (int16_t)FW_H_TICKS;
-        c->theta_hat = c->pll.init ? fw_pll_predict(&c->pll, FW_H_TICKS) : FW_REAL(0.0);
+        c->theta_hat = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
     }
     if (c->state == FW_STATE_POLARITY || c->state == FW_STATE_RUN) {
         if (bad_est) {
@@ -1056,15 +625,15 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         } else if (data_ok && c->est.ok) {
             c->est_fail_run = 0;
         }
-        if ((real_t)c->est_fail_run >= p[FW_PI_EST_FAIL_MAX]) {
+        if ((real_t)c->est_fail_run >= p[FW_IDX_EST_FAIL_MAX]) {
             enter_fault(c, FW_FAULT_ESTIMATOR);
         }
     }
-    c->est_valid = (int16_t)(c->pll.init && c->est_fail_run < FW_EST_VALID_MAX_RUN);
-    if (c->pll.init) {
-        real_t rpm = FW_RPM(c->pll.omega, p[FW_PI_POLE_PAIRS]);
+    c->est_valid = (int16_t)(c->trk.init && c->est_fail_run < FW_EST_VALID_MAX_RUN);
+    if (c->trk.init) {
+        real_t rpm = FW_RPM(c->trk.omega, p[FW_IDX_POLE_PAIRS]);
         c->speed_f_rpm += c->speed_alpha * (rpm - c->speed_f_rpm);
-        if (fw_fabs(c->speed_f_rpm) > p[FW_PI_OVERSPEED_RPM] && c->state == FW_STATE_RUN) {
+        if (fw_fabs(c->speed_f_rpm) > p[FW_IDX_OVERSPEED_RPM] && c->state == FW_STATE_RUN) {
             enter_fault(c, FW_FAULT_OVERSPEED);
         }
     } else {
@@ -1085,20 +654,20 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     c->reset_request = 0;
     if (c->state == FW_STATE_IDLE && c->start_request && c->cmd.enable && data_ok) {
         c->start_request = 0;
-        if (c->vdc < p[FW_PI_UV_TRIP_V]) {
+        if (c->vdc < p[FW_IDX_UV_TRIP_V]) {
             enter_fault(c, FW_FAULT_DC_UNDERVOLTAGE);
         } else {
             c->state = FW_STATE_POLARITY;
             reset_estimation(c);
             reset_control(c);
-            fw_pol_start(&c->pol);
+            fw_polarity_start(&c->pol);
         }
     }
 
     /* 6. outputs for period k+1 */
     switch (c->state) {
     case FW_STATE_POLARITY: {
-        int16_t r = fw_pol_step(&c->pol, c, data_ok ? adc : 0, &pol_out);
+        int16_t r = fw_polarity_step(&c->pol, c, data_ok ? adc : 0, &pol_out);
         if (r < 0) {
             enter_fault(c, FW_FAULT_POLARITY);
             output_off(c, k + 1u, pwm);
@@ -1106,18 +675,18 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         }
         if (r > 0) {
             if (c->pol.flipped) {
-                fw_pll_flip(&c->pll);
-                c->theta_hat = fw_wrap_2pi(c->theta_hat + FW_PI_R);
+                fw_tracker_flip(&c->trk);
+                c->theta_hat = fw_wrap_2pi(c->theta_hat + FW_M_PI);
             }
             c->polarity_ok = 1;
             c->state = FW_STATE_RUN;
             reset_control(c);
             c->speed_ref_ramped = c->speed_f_rpm;
-            select_parameters(c);
+            fw_outer_select_parameters(c);
             output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
             break;
         }
-        select_parameters(c);
+        fw_outer_select_parameters(c);
         c->id_ref = pol_out.id;
         c->iq_ref = pol_out.iq;
         output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
@@ -1130,7 +699,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             break;
         }
         if (slow) {
-            slow_tasks(c);
+            fw_outer_step(c);
         }
         output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
         break;
@@ -1140,18 +709,18 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         break;
     }
     if (c->state == FW_STATE_RUN || c->state == FW_STATE_POLARITY) {
-        c->te_hat = fw_torque(c->id, c->iq, c->ld_use, c->lq_use, c->lambda_use,
-                              p[FW_PI_POLE_PAIRS]);
+        c->te_hat = fw_refs_torque(c->id, c->iq, c->ld_use, c->lq_use, c->lambda_use,
+                              p[FW_IDX_POLE_PAIRS]);
         /* the torque the current loop is delivering: its references through the loop's
          * first-order response (the measured currents carry the ripple and noise of the
          * per-period reconstruction, which would shake the tracker's prediction) */
         c->te_model += FW_TE_MODEL_ALPHA *
-                       (fw_torque(c->id_ref, c->iq_ref, c->ld_use, c->lq_use, c->lambda_use,
-                                  p[FW_PI_POLE_PAIRS]) - c->te_model);
+                       (fw_refs_torque(c->id_ref, c->iq_ref, c->ld_use, c->lq_use, c->lambda_use,
+                                  p[FW_IDX_POLE_PAIRS]) - c->te_model);
         /* plus the reluctance torque of the next pattern's current ripple (its mean over the
          * period, with the incremental inductances the ripple sees) */
-        c->te_ripple = FW_REAL(1.5) * p[FW_PI_POLE_PAIRS] * (c->pe.ld_inc - c->pe.lq_inc) *
-                       ripple_dq_product(c, &c->plan_next);
+        c->te_ripple = FW_REAL(1.5) * p[FW_IDX_POLE_PAIRS] * (c->pe.ld_inc - c->pe.lq_inc) *
+                       fw_recon_ripple_dq_product(c, &c->plan_next);
     } else {
         c->te_hat = FW_REAL(0.0);
         c->te_model = FW_REAL(0.0);
@@ -1159,9 +728,9 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     }
     /* the tracker predicts the rotor with this torque, less the known viscous friction, until
      * the next update (the load and any model error are its disturbance state) */
-    fw_pll_set_accel(&c->pll, (c->te_model + c->te_ripple - p[FW_PI_FRICTION_NMS] * c->pll.omega /
-                                                 p[FW_PI_POLE_PAIRS]) *
-                                  p[FW_PI_POLE_PAIRS] / p[FW_PI_INERTIA_KGM2]);
+    fw_tracker_set_accel(&c->trk, (c->te_model + c->te_ripple - p[FW_IDX_FRICTION_NMS] * c->trk.omega /
+                                                 p[FW_IDX_POLE_PAIRS]) *
+                                  p[FW_IDX_POLE_PAIRS] / p[FW_IDX_INERTIA_KGM2]);
     c->vdq_sum = fw_cadd(c->vdq_sum, fw_c(c->vd, c->vq));
     c->vdq_sum_n++;
     if (c->vdq_sum_n >= FW_SPEED_DIVIDER) {
@@ -1188,8 +757,8 @@ void fw_core_status(const fw_core_t *c, fw_status_t *s)
     s->period = c->period;
     s->stamp = c->stamp;
     s->theta_hat = fw_wrap_2pi(c->theta_hat);
-    s->omega_hat = c->pll.init ? c->pll.omega : FW_REAL(0.0);
-    s->speed_hat_rpm = FW_RPM(s->omega_hat, p[FW_PI_POLE_PAIRS]);
+    s->omega_hat = c->trk.init ? c->trk.omega : FW_REAL(0.0);
+    s->speed_hat_rpm = FW_RPM(s->omega_hat, p[FW_IDX_POLE_PAIRS]);
     s->id = c->id;
     s->iq = c->iq;
     s->id_ref = c->id_ref;
@@ -1206,7 +775,7 @@ void fw_core_status(const fw_core_t *c, fw_status_t *s)
     s->residual = c->est.residual;
     s->sector = c->plan_cur.sector;
     s->slopes_ok = c->slopes_ok;
-    s->fw_active = c->fw_active;
+    s->fw_active = c->fluxweak_active;
     s->speed_ref_ramped_rpm = c->speed_ref_ramped;
     s->polarity_ok = c->polarity_ok;
     s->est_valid = c->est_valid;

@@ -17,7 +17,7 @@
 #define FW_KAPPA_MIN_DX 0.15f /* A: smallest spacing of the points of the Lq-curve slope */
 #define FW_GAMMA0_FAST FW_REAL(0.1) /* per two-vector estimate: about 1 ms */
 
-void fw_pe_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max)
+void fw_paramest_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max)
 {
     int16_t b;
     pe->gamma0_f = FW_REAL(0.5) * (FW_REAL(1.0) / ld + FW_REAL(1.0) / lq);
@@ -40,12 +40,12 @@ void fw_pe_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max)
     pe->xs_n = 0;
 }
 
-real_t fw_est_gamma1_at(const fw_est_out_t *est, real_t theta)
+real_t fw_paramest_gamma1_at(const fw_est_out_t *est, real_t theta)
 {
     return fw_cmul(est->g, fw_cexpj(FW_REAL(-2.0) * theta)).re;
 }
 
-void fw_pe_update(fw_param_est_t *pe, const fw_est_out_t *est, real_t theta_ref, real_t iq,
+void fw_paramest_update(fw_param_est_t *pe, const fw_est_out_t *est, real_t theta_ref, real_t iq,
                   real_t alpha, real_t l_lo, real_t l_hi)
 {
     real_t g1, ld_i, lq_i, inv_lq;
@@ -53,7 +53,7 @@ void fw_pe_update(fw_param_est_t *pe, const fw_est_out_t *est, real_t theta_ref,
     if (est->n_active != 2) {
         return; /* (the caller decides whether the estimate is fit: fw_core.c) */
     }
-    g1 = fw_est_gamma1_at(est, theta_ref);
+    g1 = fw_paramest_gamma1_at(est, theta_ref);
     if (!(est->gamma0 - g1 > FW_REAL(0.0)) || !(est->gamma0 + g1 > FW_REAL(0.0))) {
         return;
     }
@@ -105,7 +105,7 @@ static real_t bin_value(const fw_param_est_t *pe, int16_t b)
     return pe->lq_bin[b];
 }
 
-void fw_pe_apparent(fw_param_est_t *pe, real_t iq)
+void fw_paramest_apparent(fw_param_est_t *pe, real_t iq)
 {
     /* Lq_app(iq) = psi_q(iq)/iq with psi_q = integral_0^|iq| Lq_inc(x) dx; Lq_inc is linear
      * between the measured points (mean current of a bin, its incremental Lq), flat before
@@ -183,13 +183,13 @@ static real_t inv_lq_at(const fw_param_est_t *pe, real_t iq)
     return (FW_REAL(1.0) - f) * bin_value(pe, b) + f * bin_value(pe, (int16_t)(b + 1));
 }
 
-real_t fw_pe_gamma0_prior(const fw_param_est_t *pe, real_t iq)
+real_t fw_paramest_gamma0_prior(const fw_param_est_t *pe, real_t iq)
 {
     /* Gamma0 = (1/Ld + 1/Lq_inc(iq))/2 changes with the load under q saturation */
     return pe->gamma0_fast + FW_REAL(0.5) * (inv_lq_at(pe, iq) - inv_lq_at(pe, pe->iq_fast));
 }
 
-real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max)
+real_t fw_paramest_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real_t i_max)
 {
     /* Gamma1(bin) = (1/Ld - 1/Lq_inc(bin))/2 falls with |iq| under q saturation; sensorless
      * operation needs it (docs/estimator.md §7: the noise grows as 1/Gamma1, and at
@@ -219,7 +219,7 @@ real_t fw_pe_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min, real
     return i_max;
 }
 
-int16_t fw_pe_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_updates)
+int16_t fw_paramest_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_updates)
 {
     int16_t b = (int16_t)(fw_fabs(iq) / pe->bin_width);
     if (b >= FW_LQ_BINS) {
@@ -228,7 +228,7 @@ int16_t fw_pe_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_updates
     return (int16_t)(pe->lq_bin_seen[b] >= min_updates);
 }
 
-real_t fw_pe_inv_lq_slope(const fw_param_est_t *pe, real_t iq)
+real_t fw_paramest_inv_lq_slope(const fw_param_est_t *pe, real_t iq)
 {
     /* the two learnt points nearest |iq| (one on each side when there are), at least
      * FW_KAPPA_MIN_DX apart so that bin noise does not become a steep slope */
@@ -278,7 +278,7 @@ real_t fw_pe_inv_lq_slope(const fw_param_est_t *pe, real_t iq)
     return (iq < FW_REAL(0.0)) ? -k : k;
 }
 
-real_t fw_pe_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a)
+real_t fw_paramest_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a)
 {
     /* the incremental matrix [[Ldd, Ldq], [Ldq, Lqq]] has its principal axes turned by
      * 1/2 atan2(2 Ldq, Lqq - Ldd) from the rotor's: the slopes see those axes */
@@ -291,7 +291,7 @@ real_t fw_pe_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a)
  * axes. The flux angle less the slope angle is the turn of the axes, 1/2 atan2(2 Ldq, Lqq -
  * Ldd) (plus what both methods share at that speed: a commissioning step compares currents
  * of both signs and fits Ldq per ampere, rig/commissioning/steps/xsat.py). */
-void fw_pe_xsat_learn(fw_param_est_t *pe, real_t e, real_t alpha)
+void fw_paramest_xsat_learn(fw_param_est_t *pe, real_t e, real_t alpha)
 {
     pe->xs_turn += fw_max(alpha, FW_REAL(1.0) / (real_t)(pe->xs_n + 1)) * (e - pe->xs_turn);
     if (pe->xs_n < 1000000) {

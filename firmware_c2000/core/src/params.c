@@ -14,19 +14,19 @@
 static int16_t is_integral(int16_t idx)
 {
     switch (idx) {
-    case FW_PI_POLE_PAIRS:
-    case FW_PI_ADC_BITS:
-    case FW_PI_ADC_VDC_BITS:
-    case FW_PI_SOC_PER_STATE:
-    case FW_PI_STRETCH_ENABLE:
-    case FW_PI_POL_METHOD:
-    case FW_PI_POL_SETTLE_PERIODS:
-    case FW_PI_POL_PULSE_PERIODS:
-    case FW_PI_POL_BIAS_PERIODS:
-    case FW_PI_LAMBDA_MODE:
-    case FW_PI_ADC_LOSS_MAX:
-    case FW_PI_EST_FAIL_MAX:
-    case FW_PI_POL_LOSS_FLIPS_MAX:
+    case FW_IDX_POLE_PAIRS:
+    case FW_IDX_ADC_BITS:
+    case FW_IDX_ADC_VDC_BITS:
+    case FW_IDX_SOC_PER_STATE:
+    case FW_IDX_STRETCH_ENABLE:
+    case FW_IDX_POL_METHOD:
+    case FW_IDX_POL_SETTLE_PERIODS:
+    case FW_IDX_POL_PULSE_PERIODS:
+    case FW_IDX_POL_BIAS_PERIODS:
+    case FW_IDX_LAMBDA_MODE:
+    case FW_IDX_ADC_LOSS_MAX:
+    case FW_IDX_EST_FAIL_MAX:
+    case FW_IDX_POL_LOSS_FLIPS_MAX:
         return 1;
     default:
         return 0;
@@ -78,45 +78,45 @@ static uint16_t us_to_ticks(real_t us) { return (uint16_t)(us * FW_REAL(100.0) +
 void fw_params_apply(fw_core_t *c)
 {
     const real_t *p = c->p;
-    int16_t bits = (int16_t)p[FW_PI_ADC_BITS];
+    int16_t bits = (int16_t)p[FW_IDX_ADC_BITS];
     real_t full = (real_t)((int32_t)1 << bits);
     c->adc_half = (int32_t)1 << (bits - 1);
-    c->adc_i_lsb = FW_REAL(2.0) * p[FW_PI_ADC_RANGE_A] / full;
-    c->adc_v_lsb = p[FW_PI_ADC_VDC_RANGE_V] / (real_t)((int32_t)1 << (int16_t)p[FW_PI_ADC_VDC_BITS]);
-    c->pwm_cfg.tmin = us_to_ticks(p[FW_PI_TMIN_US]);
-    c->pwm_cfg.soc_on = us_to_ticks(p[FW_PI_SOC_ON_US]);
-    c->pwm_cfg.soc_off = us_to_ticks(p[FW_PI_SOC_OFF_US]);
-    c->pwm_cfg.n_per_state = (int16_t)p[FW_PI_SOC_PER_STATE];
-    c->pwm_cfg.stretch = (int16_t)p[FW_PI_STRETCH_ENABLE];
-    c->pwm_cfg.sector_hyst = us_to_ticks(p[FW_PI_SECTOR_HYST_US]);
-    c->pwm_cfg.pairs = (int16_t)p[FW_PI_PATTERN_PAIRS];
-    c->cmd_timeout_ticks = (uint32_t)(p[FW_PI_CMD_TIMEOUT_MS] * FW_REAL(10.0) + FW_REAL(0.5));
-    fw_pll_config(&c->pll, p[FW_PI_PLL_BW_HZ], p[FW_PI_PLL_ZETA]);
-    fw_pll_config_schedule(&c->pll, p[FW_PI_PLL_LOW_BW_HZ], p[FW_PI_PLL_SPEED_RATIO],
-                           p[FW_PI_PLL_BOOST_SIGMA]);
-    c->speed_alpha = fw_min(FW_2PI_R * p[FW_PI_SPD_FILTER_HZ] * FW_TS, FW_REAL(1.0));
-    c->pi_d.kp = p[FW_PI_CUR_KP_D];
-    c->pi_d.ki = p[FW_PI_CUR_KI_D];
-    c->pi_q.kp = p[FW_PI_CUR_KP_Q];
-    c->pi_q.ki = p[FW_PI_CUR_KI_Q];
-    c->pi_spd.kp = p[FW_PI_SPD_KP];
-    c->pi_spd.ki = p[FW_PI_SPD_KI];
+    c->adc_i_lsb = FW_REAL(2.0) * p[FW_IDX_ADC_RANGE_A] / full;
+    c->adc_v_lsb = p[FW_IDX_ADC_VDC_RANGE_V] / (real_t)((int32_t)1 << (int16_t)p[FW_IDX_ADC_VDC_BITS]);
+    c->pwm_cfg.tmin = us_to_ticks(p[FW_IDX_TMIN_US]);
+    c->pwm_cfg.soc_on = us_to_ticks(p[FW_IDX_SOC_ON_US]);
+    c->pwm_cfg.soc_off = us_to_ticks(p[FW_IDX_SOC_OFF_US]);
+    c->pwm_cfg.n_per_state = (int16_t)p[FW_IDX_SOC_PER_STATE];
+    c->pwm_cfg.stretch = (int16_t)p[FW_IDX_STRETCH_ENABLE];
+    c->pwm_cfg.sector_hyst = us_to_ticks(p[FW_IDX_SECTOR_HYST_US]);
+    c->pwm_cfg.pairs = (int16_t)p[FW_IDX_PATTERN_PAIRS];
+    c->cmd_timeout_ticks = (uint32_t)(p[FW_IDX_CMD_TIMEOUT_MS] * FW_REAL(10.0) + FW_REAL(0.5));
+    fw_tracker_config(&c->trk, p[FW_IDX_PLL_BW_HZ], p[FW_IDX_PLL_ZETA]);
+    fw_tracker_config_schedule(&c->trk, p[FW_IDX_PLL_LOW_BW_HZ], p[FW_IDX_PLL_SPEED_RATIO],
+                           p[FW_IDX_PLL_BOOST_SIGMA]);
+    c->speed_alpha = fw_min(FW_M_2PI * p[FW_IDX_SPD_FILTER_HZ] * FW_TS, FW_REAL(1.0));
+    c->pi_d.kp = p[FW_IDX_CUR_KP_D];
+    c->pi_d.ki = p[FW_IDX_CUR_KI_D];
+    c->pi_q.kp = p[FW_IDX_CUR_KP_Q];
+    c->pi_q.ki = p[FW_IDX_CUR_KI_Q];
+    c->pi_spd.kp = p[FW_IDX_SPD_KP];
+    c->pi_spd.ki = p[FW_IDX_SPD_KI];
 }
 
 /* cross-parameter constraints on a candidate value array */
 static int16_t consistent(const real_t *p)
 {
-    if (!(p[FW_PI_LD_H] < p[FW_PI_LQ_H])) {
+    if (!(p[FW_IDX_LD_H] < p[FW_IDX_LQ_H])) {
         return 0;
     }
-    if (p[FW_PI_TMIN_US] < p[FW_PI_SOC_ON_US] + p[FW_PI_SOC_OFF_US] + FW_REAL(1.0)) {
+    if (p[FW_IDX_TMIN_US] < p[FW_IDX_SOC_ON_US] + p[FW_IDX_SOC_OFF_US] + FW_REAL(1.0)) {
         return 0;
     }
-    if (!(p[FW_PI_UV_TRIP_V] < p[FW_PI_OV_TRIP_V])) {
+    if (!(p[FW_IDX_UV_TRIP_V] < p[FW_IDX_OV_TRIP_V])) {
         return 0;
     }
-    if (!(p[FW_PI_I_MAX_A] < p[FW_PI_OC_TRIP_A]) || !(p[FW_PI_POL_PULSE_A] < p[FW_PI_OC_TRIP_A]) ||
-        !(p[FW_PI_POL_MOTION_IQ_A] < p[FW_PI_OC_TRIP_A])) {
+    if (!(p[FW_IDX_I_MAX_A] < p[FW_IDX_OC_TRIP_A]) || !(p[FW_IDX_POL_PULSE_A] < p[FW_IDX_OC_TRIP_A]) ||
+        !(p[FW_IDX_POL_MOTION_IQ_A] < p[FW_IDX_OC_TRIP_A])) {
         return 0;
     }
     return 1;
@@ -144,7 +144,7 @@ static real_t live_value(const fw_core_t *c, uint16_t id, real_t stored)
     case FW_PID_EST_REJECT_COUNT:
         return (real_t)c->est_reject_count;
     case FW_PID_XSAT_TURN_DEG:
-        return c->pe.xs_turn * (FW_REAL(180.0) / FW_PI_R);
+        return c->pe.xs_turn * (FW_REAL(180.0) / FW_M_PI);
     default:
         return stored;
     }

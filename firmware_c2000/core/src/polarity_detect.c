@@ -52,7 +52,7 @@ enum {
 /* +/- pairs of holds at most (a noisy measurement averages longer before it gives up) */
 #define POL_MAX_PAIRS 4
 
-void fw_pol_start(fw_polarity_t *pol)
+void fw_polarity_start(fw_polarity_t *pol)
 {
     pol->phase = POL_SETTLE;
     pol->count = 0;
@@ -84,7 +84,7 @@ static void next_phase(fw_polarity_t *pol, int16_t phase)
 static void start_motion(fw_polarity_t *pol, const fw_core_t *c)
 {
     pol->method_used = 2;
-    pol->theta_start = c->pll.theta_unwrapped;
+    pol->theta_start = c->trk.theta_unwrapped;
     next_phase(pol, POL_MOTION_ACC);
 }
 
@@ -95,7 +95,7 @@ static void accumulate(fw_polarity_t *pol, const fw_core_t *c, int16_t neg)
     if (!c->est.ok || c->est.n_active != 2) {
         return;
     }
-    x = c->est.gamma0 + fw_est_gamma1_at(&c->est, c->theta_hat) - pol->g_ref;
+    x = c->est.gamma0 + fw_paramest_gamma1_at(&c->est, c->theta_hat) - pol->g_ref;
     pol->s1[neg] += x;
     pol->s2[neg] += x * x;
     pol->si[neg] += c->id;
@@ -145,7 +145,7 @@ static int16_t evaluate(fw_polarity_t *pol, int32_t n_meas)
  * pol_ratio_min with confidence, or the estimates are unusable), 0 average one more pair */
 static int16_t verdict(fw_polarity_t *pol, const real_t *p)
 {
-    int32_t n_planned = pol->pairs * (int32_t)p[FW_PI_POL_BIAS_PERIODS];
+    int32_t n_planned = pol->pairs * (int32_t)p[FW_IDX_POL_BIAS_PERIODS];
     real_t a;
     real_t k_sigma;
     if (!evaluate(pol, n_planned)) {
@@ -153,25 +153,25 @@ static int16_t verdict(fw_polarity_t *pol, const real_t *p)
     }
     a = fw_fabs(pol->ratio);
     k_sigma = POL_K_SIGMA * pol->ratio_sigma;
-    if (a >= p[FW_PI_POL_RATIO_MIN] && a >= k_sigma) {
+    if (a >= p[FW_IDX_POL_RATIO_MIN] && a >= k_sigma) {
         return 1;
     }
-    if (a + k_sigma < p[FW_PI_POL_RATIO_MIN] || pol->pairs >= POL_MAX_PAIRS) {
+    if (a + k_sigma < p[FW_IDX_POL_RATIO_MIN] || pol->pairs >= POL_MAX_PAIRS) {
         return -1;
     }
     return 0;
 }
 
-int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
-                    fw_pol_out_t *out)
+int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
+                    fw_polarity_out_t *out)
 {
     const real_t *p = c->p;
-    int32_t n_settle = (int32_t)p[FW_PI_POL_SETTLE_PERIODS];
-    int32_t n_ramp = (int32_t)p[FW_PI_POL_PULSE_PERIODS];
-    int32_t n_meas = (int32_t)p[FW_PI_POL_BIAS_PERIODS];
-    int32_t n_motion = (int32_t)(p[FW_PI_POL_MOTION_MS] * FW_REAL(1e-3) / FW_TS);
-    int16_t method = (int16_t)p[FW_PI_POL_METHOD];
-    real_t i_bias = p[FW_PI_POL_PULSE_A];
+    int32_t n_settle = (int32_t)p[FW_IDX_POL_SETTLE_PERIODS];
+    int32_t n_ramp = (int32_t)p[FW_IDX_POL_PULSE_PERIODS];
+    int32_t n_meas = (int32_t)p[FW_IDX_POL_BIAS_PERIODS];
+    int32_t n_motion = (int32_t)(p[FW_IDX_POL_MOTION_MS] * FW_REAL(1e-3) / FW_TS);
+    int16_t method = (int16_t)p[FW_IDX_POL_METHOD];
+    real_t i_bias = p[FW_IDX_POL_PULSE_A];
 
     out->id = FW_REAL(0.0);
     out->iq = FW_REAL(0.0);
@@ -191,7 +191,7 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
     case POL_SETTLE:
         /* zero current (any frame will do for a zero reference) while the PLL settles */
         if (pol->count >= n_settle) {
-            if (!c->pll.init || !c->est_valid) {
+            if (!c->trk.init || !c->est_valid) {
                 if (pol->count > 4 * n_settle) {
                     pol->result = -1; /* no position estimate at standstill */
                 }
@@ -201,7 +201,7 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                 start_motion(pol, c);
             } else {
                 pol->method_used = 1;
-                pol->g_ref = FW_REAL(1.0) / p[FW_PI_LD_H];
+                pol->g_ref = FW_REAL(1.0) / p[FW_IDX_LD_H];
                 next_phase(pol, POL_BIAS_P);
                 pol->count = 1;
                 out->id = i_bias / (real_t)n_ramp;
@@ -256,13 +256,13 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
         }
         break;
     case POL_MOTION_ACC:
-        out->iq = p[FW_PI_POL_MOTION_IQ_A];
+        out->iq = p[FW_IDX_POL_MOTION_IQ_A];
         if (pol->count >= n_motion) {
             next_phase(pol, POL_MOTION_BRAKE);
         }
         break;
     case POL_MOTION_BRAKE:
-        out->iq = -p[FW_PI_POL_MOTION_IQ_A];
+        out->iq = -p[FW_IDX_POL_MOTION_IQ_A];
         if (pol->count >= n_motion) {
             next_phase(pol, POL_MOTION_REST);
         }
@@ -273,14 +273,14 @@ int16_t fw_pol_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
          * speed ramp then took seconds to bring down at a 1 r/min reference). Damping gain for
          * a time constant of a quarter of the rest, with the nominal torque constant; the
          * angle travelled keeps its sign */
-        real_t kt = FW_REAL(1.5) * p[FW_PI_POLE_PAIRS] * p[FW_PI_LAMBDA_M_WB];
+        real_t kt = FW_REAL(1.5) * p[FW_IDX_POLE_PAIRS] * p[FW_IDX_LAMBDA_M_WB];
         real_t tau = FW_REAL(0.25) * (real_t)n_motion * FW_TS;
-        real_t w_mech = c->pll.omega / p[FW_PI_POLE_PAIRS];
-        out->iq = fw_clamp(-p[FW_PI_INERTIA_KGM2] / (kt * tau) * w_mech,
-                           -p[FW_PI_POL_MOTION_IQ_A], p[FW_PI_POL_MOTION_IQ_A]);
+        real_t w_mech = c->trk.omega / p[FW_IDX_POLE_PAIRS];
+        out->iq = fw_clamp(-p[FW_IDX_INERTIA_KGM2] / (kt * tau) * w_mech,
+                           -p[FW_IDX_POL_MOTION_IQ_A], p[FW_IDX_POL_MOTION_IQ_A]);
         if (pol->count >= n_motion) {
-            real_t min_move = p[FW_PI_POL_MOTION_MIN_DEG] * (FW_PI_R / FW_REAL(180.0));
-            pol->moved = c->pll.theta_unwrapped - pol->theta_start;
+            real_t min_move = p[FW_IDX_POL_MOTION_MIN_DEG] * (FW_M_PI / FW_REAL(180.0));
+            pol->moved = c->trk.theta_unwrapped - pol->theta_start;
             if (fw_fabs(pol->moved) >= min_move) {
                 pol->flipped = (int16_t)(pol->moved < FW_REAL(0.0));
                 pol->result = 1;

@@ -46,7 +46,7 @@
 #define FW_TRK_CONV_CYCLES 10.0f   /* convergence: wn = wn_hi / (1 + t wn_hi / this) */
 #define FW_TRK_CONV_MAX 100000000L /* periods: the counter saturates (2.8 h) */
 
-static void set_gains(fw_pll_t *pll, real_t wn)
+static void set_gains(fw_tracker_t *pll, real_t wn)
 {
     real_t z = pll->zeta;
     real_t p = fw_min(FW_TRK_P_FACTOR * wn, FW_TRK_P_MAX_FACTOR * pll->wn_hi);
@@ -56,25 +56,25 @@ static void set_gains(fw_pll_t *pll, real_t wn)
     pll->l3 = wn * wn * p * FW_TS;
 }
 
-void fw_pll_config(fw_pll_t *pll, real_t bw_hz, real_t zeta)
+void fw_tracker_config(fw_tracker_t *pll, real_t bw_hz, real_t zeta)
 {
     pll->zeta = zeta;
-    pll->wn_hi = FW_2PI_R * bw_hz;
+    pll->wn_hi = FW_M_2PI * bw_hz;
     pll->wn_lo = pll->wn_hi;
     pll->speed_ratio = FW_REAL(0.0);
     pll->boost_sigma = FW_REAL(0.0);
     set_gains(pll, pll->wn_hi);
 }
 
-void fw_pll_config_schedule(fw_pll_t *pll, real_t low_bw_hz, real_t speed_ratio,
+void fw_tracker_config_schedule(fw_tracker_t *pll, real_t low_bw_hz, real_t speed_ratio,
                             real_t boost_sigma)
 {
-    pll->wn_lo = fw_min(FW_2PI_R * low_bw_hz, pll->wn_hi);
+    pll->wn_lo = fw_min(FW_M_2PI * low_bw_hz, pll->wn_hi);
     pll->speed_ratio = speed_ratio;
     pll->boost_sigma = boost_sigma;
 }
 
-real_t fw_pll_schedule(fw_pll_t *pll)
+real_t fw_tracker_schedule(fw_tracker_t *pll)
 {
     real_t w_speed = fw_clamp(pll->speed_ratio * fw_fabs(pll->omega), pll->wn_lo, pll->wn_hi);
     real_t w_conv = pll->wn_hi / (FW_REAL(1.0) + (real_t)pll->conv_ticks * FW_TS * pll->wn_hi /
@@ -86,7 +86,7 @@ real_t fw_pll_schedule(fw_pll_t *pll)
     return pll->wn;
 }
 
-void fw_pll_reset(fw_pll_t *pll, real_t theta, real_t omega, uint16_t stamp)
+void fw_tracker_reset(fw_tracker_t *pll, real_t theta, real_t omega, uint16_t stamp)
 {
     pll->init = 1;
     pll->theta = fw_wrap_2pi(theta);
@@ -105,17 +105,17 @@ void fw_pll_reset(fw_pll_t *pll, real_t theta, real_t omega, uint16_t stamp)
     set_gains(pll, pll->wn_hi);
 }
 
-void fw_pll_set_accel(fw_pll_t *pll, real_t a_ff) { pll->a_ff = a_ff; }
+void fw_tracker_set_accel(fw_tracker_t *pll, real_t a_ff) { pll->a_ff = a_ff; }
 
 /* the angle and speed advance from the reference instant by dt (s) */
-static void advance_by(const fw_pll_t *pll, real_t dt, real_t *theta, real_t *omega)
+static void advance_by(const fw_tracker_t *pll, real_t dt, real_t *theta, real_t *omega)
 {
     real_t a = pll->a_ff + pll->a_d;
     *theta = pll->theta + (pll->omega + FW_REAL(0.5) * a * dt) * dt;
     *omega = pll->omega + a * dt;
 }
 
-void fw_pll_advance(fw_pll_t *pll, int32_t ticks)
+void fw_tracker_advance(fw_tracker_t *pll, int32_t ticks)
 {
     pll->age_ticks += ticks;
     /* re-anchor long predictions so the float angle does not lose resolution */
@@ -130,7 +130,7 @@ void fw_pll_advance(fw_pll_t *pll, int32_t ticks)
     }
 }
 
-real_t fw_pll_predict(const fw_pll_t *pll, int32_t tick)
+real_t fw_tracker_predict(const fw_tracker_t *pll, int32_t tick)
 {
     real_t dt = (real_t)(pll->age_ticks + tick) * FW_TICK_S;
     real_t th, om;
@@ -138,7 +138,7 @@ real_t fw_pll_predict(const fw_pll_t *pll, int32_t tick)
     return fw_wrap_2pi(th);
 }
 
-real_t fw_pll_update(fw_pll_t *pll, real_t theta_raw, uint16_t stamp, real_t *theta_meas)
+real_t fw_tracker_update(fw_tracker_t *pll, real_t theta_raw, uint16_t stamp, real_t *theta_meas)
 {
     real_t dt = (real_t)(pll->age_ticks + (int32_t)stamp) * FW_TICK_S;
     real_t pred, om, eps, step, y, t;
@@ -177,9 +177,9 @@ real_t fw_pll_update(fw_pll_t *pll, real_t theta_raw, uint16_t stamp, real_t *th
     return eps;
 }
 
-void fw_pll_flip(fw_pll_t *pll)
+void fw_tracker_flip(fw_tracker_t *pll)
 {
-    pll->theta = fw_wrap_2pi(pll->theta + FW_PI_R);
-    pll->theta_unwrapped += FW_PI_R;
+    pll->theta = fw_wrap_2pi(pll->theta + FW_M_PI);
+    pll->theta_unwrapped += FW_M_PI;
     pll->e_mean = FW_REAL(0.0);
 }

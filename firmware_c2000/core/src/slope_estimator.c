@@ -45,8 +45,8 @@ int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, i
     ia = ((real_t)(a0 - adc_half) + da_sum / (real_t)n) * lsb;
     ib = ((real_t)(b0 - adc_half) + db_sum / (real_t)n) * lsb;
     /* two sensors, isolated neutral: alpha = a, beta = (a + 2b)/sqrt3 (docs/estimator.md §2) */
-    *slope = fw_c(sa, (sa + FW_REAL(2.0) * sb) * FW_INV_SQRT3_R);
-    *i_mean = fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_INV_SQRT3_R);
+    *slope = fw_c(sa, (sa + FW_REAL(2.0) * sb) * FW_M_INV_SQRT3);
+    *i_mean = fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_M_INV_SQRT3);
     *t_mean_ticks = t_bar;
     return 1;
 }
@@ -60,7 +60,7 @@ fw_cplx_t fw_slope_diff(fw_cplx_t s_active, real_t t_active, fw_cplx_t s_zero, r
     return fw_csub(s_active, fw_cmul(s_zero, rot));
 }
 
-void fw_est_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
+void fw_slope_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
                   const real_t t[2], real_t kv, real_t omega, real_t gamma0_prior,
                   fw_est_out_t *out)
 {
@@ -75,8 +75,8 @@ void fw_est_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
     }
     /* y_k = Di_k * exp(+j phi_k) / kv = Gamma0 * u_k + g,  u_k = exp(j 2 phi_k)  (section 3) */
     for (k = 0; k < n_active; k++) {
-        y[k] = fw_cscale(fw_cmul(di[k], fw_vec_unit(vec[k])), FW_REAL(1.0) / kv);
-        u[k] = fw_vec_unit2(vec[k]);
+        y[k] = fw_cscale(fw_cmul(di[k], fw_svpwm_vec_unit(vec[k])), FW_REAL(1.0) / kv);
+        u[k] = fw_svpwm_vec_unit2(vec[k]);
     }
     if (n_active == 2) {
         /* g rotates at 2*omega between the two windows: with r_k = exp(j 2 omega (t_k - t_ref))
@@ -116,4 +116,10 @@ void fw_est_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
     out->theta_raw = FW_REAL(0.5) * fw_atan2(out->g.im, out->g.re);
     out->ok = (int16_t)(out->gamma0 > FW_REAL(0.0) && out->gamma1 > FW_REAL(0.0) &&
                         out->gamma1 < out->gamma0);
+}
+
+/* Gamma(theta) v = Gamma0 v + g conj(v), g = Gamma1 exp(j 2 theta) */
+fw_cplx_t fw_slope_gamma_times(real_t gamma0, fw_cplx_t g, fw_cplx_t v)
+{
+    return fw_cadd(fw_cscale(v, gamma0), fw_cmul(g, fw_cconj(v)));
 }

@@ -1,7 +1,7 @@
 /* speed_ctrl.c - speed reference ramp and speed PI at 1 kHz (output: q-current demand). */
 #include "fw_internal.h"
 
-real_t fw_ramp(real_t y, real_t target, real_t step)
+real_t fw_speed_ctrl_ramp(real_t y, real_t target, real_t step)
 {
     real_t d = target - y;
     if (d > step) {

@@ -63,32 +63,32 @@ static const real_t vec_sin[6] = {FW_REAL(0.0), FW_REAL(0.86602540378443864676),
 /* switching states of V1..V6: 100, 110, 010, 011, 001, 101 (bit0 = a, bit1 = b, bit2 = c) */
 static const int16_t vec_bits[6] = {1, 3, 2, 6, 4, 5};
 
-fw_cplx_t fw_vec_unit(int16_t k)
+fw_cplx_t fw_svpwm_vec_unit(int16_t k)
 {
     int16_t i = (int16_t)((k - 1) % 6);
     return fw_c(vec_cos[i], vec_sin[i]);
 }
 
-fw_cplx_t fw_vec_unit2(int16_t k)
+fw_cplx_t fw_svpwm_vec_unit2(int16_t k)
 {
     int16_t i = (int16_t)((2 * (k - 1)) % 6);
     return fw_c(vec_cos[i], vec_sin[i]);
 }
 
-int16_t fw_vec_state(int16_t k) { return vec_bits[(k - 1) % 6]; }
+int16_t fw_svpwm_vec_state(int16_t k) { return vec_bits[(k - 1) % 6]; }
 
-fw_cplx_t fw_state_voltage(int16_t s, real_t vdc)
+fw_cplx_t fw_svpwm_state_voltage(int16_t s, real_t vdc)
 {
     real_t sa = (real_t)(s & 1);
     real_t sb = (real_t)((s >> 1) & 1);
     real_t sc = (real_t)((s >> 2) & 1);
     return fw_c(vdc * (FW_REAL(2.0) / FW_REAL(3.0)) * (sa - FW_REAL(0.5) * (sb + sc)),
-                vdc * FW_INV_SQRT3_R * (sb - sc));
+                vdc * FW_M_INV_SQRT3 * (sb - sc));
 }
 
 real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks)
 {
-    return (FW_REAL(1.0) - (real_t)tmin_ticks / (real_t)FW_P_TICKS) * vdc * FW_INV_SQRT3_R;
+    return (FW_REAL(1.0) - (real_t)tmin_ticks / (real_t)FW_P_TICKS) * vdc * FW_M_INV_SQRT3;
 }
 
 static uint16_t u16(int32_t x) { return (uint16_t)((x < 0) ? 0 : ((x > 65535) ? 65535 : x)); }
@@ -147,7 +147,7 @@ static void plan_segments(fw_plan_t *pl)
     for (i = 0; i < pl->n_seg; i++) {
         real_t len = (real_t)(pl->seg_t[i + 1] - pl->seg_t[i]);
         real_t arm = (real_t)FW_H_TICKS - FW_REAL(0.5) * (real_t)(pl->seg_t[i + 1] + pl->seg_t[i]);
-        pl->dipole = fw_cadd(pl->dipole, fw_cscale(fw_state_voltage(pl->seg_state[i], pl->vdc),
+        pl->dipole = fw_cadd(pl->dipole, fw_cscale(fw_svpwm_state_voltage(pl->seg_state[i], pl->vdc),
                                                    len * arm / (real_t)FW_P_TICKS * FW_TICK_S));
     }
 }
@@ -218,11 +218,11 @@ static real_t om_fundamental(real_t r)
 {
     const int16_t n = 60;
     const real_t s60 = FW_REAL(0.86602540378443864676);
-    const real_t vtx = FW_REAL(2.0) * FW_INV_SQRT3_R; /* vertex distance */
+    const real_t vtx = FW_REAL(2.0) * FW_M_INV_SQRT3; /* vertex distance */
     real_t acc = FW_REAL(0.0);
     int16_t k;
     for (k = 0; k < n; k++) {
-        real_t phi = (FW_PI_R / FW_REAL(3.0)) * ((real_t)k + FW_REAL(0.5)) / (real_t)n;
+        real_t phi = (FW_M_PI / FW_REAL(3.0)) * ((real_t)k + FW_REAL(0.5)) / (real_t)n;
         real_t xr = r * fw_cos(phi);
         real_t xi = r * fw_sin(phi);
         /* coefficients along the vertices at 0 and 60 deg, in vertex units */
@@ -395,8 +395,8 @@ static void layout_stretch(fw_plan_t *pl, int16_t p, int16_t m, int16_t l, int32
 /* x = a*e1 + b*e2 in the basis of sector s (cross products; e1 x e2 = sin 60 deg), V*ticks */
 static void sector_coeffs(int16_t s, fw_cplx_t x, real_t *a, real_t *b)
 {
-    fw_cplx_t e1 = fw_vec_unit(s);
-    fw_cplx_t e2 = fw_vec_unit((int16_t)(s % 6 + 1));
+    fw_cplx_t e1 = fw_svpwm_vec_unit(s);
+    fw_cplx_t e2 = fw_svpwm_vec_unit((int16_t)(s % 6 + 1));
     *a = (x.re * e2.im - x.im * e2.re) / FW_REAL(0.86602540378443864676);
     *b = (e1.re * x.im - e1.im * x.re) / FW_REAL(0.86602540378443864676);
 }
@@ -433,8 +433,8 @@ void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_mod_
     /* sector from three sign tests (no trigonometry) */
     {
         real_t r1 = x.im;
-        real_t r2 = FW_REAL(0.5) * (FW_SQRT3_R * x.re - x.im);
-        real_t r3 = FW_REAL(0.5) * (-FW_SQRT3_R * x.re - x.im);
+        real_t r2 = FW_REAL(0.5) * (FW_M_SQRT3 * x.re - x.im);
+        real_t r3 = FW_REAL(0.5) * (-FW_M_SQRT3 * x.re - x.im);
         static const int16_t sector_of_n[8] = {1, 2, 6, 1, 4, 3, 5, 1};
         n = (int16_t)((r1 > FW_REAL(0.0) ? 1 : 0) + (r2 > FW_REAL(0.0) ? 2 : 0) +
                       (r3 > FW_REAL(0.0) ? 4 : 0));
@@ -454,8 +454,8 @@ void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_mod_
     }
     k1 = s;
     k2 = (int16_t)(s % 6 + 1);
-    e1 = fw_vec_unit(k1);
-    e2 = fw_vec_unit(k2);
+    e1 = fw_svpwm_vec_unit(k1);
+    e2 = fw_svpwm_vec_unit(k2);
     sector_coeffs(s, x, &a, &b);
     a = fw_max(a, FW_REAL(0.0)) / kv; /* ticks */
     b = fw_max(b, FW_REAL(0.0)) / kv;
@@ -520,7 +520,7 @@ void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_mod_
     p = (int16_t)((pl->vec_odd - 1) / 2);
     m = -1;
     for (x_ph = 0; x_ph < 3; x_ph++) {
-        if (x_ph != p && ((fw_vec_state(pl->vec_even) >> x_ph) & 1) != 0) {
+        if (x_ph != p && ((fw_svpwm_vec_state(pl->vec_even) >> x_ph) & 1) != 0) {
             m = x_ph;
         }
     }
@@ -560,7 +560,7 @@ void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_mod_
     }
 }
 
-void fw_plan_to_pwm(const fw_plan_t *pl, uint32_t period, int16_t gate, fw_pwm_t *pwm)
+void fw_svpwm_to_pwm(const fw_plan_t *pl, uint32_t period, int16_t gate, fw_pwm_t *pwm)
 {
     int16_t i;
     pwm->period = period;

@@ -122,7 +122,7 @@ void fwt_slope_diff(double sa_re, double sa_im, double t_active, double s0_re, d
 
 /* di: 2 complex (re, im, re, im); t: 2 times (s). out: theta_raw, gamma0, gamma1, g_re, g_im,
  * residual, t_ref, n_active. Returns ok. */
-int32_t fwt_est_solve(int32_t n_active, const int32_t *vec, const double *di, const double *t,
+int32_t fwt_slope_solve(int32_t n_active, const int32_t *vec, const double *di, const double *t,
                       double kv, double omega, double gamma0_prior, double *out)
 {
     int16_t v[2];
@@ -136,7 +136,7 @@ int32_t fwt_est_solve(int32_t n_active, const int32_t *vec, const double *di, co
                     (real_t)((k < n_active) ? di[2 * k + 1] : 0.0));
         tt[k] = (real_t)((k < n_active) ? t[k] : 0.0);
     }
-    fw_est_solve((int16_t)n_active, v, d, tt, (real_t)kv, (real_t)omega, (real_t)gamma0_prior, &e);
+    fw_slope_solve((int16_t)n_active, v, d, tt, (real_t)kv, (real_t)omega, (real_t)gamma0_prior, &e);
     out[0] = e.theta_raw;
     out[1] = e.gamma0;
     out[2] = e.gamma1;
@@ -149,50 +149,50 @@ int32_t fwt_est_solve(int32_t n_active, const int32_t *vec, const double *di, co
 }
 
 /* PLL branch selection / update on a bare tracker (for the Python tracker tests). */
-int32_t fwt_pll_size(void) { return (int32_t)sizeof(fw_pll_t); }
-void fwt_pll_init(void *pll, double bw_hz, double zeta, double theta, double omega)
+int32_t fwt_tracker_size(void) { return (int32_t)sizeof(fw_tracker_t); }
+void fwt_tracker_init(void *pll, double bw_hz, double zeta, double theta, double omega)
 {
-    fw_pll_config((fw_pll_t *)pll, (real_t)bw_hz, (real_t)zeta);
-    fw_pll_reset((fw_pll_t *)pll, (real_t)theta, (real_t)omega, 0);
+    fw_tracker_config((fw_tracker_t *)pll, (real_t)bw_hz, (real_t)zeta);
+    fw_tracker_reset((fw_tracker_t *)pll, (real_t)theta, (real_t)omega, 0);
 }
 /* advance one period and update with a raw estimate (mod pi) at stamp; out: theta_meas,
  * eps, theta, omega */
-void fwt_pll_step(void *pll, double theta_raw, int32_t stamp, double *out)
+void fwt_tracker_step(void *pll, double theta_raw, int32_t stamp, double *out)
 {
-    fw_pll_t *p = (fw_pll_t *)pll;
+    fw_tracker_t *p = (fw_tracker_t *)pll;
     real_t meas;
     real_t eps;
-    fw_pll_advance(p, FW_P_TICKS);
-    eps = fw_pll_update(p, (real_t)theta_raw, (uint16_t)stamp, &meas);
+    fw_tracker_advance(p, FW_P_TICKS);
+    eps = fw_tracker_update(p, (real_t)theta_raw, (uint16_t)stamp, &meas);
     out[0] = meas;
     out[1] = eps;
     out[2] = p->theta;
     out[3] = p->omega;
 }
 
-double fwt_mtpa_id(double iq, double ld, double lq, double lambda)
+double fwt_refs_mtpa_id(double iq, double ld, double lq, double lambda)
 {
-    return fw_mtpa_id((real_t)iq, (real_t)ld, (real_t)lq, (real_t)lambda);
+    return fw_refs_mtpa_id((real_t)iq, (real_t)ld, (real_t)lq, (real_t)lambda);
 }
 
-double fwt_fw_id(double iq, double omega, double vmax, double ld, double lq, double lambda)
+double fwt_refs_fluxweak_id(double iq, double omega, double vmax, double ld, double lq, double lambda)
 {
-    return fw_fw_id((real_t)iq, (real_t)omega, (real_t)vmax, (real_t)ld, (real_t)lq,
+    return fw_refs_fluxweak_id((real_t)iq, (real_t)omega, (real_t)vmax, (real_t)ld, (real_t)lq,
                     (real_t)lambda);
 }
 
-double fwt_torque(double id, double iq, double ld, double lq, double lambda, double pp)
+double fwt_refs_torque(double id, double iq, double ld, double lq, double lambda, double pp)
 {
-    return fw_torque((real_t)id, (real_t)iq, (real_t)ld, (real_t)lq, (real_t)lambda, (real_t)pp);
+    return fw_refs_torque((real_t)id, (real_t)iq, (real_t)ld, (real_t)lq, (real_t)lambda, (real_t)pp);
 }
 
 /* out: id_ref, iq_ref; returns fw_active */
-int32_t fwt_current_refs(int32_t mode, double iq_demand, double omega, double vmax, double i_max,
+int32_t fwt_refs_select(int32_t mode, double iq_demand, double omega, double vmax, double i_max,
                          double ld, double lq, double lambda, double did_fb, double *out)
 {
     real_t id;
     real_t iq;
-    int16_t fw = fw_current_refs((int16_t)mode, (real_t)iq_demand, (real_t)omega, (real_t)vmax,
+    int16_t fw = fw_refs_select((int16_t)mode, (real_t)iq_demand, (real_t)omega, (real_t)vmax,
                                  (real_t)i_max, (real_t)ld, (real_t)lq, (real_t)lambda,
                                  (real_t)did_fb, &id, &iq);
     out[0] = id;
@@ -221,12 +221,12 @@ int32_t fwt_flux_update(void *f, double u_re, double u_im, double omega, double 
 }
 
 /* parameter estimator on a bare state: feed one estimate; out: ld_inc, lq_inc, lq_app(iq) */
-int32_t fwt_pe_size(void) { return (int32_t)sizeof(fw_param_est_t); }
-void fwt_pe_reset(void *pe, double ld, double lq, double i_max)
+int32_t fwt_paramest_size(void) { return (int32_t)sizeof(fw_param_est_t); }
+void fwt_paramest_reset(void *pe, double ld, double lq, double i_max)
 {
-    fw_pe_reset((fw_param_est_t *)pe, (real_t)ld, (real_t)lq, (real_t)i_max);
+    fw_paramest_reset((fw_param_est_t *)pe, (real_t)ld, (real_t)lq, (real_t)i_max);
 }
-void fwt_pe_update(void *pe, double gamma0, double g_re, double g_im, double theta_ref, double iq,
+void fwt_paramest_update(void *pe, double gamma0, double g_re, double g_im, double theta_ref, double iq,
                    double alpha, double *out)
 {
     fw_param_est_t *p = (fw_param_est_t *)pe;
@@ -239,16 +239,16 @@ void fwt_pe_update(void *pe, double gamma0, double g_re, double g_im, double the
     e.theta_raw = 0.0f;
     e.residual = 0.0f;
     e.t_ref = 0.0f;
-    fw_pe_update(p, &e, (real_t)theta_ref, (real_t)iq, (real_t)alpha, 1e-4f, 1.0f);
-    fw_pe_apparent(p, (real_t)iq);
+    fw_paramest_update(p, &e, (real_t)theta_ref, (real_t)iq, (real_t)alpha, 1e-4f, 1.0f);
+    fw_paramest_apparent(p, (real_t)iq);
     out[0] = p->ld_inc;
     out[1] = p->lq_inc;
     out[2] = p->lq_app;
 }
-void fwt_pe_apparent(void *pe, double iq, double *out)
+void fwt_paramest_apparent(void *pe, double iq, double *out)
 {
     fw_param_est_t *p = (fw_param_est_t *)pe;
-    fw_pe_apparent(p, (real_t)iq);
+    fw_paramest_apparent(p, (real_t)iq);
     out[0] = p->lq_app;
 }
 

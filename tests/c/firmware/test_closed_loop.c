@@ -92,7 +92,7 @@ static void speed_run(void)
           (double)st.lambda_hat, tr->lambda_m);
 
     /* polarity flip while running: detected and corrected */
-    fw_pll_flip(&s->core->pll);
+    fw_tracker_flip(&s->core->trk);
     {
         long k;
         for (k = 0; k < 3000; k++) {

@@ -37,9 +37,9 @@ static void bad_commands(void)
         case 1: bad.fault_reset = -1; break;
         case 2: bad.ctrl_mode = 2; break;
         case 3: bad.fw_mode = 3; break;
-        case 4: bad.speed_ref_rpm = c->p[FW_PI_SPEED_MAX_RPM] + 1.0f; break;
+        case 4: bad.speed_ref_rpm = c->p[FW_IDX_SPEED_MAX_RPM] + 1.0f; break;
         case 5: bad.speed_ref_rpm = nan; break;
-        case 6: bad.iq_ref = c->p[FW_PI_I_MAX_A] * 1.01f; break;
+        case 6: bad.iq_ref = c->p[FW_IDX_I_MAX_A] * 1.01f; break;
         case 7: bad.iq_ref = (real_t)INFINITY; break;
         default: bad.fw_mode = -1; break;
         }
@@ -202,7 +202,7 @@ static void adc_loss(void)
     int loss_max;
     fw_pwm_t pwm;
     reach_run(s);
-    loss_max = (int)s->core->p[FW_PI_ADC_LOSS_MAX];
+    loss_max = (int)s->core->p[FW_IDX_ADC_LOSS_MAX];
     for (k = 0; k < loss_max; k++) {
         fw_core_isr(s->core, NULL, &pwm);
         if (k < loss_max - 1) {
@@ -362,7 +362,7 @@ static void out_of_range_codes(void)
     }
     CHECK(s->core->state == FW_STATE_RUN, "a few bad periods stopped the drive (state %d)",
           s->core->state);
-    /* fw_protect_samples on its own: any code, no overflow */
+    /* fw_protection_samples on its own: any code, no overflow */
     {
         fw_adc_t a;
         real_t peak = 0.0f;
@@ -372,7 +372,7 @@ static void out_of_range_codes(void)
         a.ib[0] = INT32_MAX;
         a.ia[1] = INT32_MAX;
         a.ib[1] = INT32_MIN;
-        (void)fw_protect_samples(&a, (int32_t)1 << 23, 1e-6f, 10.0f, &peak);
+        (void)fw_protection_samples(&a, (int32_t)1 << 23, 1e-6f, 10.0f, &peak);
         CHECK(peak > 0.0f, "peak %g", (double)peak);
     }
 }

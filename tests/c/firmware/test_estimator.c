@@ -67,7 +67,7 @@ static void static_model(void)
                 cd d = gamma_times(theta, LD, LQ, vk);
                 di[j] = fw_c((real_t)d.re, (real_t)d.im);
             }
-            fw_est_solve(2, v16, di, t, (real_t)kv, 0.0f, 0.0f, &e);
+            fw_slope_solve(2, v16, di, t, (real_t)kv, 0.0f, 0.0f, &e);
             CHECK(e.ok, "sector %d theta %.4f not ok", sector, theta);
             worst = fmax(worst, fabs(diff_mod_pi(e.theta_raw, theta)));
             worst_l = fmax(worst_l, fabs(1.0 / (e.gamma0 + e.gamma1) - LD) / LD);
@@ -81,7 +81,7 @@ static void static_model(void)
                     cd d = gamma_times(theta + M_PI, LD, LQ, vk);
                     di[j] = fw_c((real_t)d.re, (real_t)d.im);
                 }
-                fw_est_solve(2, v16, di, t, (real_t)kv, 0.0f, 0.0f, &e2);
+                fw_slope_solve(2, v16, di, t, (real_t)kv, 0.0f, 0.0f, &e2);
                 CHECK(fabs(diff_mod_pi(e2.theta_raw, e.theta_raw)) < 1e-6,
                       "theta+pi gives another raw estimate");
             }
@@ -109,7 +109,7 @@ static void single_vector(void)
             real_t t[2] = {3e-5f, 0.0f};
             int16_t v16[2] = {(int16_t)vec, 1};
             fw_est_out_t e;
-            fw_est_solve(1, v16, di, t, (real_t)kv, 0.0f, (real_t)g0, &e);
+            fw_slope_solve(1, v16, di, t, (real_t)kv, 0.0f, (real_t)g0, &e);
             worst = fmax(worst, fabs(diff_mod_pi(e.theta_raw, theta)));
         }
     }
@@ -153,8 +153,8 @@ static void rotating_model(void)
                                           (real_t)omega);
                     di_unc[j] = fw_c((real_t)(sk.re - s0.re), (real_t)(sk.im - s0.im));
                 }
-                fw_est_solve(2, v16, di, tr, (real_t)kv, (real_t)omega, 0.0f, &e);
-                fw_est_solve(2, v16, di_unc, tr, (real_t)kv, 0.0f, 0.0f, &eu);
+                fw_slope_solve(2, v16, di, tr, (real_t)kv, (real_t)omega, 0.0f, &e);
+                fw_slope_solve(2, v16, di_unc, tr, (real_t)kv, 0.0f, 0.0f, &eu);
                 theta_ref = theta0 + omega * 0.5 * (t1 + t2); /* stamp: mean of the windows */
                 CHECK(fabs(e.t_ref - 0.5 * (t1 + t2)) < 1e-9, "t_ref");
                 worst = fmax(worst, fabs(diff_mod_pi(e.theta_raw, theta_ref)));
@@ -181,14 +181,14 @@ static void branch_selection(void)
     for (k = 0; k < 72; k++) {
         double truth = k * 5.0 * M_PI / 180.0;
         double raw = fmod(truth, M_PI); /* what the estimator can tell */
-        fw_pll_t pll;
+        fw_tracker_t pll;
         real_t meas;
         real_t eps;
         double d;
-        fw_pll_config(&pll, 50.0f, 1.0f);
-        fw_pll_reset(&pll, (real_t)(truth + 0.3), 0.0f, 0); /* prediction 17 deg off */
-        fw_pll_advance(&pll, FW_P_TICKS);
-        eps = fw_pll_update(&pll, (real_t)(raw > M_PI / 2 ? raw - M_PI : raw), 0, &meas);
+        fw_tracker_config(&pll, 50.0f, 1.0f);
+        fw_tracker_reset(&pll, (real_t)(truth + 0.3), 0.0f, 0); /* prediction 17 deg off */
+        fw_tracker_advance(&pll, FW_P_TICKS);
+        eps = fw_tracker_update(&pll, (real_t)(raw > M_PI / 2 ? raw - M_PI : raw), 0, &meas);
         d = remainder(meas - truth, 2 * M_PI);
         CHECK(fabs(d) < 1e-5, "branch: truth %.3f selected %.3f", truth, (double)meas);
         CHECK(fabs(eps + 0.3) < 1e-5, "eps %.5f", (double)eps);
@@ -198,18 +198,18 @@ static void branch_selection(void)
 /* a type-2 PLL follows a ramp of angle without steady-state error */
 static void pll_tracking(void)
 {
-    fw_pll_t pll;
+    fw_tracker_t pll;
     double omega = 2 * M_PI * 50.0; /* electrical 50 Hz */
     int k;
     double err = 0.0;
-    fw_pll_config(&pll, 60.0f, 1.0f);
-    fw_pll_reset(&pll, 0.2f, 0.0f, 5000);
+    fw_tracker_config(&pll, 60.0f, 1.0f);
+    fw_tracker_reset(&pll, 0.2f, 0.0f, 5000);
     for (k = 1; k <= 3000; k++) {
         double truth = omega * (k * 1e-4 + 5e-5);
         real_t meas;
         double raw = fmod(truth, M_PI);
-        fw_pll_advance(&pll, FW_P_TICKS);
-        (void)fw_pll_update(&pll, (real_t)raw, 5000, &meas);
+        fw_tracker_advance(&pll, FW_P_TICKS);
+        (void)fw_tracker_update(&pll, (real_t)raw, 5000, &meas);
         err = remainder(pll.theta - truth, 2 * M_PI);
     }
     printf("pll: final error %.2e rad, omega %.3f vs %.3f\n", err, (double)pll.omega, omega);

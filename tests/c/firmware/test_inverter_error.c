@@ -77,7 +77,7 @@ static double check_point(double td_us, double vdrop, double vdc, double vmag, d
         memcpy(C.prev_on, C.plan_cur.on, sizeof C.prev_on);
         memcpy(C.prev_off, C.plan_cur.off, sizeof C.prev_off);
         fw_svpwm_plan(&C.pwm_cfg, (real_t)vdc, vref, NULL, (uint32_t)k, &plan);
-        fw_plan_to_pwm(&plan, (uint32_t)k, 1, &pwm);
+        fw_svpwm_to_pwm(&plan, (uint32_t)k, 1, &pwm);
         memset(&cmd, 0, sizeof cmd);
         cmd.period = (uint32_t)k;
         for (j = 0; j < 3; j++) {

@@ -63,21 +63,21 @@ def lib() -> C.CDLL:
         "fwt_svpwm_vmax": (_D, [_D, _D]),
         "fwt_slope_window": (_I, [_I, _PI, _PI, _PI, _I, _D, _PD]),
         "fwt_slope_diff": (None, [_D, _D, _D, _D, _D, _D, _D, _PD]),
-        "fwt_est_solve": (_I, [_I, _PI, _PD, _PD, _D, _D, _D, _PD]),
-        "fwt_pll_size": (_I, []),
-        "fwt_pll_init": (None, [C.c_void_p, _D, _D, _D, _D]),
-        "fwt_pll_step": (None, [C.c_void_p, _D, _I, _PD]),
-        "fwt_mtpa_id": (_D, [_D, _D, _D, _D]),
-        "fwt_fw_id": (_D, [_D, _D, _D, _D, _D, _D]),
-        "fwt_torque": (_D, [_D, _D, _D, _D, _D, _D]),
-        "fwt_current_refs": (_I, [_I, _D, _D, _D, _D, _D, _D, _D, _D, _PD]),
+        "fwt_slope_solve": (_I, [_I, _PI, _PD, _PD, _D, _D, _D, _PD]),
+        "fwt_tracker_size": (_I, []),
+        "fwt_tracker_init": (None, [C.c_void_p, _D, _D, _D, _D]),
+        "fwt_tracker_step": (None, [C.c_void_p, _D, _I, _PD]),
+        "fwt_refs_mtpa_id": (_D, [_D, _D, _D, _D]),
+        "fwt_refs_fluxweak_id": (_D, [_D, _D, _D, _D, _D, _D]),
+        "fwt_refs_torque": (_D, [_D, _D, _D, _D, _D, _D]),
+        "fwt_refs_select": (_I, [_I, _D, _D, _D, _D, _D, _D, _D, _D, _PD]),
         "fwt_flux_size": (_I, []),
         "fwt_flux_reset": (None, [C.c_void_p, _D]),
         "fwt_flux_update": (_I, [C.c_void_p, _D, _D, _D, _D, _D, _D, _D, _D, _D, _D, _D, _PD]),
-        "fwt_pe_size": (_I, []),
-        "fwt_pe_reset": (None, [C.c_void_p, _D, _D, _D]),
-        "fwt_pe_update": (None, [C.c_void_p, _D, _D, _D, _D, _D, _D, _PD]),
-        "fwt_pe_apparent": (None, [C.c_void_p, _D, _PD]),
+        "fwt_paramest_size": (_I, []),
+        "fwt_paramest_reset": (None, [C.c_void_p, _D, _D, _D]),
+        "fwt_paramest_update": (None, [C.c_void_p, _D, _D, _D, _D, _D, _D, _PD]),
+        "fwt_paramest_apparent": (None, [C.c_void_p, _D, _PD]),
         "fwt_status": (None, [C.c_void_p, _PD]),
         "fwt_command": (_I, [C.c_void_p, _I, _I, _I, _I, _D, _D]),
         "fwt_param_set": (_I, [C.c_void_p, _I, _D]),
@@ -245,7 +245,7 @@ def est_solve(
     for k, tk in enumerate(t):
         tb[k] = tk
     out = dbuf(8)
-    ok = lib().fwt_est_solve(n, ibuf([*vecs, 1, 1][:2]), dbl, tb, kv, omega, gamma0_prior, out)
+    ok = lib().fwt_slope_solve(n, ibuf([*vecs, 1, 1][:2]), dbl, tb, kv, omega, gamma0_prior, out)
     return Estimate(
         bool(ok), out[0], out[1], out[2], complex(out[3], out[4]), out[5], out[6], int(out[7])
     )

@@ -206,14 +206,14 @@ def test_pll_resolves_the_branch_and_tracks() -> None:
     lib = fwlib.lib()
     import ctypes as C
 
-    buf = C.create_string_buffer(int(lib.fwt_pll_size()))
+    buf = C.create_string_buffer(int(lib.fwt_tracker_size()))
     omega = 2 * math.pi * 40.0
-    lib.fwt_pll_init(buf, 60.0, 1.0, 2.0 + math.pi, 0.0)  # prediction on the pi branch
+    lib.fwt_tracker_init(buf, 60.0, 1.0, 2.0 + math.pi, 0.0)  # prediction on the pi branch
     out = fwlib.dbuf(4)
     truth = 0.0
     for k in range(1, 2001):
         truth = 2.0 + math.pi + omega * k * fwlib.TS
         raw = float(fwlib.diff_mod_pi(truth, 0.0))  # the estimator only knows theta mod pi
-        lib.fwt_pll_step(buf, raw, 0, out)
+        lib.fwt_tracker_step(buf, raw, 0, out)
     assert abs(float(fwlib.wrap_pi(out[2] - truth))) < 1e-3
     assert out[3] == pytest.approx(omega, rel=1e-3)

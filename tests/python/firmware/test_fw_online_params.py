@@ -83,8 +83,8 @@ def test_apparent_q_inductance_integrates_the_incremental_curve() -> None:
     gives back the apparent Lq = psi_q / iq that MTPA (eq. 50) needs."""
     lib = fwlib.lib()
     a = (0.032 / 0.028 - 1) / 9
-    buf = C.create_string_buffer(int(lib.fwt_pe_size()))
-    lib.fwt_pe_reset(buf, LD, 0.032, 7.5)
+    buf = C.create_string_buffer(int(lib.fwt_paramest_size()))
+    lib.fwt_paramest_reset(buf, LD, 0.032, 7.5)
     out = fwlib.dbuf(3)
     theta = 0.7
     for iq in np.linspace(0.0, 3.4, 6000):
@@ -92,11 +92,11 @@ def test_apparent_q_inductance_integrates_the_incremental_curve() -> None:
         g0 = 0.5 * (1 / LD + 1 / lq_inc)
         g1 = 0.5 * (1 / LD - 1 / lq_inc)
         g = g1 * rot(2 * theta)
-        lib.fwt_pe_update(buf, g0, g.real, g.imag, theta, iq, TS / 0.05, out)
+        lib.fwt_paramest_update(buf, g0, g.real, g.imag, theta, iq, TS / 0.05, out)
     for iq in (1.0, 2.0, 3.0):
-        lib.fwt_pe_apparent(buf, iq, out)
+        lib.fwt_paramest_apparent(buf, iq, out)
         assert out[0] == pytest.approx(0.032 / (1 + a * iq * iq), rel=0.01)
-    lib.fwt_pe_apparent(buf, 3.0, out)
+    lib.fwt_paramest_apparent(buf, 3.0, out)
     lq_inc_3 = 0.032 * (1 - a * 9) / (1 + a * 9) ** 2
     assert lq_inc_3 == pytest.approx(0.021, abs=0.0005)  # the two really differ here
     assert out[0] > 1.3 * lq_inc_3

@@ -210,7 +210,7 @@ def test_realtime_mode(with_fakes: Path, channel: str, tmp_path: Path) -> None:
     assert cap["lost"] == missing + cap["short_end"]
     if cap["lost"] == 0:
         assert cap["last_period"] >= 1499, r.explain()
-        assert r.criterion("position error")["passed"]
+        assert r.criterion("position error")["passed"], r.explain()
     else:
         assert r.status == "failed" and r.data["failure"]["kind"] == "capture_loss"
         assert f"{cap['lost']} missing" in r.data["failure"]["message"]

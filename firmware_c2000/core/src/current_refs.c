@@ -1,11 +1,11 @@
-/* mtpa_fw.c - current references: MTPA (paper eq. 50), flux weakening (eq. 53), the current
+/* current_refs.c - current references: MTPA (paper eq. 50), flux weakening (eq. 53), the current
  * circle and the voltage ellipse. Torque is eq. 10: Te = 3P/4 [(Ld - Lq) id iq + lambda iq]
  * with P poles, i.e. 1.5 * pole_pairs * (...).
  * All inductances here are APPARENT (psi/i) ones (docs/estimator.md §4.7).
  */
 #include "fw_internal.h"
 
-real_t fw_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda)
+real_t fw_refs_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda)
 {
     /* eq. 50: id = -lambda/(2(Ld-Lq)) - sqrt(lambda^2/(4(Ld-Lq)^2) + iq^2); with
      * a = lambda/(2(Lq-Ld)) > 0 this is a - sqrt(a^2 + iq^2) = -iq^2/(a + sqrt(a^2 + iq^2)),
@@ -19,7 +19,7 @@ real_t fw_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda)
     return -(iq * iq) / (a + fw_sqrt(a * a + iq * iq));
 }
 
-real_t fw_mtpa_id_on_circle(real_t i_max, real_t ld, real_t lq, real_t lambda)
+real_t fw_refs_mtpa_id_on_circle(real_t i_max, real_t ld, real_t lq, real_t lambda)
 {
     /* MTPA at |i| = I: 2 dL id^2 - lambda id - dL I^2 = 0 (dL = Lq - Ld), negative root */
     real_t dl = lq - ld;
@@ -30,7 +30,7 @@ real_t fw_mtpa_id_on_circle(real_t i_max, real_t ld, real_t lq, real_t lambda)
            (lambda + fw_sqrt(lambda * lambda + FW_REAL(8.0) * dl * dl * i_max * i_max));
 }
 
-real_t fw_fw_id(real_t iq, real_t omega, real_t vmax, real_t ld, real_t lq, real_t lambda)
+real_t fw_refs_fluxweak_id(real_t iq, real_t omega, real_t vmax, real_t ld, real_t lq, real_t lambda)
 {
     /* eq. 53: id = (-lambda + sqrt((Vsmax/omega)^2 - (Lq iq)^2)) / Ld */
     real_t w = fw_fabs(omega);
@@ -46,7 +46,7 @@ real_t fw_fw_id(real_t iq, real_t omega, real_t vmax, real_t ld, real_t lq, real
     return (-lambda + fw_sqrt(r)) / ld;
 }
 
-int16_t fw_circle_ellipse_id(real_t i_max, real_t omega, real_t vmax, real_t ld, real_t lq,
+int16_t fw_refs_circle_ellipse_id(real_t i_max, real_t omega, real_t vmax, real_t ld, real_t lq,
                              real_t lambda, real_t *id)
 {
     /* (Ld id + lambda)^2 + Lq^2 (I^2 - id^2) = (V/omega)^2: the more negative root is the
@@ -78,7 +78,7 @@ int16_t fw_circle_ellipse_id(real_t i_max, real_t omega, real_t vmax, real_t ld,
     return (int16_t)(*id >= -i_max && *id <= i_max);
 }
 
-real_t fw_id_for_torque(real_t iq_demand, real_t iq, real_t ld, real_t lq, real_t lambda)
+real_t fw_refs_id_for_torque(real_t iq_demand, real_t iq, real_t ld, real_t lq, real_t lambda)
 {
     /* torque/(1.5 p) the MTPA point of iq_demand gives, produced at the smaller q current iq
      * by the reluctance term: lambda iq + (Ld - Lq) id iq = tau  =>  id = (tau/iq - lambda)/(Ld - Lq) */
@@ -87,16 +87,16 @@ real_t fw_id_for_torque(real_t iq_demand, real_t iq, real_t ld, real_t lq, real_
     if (!(dl < FW_REAL(-1e-7)) || !(fw_fabs(iq) > FW_REAL(1e-3))) {
         return FW_REAL(0.0);
     }
-    tau = (lambda + dl * fw_mtpa_id(iq_demand, ld, lq, lambda)) * iq_demand;
+    tau = (lambda + dl * fw_refs_mtpa_id(iq_demand, ld, lq, lambda)) * iq_demand;
     return fw_min((tau / iq - lambda) / dl, FW_REAL(0.0));
 }
 
-real_t fw_torque(real_t id, real_t iq, real_t ld, real_t lq, real_t lambda, real_t pole_pairs)
+real_t fw_refs_torque(real_t id, real_t iq, real_t ld, real_t lq, real_t lambda, real_t pole_pairs)
 {
     return FW_REAL(1.5) * pole_pairs * (lambda * iq + (ld - lq) * id * iq);
 }
 
-int16_t fw_current_refs(int16_t mode, real_t iq_demand, real_t omega, real_t vmax, real_t i_max,
+int16_t fw_refs_select(int16_t mode, real_t iq_demand, real_t omega, real_t vmax, real_t i_max,
                         real_t ld, real_t lq, real_t lambda, real_t did_fb, real_t *id_ref,
                         real_t *iq_ref)
 {
@@ -110,20 +110,20 @@ int16_t fw_current_refs(int16_t mode, real_t iq_demand, real_t omega, real_t vma
         *iq_ref = iq;
         return 0;
     }
-    id = fw_mtpa_id(iq, ld, lq, lambda);
+    id = fw_refs_mtpa_id(iq, ld, lq, lambda);
     if (id * id + iq * iq > i_max * i_max) {
         /* MTPA point on the current circle */
-        id = fw_mtpa_id_on_circle(i_max, ld, lq, lambda);
+        id = fw_refs_mtpa_id_on_circle(i_max, ld, lq, lambda);
         iq = sgn * fw_sqrt(i_max * i_max - id * id);
     }
-    id_fw = fw_fw_id(iq, omega, vmax, ld, lq, lambda) + did_fb;
+    id_fw = fw_refs_fluxweak_id(iq, omega, vmax, ld, lq, lambda) + did_fb;
     if (id_fw < id) {
         fw = 1;
         id = id_fw;
         if (id * id + iq * iq > i_max * i_max) {
             /* both limits: intersection of the current circle and the voltage ellipse */
             real_t idx;
-            if (fw_circle_ellipse_id(i_max, omega, vmax, ld, lq, lambda, &idx)) {
+            if (fw_refs_circle_ellipse_id(i_max, omega, vmax, ld, lq, lambda, &idx)) {
                 id = idx + did_fb;
             }
             id = fw_max(id, -i_max);

@@ -42,7 +42,7 @@ def refs(
     lam: float = LAM,
 ) -> tuple[float, float, bool]:
     out = fwlib.dbuf(2)
-    fw = fwlib.lib().fwt_current_refs(mode, iq_demand, omega, vmax, i_max, ld, lq, lam, 0.0, out)
+    fw = fwlib.lib().fwt_refs_select(mode, iq_demand, omega, vmax, i_max, ld, lq, lam, 0.0, out)
     return out[0], out[1], bool(fw)
 
 
@@ -50,7 +50,7 @@ def refs(
 def test_mtpa_matches_eq50(params: tuple[float, float, float]) -> None:
     ld, lq, lam = params
     for iq in np.linspace(-8, 8, 33):
-        got = fwlib.lib().fwt_mtpa_id(iq, ld, lq, lam)
+        got = fwlib.lib().fwt_refs_mtpa_id(iq, ld, lq, lam)
         assert got == pytest.approx(eq50(iq, ld, lq, lam), abs=2e-5 + 1e-5 * abs(iq))
 
 
@@ -65,14 +65,15 @@ def test_mtpa_is_the_minimum_current_for_the_torque(te: float) -> None:
     )
     assert res.success
     id_opt, iq_opt = res.x
-    assert fwlib.lib().fwt_mtpa_id(iq_opt, LD, LQ, LAM) == pytest.approx(id_opt, abs=2e-4)
-    assert fwlib.lib().fwt_torque(id_opt, iq_opt, LD, LQ, LAM, PP) == pytest.approx(te, rel=1e-6)
+    assert fwlib.lib().fwt_refs_mtpa_id(iq_opt, LD, LQ, LAM) == pytest.approx(id_opt, abs=2e-4)
+    te_opt = fwlib.lib().fwt_refs_torque(id_opt, iq_opt, LD, LQ, LAM, PP)
+    assert te_opt == pytest.approx(te, rel=1e-6)
 
 
 def test_flux_weakening_matches_eq53() -> None:
     for omega in (500.0, 628.0, 800.0):
         for iq in (0.0, 1.0, 2.5):
-            got = fwlib.lib().fwt_fw_id(iq, omega, VMAX, LD, LQ, LAM)
+            got = fwlib.lib().fwt_refs_fluxweak_id(iq, omega, VMAX, LD, LQ, LAM)
             assert got == pytest.approx(eq53(iq, omega, VMAX, LD, LQ, LAM), abs=1e-4)
 
 

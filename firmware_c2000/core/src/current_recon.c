@@ -1,0 +1,271 @@
+/* current_recon.c - the current of a period from its samples: the mean (what the current
+ * loop and the torque see), the end (the start of the next period), and the product of the
+ * ripple's dq components (its reluctance torque).
+ */
+#include "fw_internal.h"
+
+/* Without a measured zero window (FULL modulation): every sample is i(t) = i0 + s (t - t_bar)
+ * + r(t), where r is the ripple of the pattern about its mean voltage, Gamma(theta) (v_seg -
+ * v_mean) integrated, which needs no back-EMF; i0 and the mean slope s are fitted by least
+ * squares to the samples minus r, and the period mean and end follow from the fit plus r. */
+static void recon_fit(fw_core_t *c, const fw_adc_t *adc)
+{
+    const fw_plan_t *pl = &c->plan_cur;
+    const real_t P = (real_t)FW_P_TICKS;
+    real_t th = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
+    fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
+    real_t gamma0 = c->pe.gamma0_f;
+    fw_cplx_t vbar = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    fw_cplx_t r_at[FW_MAX_SEG + 1]; /* ripple at the segment starts, A */
+    fw_cplx_t r_sum = fw_c(FW_REAL(0.0), FW_REAL(0.0)); /* integral of r over the period, A*tick */
+    fw_cplx_t slope_seg[FW_MAX_SEG];
+    fw_cplx_t y_sum = fw_c(FW_REAL(0.0), FW_REAL(0.0)), ty_sum = y_sum;
+    real_t t_sum = FW_REAL(0.0), tt_sum = FW_REAL(0.0);
+    int16_t s, k, n = 0;
+    for (s = 0; s < pl->n_seg; s++) {
+        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
+        vbar = fw_cadd(vbar, fw_cscale(fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc), len / P));
+    }
+    r_at[0] = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    for (s = 0; s < pl->n_seg; s++) {
+        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
+        fw_cplx_t dv = fw_csub(fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc), vbar);
+        slope_seg[s] = fw_cscale(fw_cadd(fw_cscale(dv, gamma0), fw_cmul(g, fw_cconj(dv))),
+                                 FW_TICK_S); /* A per tick */
+        r_at[s + 1] = fw_cadd(r_at[s], fw_cscale(slope_seg[s], len));
+        r_sum = fw_cadd(r_sum, fw_cscale(fw_cadd(r_at[s], r_at[s + 1]), FW_REAL(0.5) * len));
+    }
+    for (k = 0; k < adc->n_soc && k < FW_MAX_SOC; k++) {
+        real_t t = (real_t)pl->soc[k];
+        real_t ia = fw_protection_adc_offset(adc->ia[k], c->adc_half) * c->adc_i_lsb;
+        real_t ib = fw_protection_adc_offset(adc->ib[k], c->adc_half) * c->adc_i_lsb;
+        fw_cplx_t y = fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_M_INV_SQRT3);
+        fw_cplx_t r = r_at[0];
+        for (s = 0; s < pl->n_seg; s++) {
+            if (t >= (real_t)pl->seg_t[s] && t < (real_t)pl->seg_t[s + 1]) {
+                r = fw_cadd(r_at[s], fw_cscale(slope_seg[s], t - (real_t)pl->seg_t[s]));
+            }
+        }
+        y = fw_csub(y, r);
+        y_sum = fw_cadd(y_sum, y);
+        ty_sum = fw_cadd(ty_sum, fw_cscale(y, t));
+        t_sum += t;
+        tt_sum += t * t;
+        n++;
+    }
+    {
+        real_t t_bar = t_sum / (real_t)n;
+        fw_cplx_t y_bar = fw_cscale(y_sum, FW_REAL(1.0) / (real_t)n);
+        real_t stt = tt_sum - (real_t)n * t_bar * t_bar;
+        fw_cplx_t slope = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+        if (stt > FW_REAL(100.0)) { /* samples spread over more than ~1 us */
+            slope = fw_cscale(fw_csub(ty_sum, fw_cscale(y_sum, t_bar)), FW_REAL(1.0) / stt);
+        }
+        c->i_avg = fw_cadd(fw_cadd(y_bar, fw_cscale(slope, FW_REAL(0.5) * P - t_bar)),
+                           fw_cscale(r_sum, FW_REAL(1.0) / P));
+        c->i_end = fw_cadd(fw_cadd(y_bar, fw_cscale(slope, P - t_bar)), r_at[pl->n_seg]);
+    }
+}
+
+/* Mean and end of the current over the period from an anchor current i_a at tick ta and the
+ * slope of every segment between the boundaries tb[0..n] (A per tick). With w(tau) = P - tau
+ * after the anchor and -tau before it, mean = i_a + (1/P) sum slope * integral_seg w. */
+static void integrate_segments(const real_t *tb, const fw_cplx_t *slope, int16_t n, real_t ta,
+                               fw_cplx_t i_a, fw_cplx_t *i_mean, fw_cplx_t *i_end)
+{
+    const real_t P = (real_t)FW_P_TICKS;
+    fw_cplx_t acc_mean = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    fw_cplx_t acc_end = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    int16_t s;
+    for (s = 0; s < n; s++) {
+        real_t u = tb[s];
+        real_t v = tb[s + 1];
+        if (v <= u) {
+            continue;
+        }
+        if (v <= ta) {
+            acc_mean = fw_cadd(acc_mean, fw_cscale(slope[s], -(v - u) * FW_REAL(0.5) * (u + v)));
+        } else if (u >= ta) {
+            acc_mean =
+                fw_cadd(acc_mean, fw_cscale(slope[s], (v - u) * (P - FW_REAL(0.5) * (u + v))));
+            acc_end = fw_cadd(acc_end, fw_cscale(slope[s], v - u));
+        } else {
+            acc_mean = fw_cadd(acc_mean, fw_cscale(slope[s], -(ta - u) * FW_REAL(0.5) * (u + ta)));
+            acc_mean =
+                fw_cadd(acc_mean, fw_cscale(slope[s], (v - ta) * (P - FW_REAL(0.5) * (ta + v))));
+            acc_end = fw_cadd(acc_end, fw_cscale(slope[s], v - ta));
+        }
+    }
+    *i_mean = fw_cadd(i_a, fw_cscale(acc_mean, FW_REAL(1.0) / P));
+    *i_end = fw_cadd(i_a, acc_end);
+}
+
+/* Current at tick t of the trajectory anchored at (ta, i_a) */
+static fw_cplx_t current_at(const real_t *tb, const fw_cplx_t *slope, int16_t n, real_t ta,
+                            fw_cplx_t i_a, real_t t)
+{
+    fw_cplx_t i = i_a;
+    int16_t s;
+    for (s = 0; s < n; s++) {
+        real_t lo = fw_max(tb[s], fw_min(ta, t));
+        real_t hi = fw_min(tb[s + 1], fw_max(ta, t));
+        if (hi > lo) {
+            i = fw_cadd(i, fw_cscale(slope[s], (t >= ta) ? (hi - lo) : (lo - hi)));
+        }
+    }
+    return i;
+}
+
+/* Period-mean and period-end current from the zero-window anchor and the slope of every
+ * segment: measured slopes where measured, else s0 + Gamma*v (Gamma from the estimate). With
+ * w(tau) = P - tau after the anchor and -tau before it, mean = i(t_a) + (1/P) sum s_seg *
+ * integral_seg w. */
+void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
+{
+    const fw_plan_t *pl = &c->plan_cur;
+    real_t ta = c->slope_t[FW_WIN_ZERO];
+    real_t td = c->p[FW_IDX_DEADTIME_US] * FW_REAL(100.0); /* ticks */
+    real_t tb[FW_MAX_SEG + 1];
+    fw_cplx_t slope[FW_MAX_SEG];
+    int16_t modelled[FW_MAX_SEG];
+    fw_cplx_t g;
+    real_t gamma0;
+    int16_t s;
+
+    if (!c->slope_ok[FW_WIN_ZERO] && pl->layout != FW_LAYOUT_OFF && adc->n_soc >= 2) {
+        recon_fit(c, adc);
+        return;
+    }
+    if (!c->slope_ok[FW_WIN_ZERO]) {
+        /* no zero window (gates off): plain mean of the samples */
+        fw_cplx_t sum = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+        int16_t k;
+        for (k = 0; k < adc->n_soc && k < FW_MAX_SOC; k++) {
+            real_t ia = fw_protection_adc_offset(adc->ia[k], c->adc_half) * c->adc_i_lsb;
+            real_t ib = fw_protection_adc_offset(adc->ib[k], c->adc_half) * c->adc_i_lsb;
+            sum = fw_cadd(sum, fw_c(ia, (ia + FW_REAL(2.0) * ib) * FW_M_INV_SQRT3));
+        }
+        c->i_avg = (adc->n_soc > 0) ? fw_cscale(sum, FW_REAL(1.0) / (real_t)adc->n_soc) : sum;
+        c->i_end = c->i_avg;
+        return;
+    }
+    if (c->est.n_active == 2 && c->est.ok) {
+        gamma0 = c->est.gamma0;
+        g = c->est.g;
+    } else {
+        gamma0 = c->pe.gamma0_f;
+        g = fw_cscale(fw_cexpj(FW_REAL(2.0) * c->theta_hat), c->pe.gamma1_f);
+    }
+    /* the slope of every switching state: measured where it was, else s0 + Gamma(theta) v */
+    for (s = 0; s < pl->n_seg; s++) {
+        int16_t bits = pl->seg_state[s];
+        int16_t w;
+        int16_t found = -1;
+        for (w = 0; w < 3; w++) {
+            if (c->slope_ok[w] && pl->win[w].start <= pl->seg_t[s] &&
+                pl->win[w].end >= pl->seg_t[s + 1]) {
+                found = w;
+            }
+        }
+        if (found >= 0) {
+            slope[s] = c->slope[found];
+        } else if (bits == 0 || bits == 7) {
+            slope[s] = c->slope[FW_WIN_ZERO];
+        } else {
+            slope[s] = fw_cadd(c->slope[FW_WIN_ZERO],
+                               fw_slope_gamma_times(gamma0, g, fw_svpwm_state_voltage(bits, pl->vdc)));
+        }
+        slope[s] = fw_cscale(slope[s], FW_TICK_S); /* A per tick */
+        tb[s] = (real_t)pl->seg_t[s];
+        modelled[s] = (int16_t)(found < 0);
+    }
+    tb[pl->n_seg] = (real_t)pl->seg_t[pl->n_seg];
+    /* a modelled state whose phase currents have other signs than in the zero window sees
+     * another device drop than the s0 it was built on */
+    if (c->p[FW_IDX_VDROP_V] > FW_REAL(0.0)) {
+        fw_cplx_t u0 = fw_inverter_window_drop(c, FW_WIN_ZERO);
+        fw_cplx_t corr[FW_MAX_SEG];
+        for (s = 0; s < pl->n_seg; s++) {
+            corr[s] = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+            if (modelled[s]) {
+                fw_cplx_t i0 = current_at(tb, slope, pl->n_seg, ta, c->i_win[FW_WIN_ZERO], tb[s]);
+                fw_cplx_t i1 = current_at(tb, slope, pl->n_seg, ta, c->i_win[FW_WIN_ZERO],
+                                          tb[s + 1]);
+                fw_cplx_t du = fw_csub(fw_inverter_drop_voltage(c, i0, i1), u0);
+                corr[s] = fw_cscale(fw_slope_gamma_times(gamma0, g, du), FW_TICK_S);
+            }
+        }
+        for (s = 0; s < pl->n_seg; s++) {
+            slope[s] = fw_cadd(slope[s], corr[s]);
+        }
+    }
+    /* Dead time: a leg's turn-on edge takes effect td late when its current flows out of the
+     * leg (the lower diode holds it low), its turn-off edge td late when the current flows in
+     * (the upper diode holds it high). The states between the edges are the planned ones, so
+     * the trajectory keeps its slopes and moves its corners; the anchor's own samples sit
+     * soc_on >= td after their edge. Unmodelled, the shifted corners of the unmeasured states
+     * put up to 5 mA of pattern-dependent bias into the period mean (paper profile, 2 us),
+     * torque noise the position tracker cannot see at low speed. The current at each edge
+     * comes from the trajectory without dead time (a soft sign over 10 mA). */
+    if (td > FW_REAL(0.0)) {
+        real_t shift[FW_MAX_SEG + 1];
+        for (s = 1; s < pl->n_seg; s++) {
+            int16_t changed = (int16_t)(pl->seg_state[s] ^ pl->seg_state[s - 1]);
+            fw_cplx_t i_b = current_at(tb, slope, pl->n_seg, ta, c->i_win[FW_WIN_ZERO], tb[s]);
+            real_t iph[3];
+            real_t sum = FW_REAL(0.0);
+            int16_t x, cnt = 0;
+            fw_inverter_phase_currents(i_b, iph);
+            for (x = 0; x < 3; x++) {
+                if ((changed >> x) & 1) {
+                    real_t sgn = fw_clamp(iph[x] / FW_REAL(0.01), FW_REAL(-1.0), FW_REAL(1.0));
+                    int16_t rising = (int16_t)((pl->seg_state[s] >> x) & 1);
+                    sum += td * FW_REAL(0.5) *
+                           (rising ? (FW_REAL(1.0) + sgn) : (FW_REAL(1.0) - sgn));
+                    cnt++;
+                }
+            }
+            shift[s] = (cnt > 0) ? sum / (real_t)cnt : FW_REAL(0.0);
+        }
+        for (s = 1; s < pl->n_seg; s++) {
+            tb[s] += shift[s];
+        }
+    }
+    integrate_segments(tb, slope, pl->n_seg, ta, c->i_win[FW_WIN_ZERO], &c->i_avg, &c->i_end);
+}
+
+/* Mean over a pattern of r_d * r_q, the product of the dq components of its current ripple
+ * r(t) = Gamma(theta) * integral (v - v_mean) (A^2): with saliency a ripple makes torque of its
+ * own, 1.5 p (Ld - Lq) <r_d r_q> (the products of the two axes' excursions do not average
+ * out). The A and B halves of a pair have opposite ripples and the same product. At
+ * standstill it is ~1e-4 N*m and changes with the sector: unmodelled, it moved the shaft by
+ * ~1 r/min against a position tracker of 0.5 Hz. */
+real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
+{
+    const real_t P = (real_t)FW_P_TICKS;
+    real_t th = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
+    fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
+    fw_cplx_t rot = fw_cexpj(-th);
+    fw_cplx_t vbar = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    fw_cplx_t r0 = fw_c(FW_REAL(0.0), FW_REAL(0.0)); /* ripple at the segment start, dq */
+    real_t acc = FW_REAL(0.0);
+    int16_t s;
+    if (pl->layout == FW_LAYOUT_OFF) {
+        return FW_REAL(0.0);
+    }
+    for (s = 0; s < pl->n_seg; s++) {
+        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
+        vbar = fw_cadd(vbar, fw_cscale(fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc), len / P));
+    }
+    for (s = 0; s < pl->n_seg; s++) {
+        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
+        fw_cplx_t dv = fw_csub(fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc), vbar);
+        fw_cplx_t slope = fw_cadd(fw_cscale(dv, c->pe.gamma0_f), fw_cmul(g, fw_cconj(dv)));
+        fw_cplx_t r1 = fw_cadd(r0, fw_cmul(fw_cscale(slope, len * FW_TICK_S), rot));
+        /* exact integral of the product of two linear segments */
+        acc += len * (r0.re * r0.im / FW_REAL(3.0) +
+                      (r0.re * r1.im + r1.re * r0.im) / FW_REAL(6.0) + r1.re * r1.im / FW_REAL(3.0));
+        r0 = r1;
+    }
+    return acc / P;
+}
