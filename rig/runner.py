@@ -94,6 +94,10 @@ class RunOptions:
     grace_s: float = 5.0
     stall_s: float = STALL_S
     record: bool = True
+    # what a run keeps besides result.json, report.md and recording.rrd: "all" keeps the
+    # full-rate traces (*.trace) and capture columns (capture/) of every run, "failing" only
+    # of runs that did not pass (rig run's default; the API's is "all": callers read captures)
+    keep: str = "all"
     extra_plant_args: Sequence[str] = ()
     extra_fw_args: Sequence[str] = ()
     env: Mapping[str, str] = field(default_factory=dict)
@@ -804,7 +808,9 @@ def evaluate(sc: Scenario, cap: capture.Capture, counters: Mapping[str, float]) 
 
 
 def evaluate_one(cr: Criterion, cap: capture.Capture | None,
-                 counters: Mapping[str, float]) -> dict[str, Any]:
+                 counters: Mapping[str, float],
+                 reads: list[tuple[str, int, int]] | None = None) -> dict[str, Any]:
+    """The criterion's value and outcome; the capture rows it read are added to ``reads``."""
     note = ""
     value = math.nan
     if cap is None and not metrics.is_counter(cr.metric):
@@ -813,7 +819,7 @@ def evaluate_one(cr: Criterion, cap: capture.Capture | None,
         cols: metrics.ColumnSource = cap if cap is not None else {}
         first = cap.first_period if cap is not None else 0
         w = metrics.Window(cols, cr.window[0], cr.window[1], ts=TS, first_period=first,
-                           counters=counters)
+                           counters=counters, reads=reads)
         try:
             value = metrics.compute(cr.metric, w, cr.params)
         except KeyError as exc:
@@ -846,6 +852,30 @@ def outcome(c: Mapping[str, Any]) -> str:
     if "outcome" in c:
         return str(c["outcome"])
     return "pass" if c.get("passed") else "fail"
+
+
+KEEP_CHOICES = ("failing", "all")
+FULL_RATE_FILES = ("plant.trace", "fw.trace", "capture")
+
+
+def _prune(out: Path, *, keep_full: bool, keep: str) -> dict[str, Any]:
+    """Removes the full-rate traces and capture columns of a run that need not keep them;
+    returns what was kept and removed (for result.json)."""
+    present = [name for name in FULL_RATE_FILES if (out / name).exists()]
+    if keep_full:
+        return {"full_rate": bool(present), "policy": keep, "removed": [], "removed_bytes": 0}
+    removed_bytes = 0
+    for name in present:
+        target = out / name
+        if target.is_dir():
+            removed_bytes += _dir_size(target)
+            shutil.rmtree(target)
+        else:
+            removed_bytes += target.stat().st_size
+            target.unlink()
+    return {"full_rate": False, "policy": keep, "removed": present,
+            "removed_bytes": removed_bytes,
+            "note": "passed: full-rate traces and capture removed (rig run --keep-all keeps them)"}
 
 
 def _dir_size(path: Path) -> int:
@@ -1090,7 +1120,8 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
                        f"end of the scenario ({periods_done - 1})"}
 
     result["counters"] = counters
-    crit_results = [evaluate_one(cr, cap, counters) for cr in sc.criteria]
+    reads: list[tuple[str, int, int]] = []
+    crit_results = [evaluate_one(cr, cap, counters, reads) for cr in sc.criteria]
     result["criteria"] = crit_results
     all_ok = all(outcome(c) != "fail" for c in crit_results)
     if failure is None:
@@ -1140,17 +1171,22 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             info = recording.write(
                 rrd, cap, title=f"{sc.name} ({result['mode']}, {result['bus']})",
                 report_markdown=report.scenario_report(result), timing=timing,
-                counters=counter_samples,
+                counters=counter_samples, evidence=recording.evidence_ranges(reads),
             )
             size = rrd.stat().st_size
             result["recording"] = {
                 "path": rrd.name, "bytes": size,
                 "bytes_per_sim_s": size / (cap.n * TS) if cap.n else None,
-                "long_run": info["long_run"], "decimation": info["decimation"],
+                "display_step": info["display_step"],
+                "evidence_rows": info["evidence_rows"], "evidence": info["evidence"],
                 "capture_bytes": _dir_size(out / "capture"),
             }
         except Exception as exc:  # the verdict stands without the recording
             result["recording"] = {"path": None, "error": f"{type(exc).__name__}: {exc}"}
+    result["kept"] = _prune(out, keep_full=opts.keep == "all" or not result["passed"],
+                            keep=opts.keep)
+    if not result["kept"]["full_rate"]:
+        cap = None
     output.write_text(out / "result.json", json.dumps(result, indent=1, default=_json_default))
     output.write_text(out / "report.md", report.scenario_report(result))
     res = RunResult(out, result, cap)

@@ -15,9 +15,12 @@ stall, time-out, capture loss); 2 usage or scenario schema error; 3 the run coul
 start here (programs not built, bus unavailable); 130 interrupted.
 
 output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
-DIR/recording.rrd (open with `rig view DIR`), DIR/capture/ (merged full-rate columns),
-DIR/*.trace and the programs' logs. A suite writes one sub-folder per scenario plus a
-summary result.json and report.md in DIR.
+DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture
+column a criterion read at the full 10 kHz over the rows it read) and the programs' logs.
+A scenario that does not pass also keeps DIR/*.trace (every frame) and DIR/capture/ (the
+merged full-rate columns); --keep-all keeps them for every scenario. A suite writes one
+sub-folder per scenario plus a summary result.json and report.md in DIR. Without --out:
+$HIL_OUT or ./out, plus name and time; `rig clean` lists and removes old runs.
 """
 
 
@@ -47,6 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="wall-clock limit per scenario (default: from the scenario)")
     p.add_argument("--no-record", action="store_true",
                    help="skip writing recording.rrd (the verdict does not depend on it)")
+    p.add_argument("--keep-all", action="store_true",
+                   help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
+                   "passing scenarios too (default: only of scenarios that did not pass; "
+                   "`rig export` needs them)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=cmd_run)
 
@@ -97,6 +104,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     opts = runner.RunOptions(
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
         progress=not args.quiet, timeout_s=args.timeout, record=not args.no_record,
+        keep="all" if args.keep_all else "failing",
     )
     try:
         with terminate_as_exception():
