@@ -15,6 +15,7 @@ COMMAND_MODULES = (
     "rig.commands.bus",
     "rig.commands.bench",
     "rig.commands.vm",
+    "rig.commands.clean",
     *(f"rig.commands.{m}" for m in ("console", "param", "loadbench", "commission")),
 )
 

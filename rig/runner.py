@@ -28,7 +28,6 @@ import datetime as dt
 import hashlib
 import json
 import math
-import os
 import platform
 import shutil
 import sys
@@ -43,7 +42,18 @@ from typing import Any
 import can
 import numpy as np
 
-from rig import __version__, _paths, capture, metrics, output, protocols, recording, report, sil
+from rig import (
+    __version__,
+    _paths,
+    capture,
+    metrics,
+    outdirs,
+    output,
+    protocols,
+    recording,
+    report,
+    sil,
+)
 from rig.firmware_from_profile import firmware_settings
 from rig.frames import FrameDecoder
 from rig.progress import Progress
@@ -1338,5 +1348,5 @@ def exit_code(passed: bool, status: str) -> int:
 
 
 def default_out(name: str) -> Path:
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path(os.environ.get("HIL_OUT", "out")) / f"{name}-{stamp}"
+    """``$HIL_OUT`` (else ``./out``) / ``<name>-<YYYYmmdd-HHMMSS>`` (``rig.outdirs``)."""
+    return outdirs.default_out(name)

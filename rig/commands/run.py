@@ -78,8 +78,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from rig import output, runner, scenario
-    from rig.supervisor import Terminated, terminate_as_exception
+    from rig import runner, scenario
 
     try:
         target = scenario.load(args.target)
@@ -101,6 +100,21 @@ def cmd_run(args: argparse.Namespace) -> int:
                   "(run.realtime_ok = false)", file=sys.stderr)
             return runner.EXIT_USAGE
     out = args.out or runner.default_out(target.name)
+    try:
+        return _run(args, target, out)
+    finally:
+        if args.out is None:  # runs named by time pile up: say so when they have
+            from rig.commands.clean import notice
+
+            hint = notice(out.parent)
+            if hint:
+                print(hint, file=sys.stderr)
+
+
+def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
+    from rig import output, runner, scenario
+    from rig.supervisor import Terminated, terminate_as_exception
+
     opts = runner.RunOptions(
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
         progress=not args.quiet, timeout_s=args.timeout, record=not args.no_record,
