@@ -16,6 +16,7 @@ COMMAND_MODULES = (
     "rig.commands.bench",
     "rig.commands.vm",
     "rig.commands.clean",
+    "rig.commands.export",
     *(f"rig.commands.{m}" for m in ("console", "param", "loadbench", "commission")),
 )
 
