@@ -74,6 +74,18 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "folder, or an .rrd file) in the Rerun viewer.",
     )
     v.add_argument("path", type=Path, metavar="DIR", help="a run folder or an .rrd file")
+    v.add_argument("--web", action="store_true",
+                   help="serve the recording(s) to the Rerun web viewer and print its address "
+                   "(open it in a browser; Ctrl-C stops)")
+    v.add_argument("--web-port", type=int, default=None, metavar="PORT",
+                   help="the web viewer's HTTP port (default 9090)")
+    v.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+                   help="the port of the gRPC server that holds the data (default 9876)")
+    v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                   help="address both listen on (default 127.0.0.1: this machine only)")
+    v.add_argument("--screenshot", type=Path, default=None, metavar="PNG",
+                   help="with --web: open the viewer in headless Chromium, save a screenshot "
+                   "once the blueprint is drawn, and exit (1 if the viewer reported an error)")
     v.set_defaults(func=cmd_view)
 
 
@@ -234,4 +246,51 @@ def cmd_view(args: argparse.Namespace) -> int:
     if not files:
         print(f"rig view: no recording.rrd in {path}", file=sys.stderr)
         return 2
-    return subprocess.call([sys.executable, "-m", "rerun", *map(str, files)])
+    if args.screenshot is not None and not args.web:
+        print("rig view: --screenshot needs --web", file=sys.stderr)
+        return 2
+    if not args.web:
+        return subprocess.call([sys.executable, "-m", "rerun", *map(str, files)])
+    return _view_web(args, files)
+
+
+def _view_web(args: argparse.Namespace, files: list[Path]) -> int:
+    import time
+
+    from rig import webview
+
+    try:
+        viewer = webview.start(files, web_port=args.web_port or webview.DEFAULT_WEB_PORT,
+                               grpc_port=args.grpc_port or webview.DEFAULT_GRPC_PORT,
+                               bind=args.bind)
+    except webview.WebViewerError as exc:
+        print(f"rig view: {exc}", file=sys.stderr)
+        return 3
+    with viewer:
+        if args.screenshot is not None:
+            return _screenshot(viewer, files, args.screenshot)
+        print(f"rig view: the web viewer is at {viewer.url()}\n"
+              f"          (data on {viewer.grpc_url}; Ctrl-C stops)", file=sys.stderr)
+        try:
+            while viewer.running():
+                time.sleep(0.5)
+        except KeyboardInterrupt:
+            return 0
+        return 0 if viewer.proc.returncode in (0, None) else 1
+
+
+def _screenshot(viewer: Any, files: list[Path], png: Path) -> int:
+    from rig import browser, recording
+
+    expect = [f"hil-{f.parent.name}" for f in files if f.name == "recording.rrd"]
+    expect += recording.VIEW_NAMES
+    try:
+        seen = browser.look(viewer.url(renderer="webgl"), png, expect=expect)
+    except browser.BrowserError as exc:
+        print(f"rig view: {exc}", file=sys.stderr)
+        return 3
+    print(f"rig view: screenshot -> {png} ({seen.seconds:.0f} s; {len(seen.blocked_requests)} "
+          "requests outside this machine blocked)", file=sys.stderr)
+    for e in ([seen.panic] if seen.panic else []) + seen.errors:
+        print(f"rig view: the viewer reported: {e}", file=sys.stderr)
+    return 0 if seen.ok else 1
