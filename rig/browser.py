@@ -193,6 +193,7 @@ def _errors(events: Sequence[dict[str, Any]]) -> tuple[list[str], list[str]]:
 
 def look(url: str, png: Path, *, expect: Sequence[str] = (), width: int = 1600,
          height: int = 1000, timeout_s: float = 180.0, settle_s: float = 3.0,
+         call_timeout_s: float = 90.0,
          chromium: Path | None = None, work: Path | None = None) -> Look:
     """Opens ``url`` in headless Chromium, waits until the viewer's state names every string
     of ``expect`` and the picture is still, and saves a screenshot to ``png``."""
@@ -220,7 +221,8 @@ def look(url: str, png: Path, *, expect: Sequence[str] = (), width: int = 1600,
         while True:
             pipe.idle(1.0)
             value = pipe.call("Runtime.evaluate", {"expression": JS_STATE,
-                              "returnByValue": True}, session=session)["result"].get("value")
+                              "returnByValue": True}, session=session,
+                              timeout=call_timeout_s)["result"].get("value")
             if isinstance(value, dict) and "panic" in value:
                 panic = str(value["panic"])
                 break
@@ -239,7 +241,7 @@ def look(url: str, png: Path, *, expect: Sequence[str] = (), width: int = 1600,
         pipe.idle(settle_s)
         while time.monotonic() < still_deadline:
             shot = base64.b64decode(pipe.call("Page.captureScreenshot", {"format": "png"},
-                                              session=session)["data"])
+                                              session=session, timeout=call_timeout_s)["data"])
             if hashlib.sha256(shot).digest() == hashlib.sha256(last).digest():
                 break
             last = shot

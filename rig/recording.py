@@ -464,7 +464,7 @@ class LiveView:
         self.min_interval = min_interval
         self._last: dict[str, int] = {}
         self._buf: dict[str, tuple[list[int], list[list[float]]]] = {}
-        self._named: set[str] = set()
+        self._named: dict[str, list[str]] = {}
         self.rows: dict[str, int] = {}
         rec.send_blueprint(self.blueprint())
 
@@ -487,13 +487,16 @@ class LiveView:
         if last is not None and 0 <= period - last < self.min_interval:
             return
         self._last[entity] = period
-        names = sorted(values)
         if entity not in self._named:
-            self.rec.log(f"live/{entity}", rr.SeriesLines(names=names), static=True)
-            self._named.add(entity)
+            self._named[entity] = sorted(values)
+            self.rec.log(f"live/{entity}", rr.SeriesLines(names=self._named[entity]),
+                         static=True)
+        # an entity's lines are fixed by its first sample: a value missing later is NaN (a
+        # gap), one never seen before is left out (one row shape per entity)
+        names = self._named[entity]
         ps, vs = self._buf.setdefault(entity, ([], []))
         ps.append(period)
-        vs.append([float(values[k]) for k in names])
+        vs.append([float(values.get(k, math.nan)) for k in names])
 
     def flush(self) -> None:
         for entity, (ps, vs) in self._buf.items():
@@ -511,10 +514,14 @@ class LiveView:
         self.rec.flush()
 
 
-def spawn_live(title: str) -> rr.RecordingStream:
-    """A recording stream connected to a freshly spawned local viewer."""
+def spawn_live(title: str, grpc_url: str | None = None) -> rr.RecordingStream:
+    """A recording stream connected to a freshly spawned local viewer, or with ``grpc_url``
+    to a running server (the web viewer's: ``rig.webview``)."""
     rec = rr.RecordingStream(APP_ID + "_live")
-    rec.spawn(connect=True)
+    if grpc_url:
+        rec.connect_grpc(grpc_url)
+    else:
+        rec.spawn(connect=True)
     rec.send_recording_name(title)
     return rec
 

@@ -99,6 +99,7 @@ class RunOptions:
     realtime: bool = False
     live: bool = False
     live_stream: Any = None  # an rr.RecordingStream to use instead of spawning a viewer
+    live_url: str | None = None  # stream the live view to this gRPC server (the web viewer)
     progress: bool = True
     timeout_s: float | None = None
     grace_s: float = 5.0
@@ -437,7 +438,7 @@ class Monitor:
         if name == "TLM_POS":
             p = self._full_period(int(v["period"]))
             live.add("speed", p, {"estimated": v["speed_hat"]})
-            values = {"θ̂": v["theta_hat"]}
+            values = {"θ̂": v["theta_hat"], "θ": math.nan}  # θ: when the truth is known
             th = self._truth_by_p16.get(int(v["period"]))
             if th is not None:
                 true_deg = math.degrees(th) % 360.0
@@ -998,7 +999,8 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             _refuse_foreign_nodes(bus, transport, channel)
             if opts.live:
                 try:
-                    stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)")
+                    stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)",
+                                                                      opts.live_url)
                     live = recording.LiveView(stream)
                 except Exception as exc:  # no display, no viewer binary: run without live view
                     print(f"rig: live view unavailable ({exc}); running without it",

@@ -46,6 +46,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="pace the plant on the wall clock instead of lockstep")
     p.add_argument("--live", action="store_true",
                    help="stream decimated telemetry to a spawned Rerun viewer while running")
+    p.add_argument("--web", action="store_true",
+                   help="with --live: stream to the Rerun web viewer instead (its address is "
+                   "printed; it stops with the run: afterwards `rig view --web DIR`)")
+    p.add_argument("--web-port", type=int, default=None, metavar="PORT",
+                   help="with --live --web: the web viewer's HTTP port (default 9090)")
+    p.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+                   help="with --live --web: the gRPC server's port (default 9876)")
     p.add_argument("--timeout", type=float, default=None, metavar="S",
                    help="wall-clock limit per scenario (default: from the scenario)")
     p.add_argument("--no-record", action="store_true",
@@ -124,13 +131,34 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
+    from rig import runner, webview
+
+    if args.web and not args.live:
+        print("rig run: --web goes with --live (a finished run: rig view --web DIR)",
+              file=sys.stderr)
+        return runner.EXIT_USAGE
+    if not args.web:
+        return _run_with(args, target, out, None)
+    try:
+        viewer = webview.start(web_port=args.web_port or webview.DEFAULT_WEB_PORT,
+                               grpc_port=args.grpc_port or webview.DEFAULT_GRPC_PORT)
+    except webview.WebViewerError as exc:
+        print(f"rig run: {exc}", file=sys.stderr)
+        return runner.EXIT_ENV
+    with viewer:
+        print(f"rig run: live view in the web viewer at {viewer.url()} (until the run ends)",
+              file=sys.stderr)
+        return _run_with(args, target, out, viewer.grpc_url)
+
+
+def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | None) -> int:
     from rig import output, runner, scenario
     from rig.supervisor import Terminated, terminate_as_exception
 
     opts = runner.RunOptions(
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
-        progress=not args.quiet, timeout_s=args.timeout, record=not args.no_record,
-        keep="all" if args.keep_all else "failing",
+        live_url=live_url, progress=not args.quiet, timeout_s=args.timeout,
+        record=not args.no_record, keep="all" if args.keep_all else "failing",
     )
     try:
         with terminate_as_exception():

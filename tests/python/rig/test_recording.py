@@ -106,3 +106,19 @@ def test_live_view_is_decimated(tmp_path: Path) -> None:
     recording._finalize(rec)
     assert live.rows == {"speed": 50}
     assert recording.entity_rows(path) == {"live/speed": 50}
+
+
+def test_live_view_keeps_one_row_shape_per_entity(tmp_path: Path) -> None:
+    path = tmp_path / "live.rrd"
+    rec = rr.RecordingStream("live_test")
+    rec.save(path)
+    live = recording.LiveView(rec, min_interval=1)
+    live.add("position", 0, {"θ̂": 1.0, "θ": 2.0})
+    live.add("position", 1, {"θ̂": 3.0})  # the truth of this period not heard yet
+    live.add("position", 2, {"θ̂": 4.0, "θ": 5.0, "other": 6.0})
+    live.close()
+    rec.flush()
+    recording._finalize(rec)
+    periods, values = recording.read_column(path, "live/position")
+    np.testing.assert_array_equal(periods, [0, 1, 2])
+    np.testing.assert_array_equal(values, [[2.0, 1.0], [np.nan, 3.0], [5.0, 4.0]])  # θ, θ̂
