@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -57,19 +58,33 @@ class WebViewer:
         return self.proc.poll() is None
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        """Ends the server: its whole process group (``python -m rerun`` runs the viewer
+        binary as a child of its own)."""
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(self.proc.pid, sig)
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline:
+                self.proc.poll()  # reap the leader, or the group looks alive
+                if not _group_alive(self.proc.pid):
+                    return
+                time.sleep(0.05)
 
     def __enter__(self) -> WebViewer:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def free_port() -> int:
@@ -100,7 +115,7 @@ def start(files: Sequence[Path] = (), *, web_port: int = DEFAULT_WEB_PORT,
     out = open(log, "wb") if log is not None else subprocess.DEVNULL
     try:
         proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out,
-                                stderr=subprocess.STDOUT,
+                                stderr=subprocess.STDOUT, start_new_session=True,
                                 env={**os.environ, **(env or {})})
     finally:
         if log is not None:
