@@ -21,6 +21,7 @@ import json
 import os
 import select
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -73,7 +74,8 @@ class _Pipe:
         with open(log, "wb") as fh:
             self.proc = subprocess.Popen([*argv, "--remote-debugging-pipe"], pass_fds=(3, 4),
                                          preexec_fn=child, stdin=subprocess.DEVNULL,
-                                         stdout=fh, stderr=subprocess.STDOUT)
+                                         stdout=fh, stderr=subprocess.STDOUT,
+                                         start_new_session=True)
         os.close(cmd_r)
         os.close(out_w)
         self._w = cmd_w
@@ -123,8 +125,11 @@ class _Pipe:
         try:
             self.proc.wait(5.0)
         except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+            pass
+        # its renderer and GPU processes too: the whole group
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        self.proc.wait()
         for fd in (self._w, self._r):
             with contextlib.suppress(OSError):
                 os.close(fd)
