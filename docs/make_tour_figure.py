@@ -1,9 +1,11 @@
 """Draws docs/tour.png, the README's picture, from the capture of a `rig run` output folder.
 
-    python docs/make_tour_figure.py out/paper/fig09_load_step_realtime docs/tour.png
+    rig run fig09_load_step_realtime --keep-all --out out/fig09
+    python docs/make_tour_figure.py out/fig09 docs/tour.png
 
 Needs matplotlib (pip install 'sensorless-hil[docs]'). Reads the capture columns the rig
-writes (DIR/capture/*.npy, DIR/result.json).
+writes (DIR/capture/*.npy, DIR/result.json): a run that kept them (a failing one, or any with
+`rig run --keep-all`).
 """
 
 from __future__ import annotations

@@ -43,6 +43,25 @@ DEFAULT_POLE_PAIRS = 2  # DESIGN.md §5: P = 4 poles
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 
+# The columns _derive() adds to the DBC signals: their units and what they are (rig export).
+DERIVED_UNITS = {
+    "truth.theta_unwrapped": "rad", "speed_true_rpm": "r/min", "i_mag": "A",
+    "speed_hat_rpm": "r/min", "v_mag": "V", "theta_true_claim": "rad", "pos_err_deg": "deg",
+    "speed_err_rpm": "r/min", "speed_ref_rpm": "r/min",
+}
+DERIVED_COMMENTS = {
+    "truth.theta_unwrapped": "the plant's electrical angle, unwrapped",
+    "speed_true_rpm": "true mechanical speed",
+    "i_mag": "true current magnitude sqrt(id^2 + iq^2)",
+    "speed_hat_rpm": "estimated mechanical speed (omega_hat / pole pairs)",
+    "v_mag": "commanded voltage magnitude sqrt(vd^2 + vq^2)",
+    "theta_true_claim": "the plant's angle at the instant the firmware's estimate claims",
+    "pos_err_deg": "position error theta_hat - theta at that instant, wrapped to +-180 deg "
+                   "(electrical)",
+    "speed_err_rpm": "estimated - true mechanical speed",
+    "speed_ref_rpm": "the scenario's ramped speed reference",
+}
+
 
 @dataclass(frozen=True)
 class TraceSpec:

@@ -15,6 +15,8 @@ COMMAND_MODULES = (
     "rig.commands.bus",
     "rig.commands.bench",
     "rig.commands.vm",
+    "rig.commands.clean",
+    "rig.commands.export",
     *(f"rig.commands.{m}" for m in ("console", "param", "loadbench", "commission")),
 )
 

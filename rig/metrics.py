@@ -203,8 +203,11 @@ class Window:
         ts: float,
         first_period: int = 0,
         counters: Mapping[str, float] | None = None,
+        reads: list[tuple[str, int, int]] | None = None,
     ) -> None:
         self._cols = columns
+        # every (column, first row, end row) a metric reads: the evidence a recording keeps
+        self.reads = reads
         self.ts = ts
         self.t0 = t0
         self.t1 = t1
@@ -224,7 +227,13 @@ class Window:
         return name in self._cols
 
     def get(self, name: str) -> FloatArray:
-        return np.asarray(self._cols[name][self.i0 : self.i1], dtype=np.float64)
+        return self._read(name, self.i0, self.i1)
+
+    def _read(self, name: str, i0: int, i1: int) -> FloatArray:
+        values = np.asarray(self._cols[name][i0:i1], dtype=np.float64)
+        if self.reads is not None and i1 > i0:
+            self.reads.append((name, i0, i1))
+        return values
 
     def around(self, name: str, t_from: float, t_to: float) -> tuple[FloatArray, FloatArray]:
         """(t, values) of a column over any range (for baselines before the window)."""
@@ -232,7 +241,7 @@ class Window:
         i0 = min(max(math.ceil(t_from / self.ts - 1e-6) - self.first_period, 0), n)
         i1 = min(max(math.floor(t_to / self.ts + 1e-6) - self.first_period + 1, i0), n)
         periods = np.arange(i0, i1, dtype=np.float64) + self.first_period
-        return periods * self.ts, np.asarray(self._cols[name][i0:i1], dtype=np.float64)
+        return periods * self.ts, self._read(name, i0, i1)
 
 
 MetricFn = Callable[[Window, Mapping[str, float]], float]

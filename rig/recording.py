@@ -1,18 +1,27 @@
 """The run's Rerun recording (``recording.rrd``) and the live view.
 
-``write()`` logs the merged capture columnar (``rr.send_columns``) chunk by chunk, on the
-timelines ``sim_time`` (duration, exact: ``period * 100 µs``) and ``period`` (sequence),
-with a blueprint laying out the paper's figures. Core series (θ, θ̂, position error,
-speeds) are always at the full 10 kHz; for runs longer than ``full_rate_max_s`` the other
-series are decimated (every ``decimate``-th period) so long recordings stay openable. The
-2-D trajectories (current, flux circle) are always decimated. The assertion data is the
-capture (``capture/*.npy``), never this file.
+``write()`` logs the merged capture columnar (``rr.send_columns``) chunk by chunk on the
+timeline ``sim_time`` (duration, exact: ``period * 100 µs``; the period index is
+``sim_time / 100 µs``), with a blueprint laying out the paper's figures. Two kinds of data:
+
+- the display series (θ, θ̂, position error, speeds, currents, ... and the 2-D trajectories)
+  every ``step``-th period: 1 kHz (every 10th period), coarser for long runs so that a series
+  has at most ``display_max_rows`` rows;
+- the evidence: every capture column a criterion read, at the full 10 kHz over exactly the
+  rows it read (``evidence``, from ``rig.metrics.Window.reads``), in the entity
+  ``criteria/data`` (one line per column, the capture's values; NaN where a column was not
+  read) with the ranges in ``criteria/manifest`` (JSON). Every criterion of ``result.json``
+  can be computed again from the recording alone (``read_evidence``).
+
+The assertion data is the capture (``capture/*.npy``) while it is kept; this file is what
+every run keeps.
 
 ``LiveView`` logs the decimated telemetry seen on the bus while a run is going on.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -28,11 +37,15 @@ from rig.capture import Capture
 
 APP_ID = "sensorless_hil"
 TS_NS = 100_000  # one PWM period in ns
-FULL_RATE_MAX_S = 20.0
-DECIMATE = 10
-TRAJECTORY_DECIMATE = 10
+DISPLAY_DECIMATE = 10  # display series: every 10th period (1 kHz of simulated time) ...
+DISPLAY_MAX_ROWS = 2000  # ... and at most this many rows per series (long runs: coarser)
 CHUNK = 1 << 16
 TRAIL_S = 0.1  # trajectories show the last 100 ms around the time cursor
+# line colours within one plot (true, estimate, reference, ... tell apart)
+PALETTE = ([70, 160, 70], [230, 120, 40], [70, 130, 230], [200, 60, 160], [150, 150, 150],
+           [220, 200, 60])
+EVIDENCE_ENTITY = "criteria/data"
+EVIDENCE_MANIFEST = "criteria/manifest"
 
 Arr = npt.NDArray[np.float64]
 
@@ -42,15 +55,14 @@ class Series:
     entity: str
     keys: tuple[str, ...]
     names: tuple[str, ...]
-    core: bool = False
 
 
 SERIES: tuple[Series, ...] = (
-    Series("position/theta", ("theta_true_deg", "theta_hat_deg"), ("θ (true)", "θ̂"), True),
-    Series("position/error", ("pos_err_deg",), ("θ̂ - θ (deg el.)",), True),
+    Series("position/theta", ("theta_true_deg", "theta_hat_deg"), ("θ (true)", "θ̂")),
+    Series("position/error", ("pos_err_deg",), ("θ̂ - θ (deg el.)",)),
     Series("speed/rpm", ("speed_ref_rpm", "speed_true_rpm", "speed_hat_rpm"),
-           ("reference", "true", "estimated"), True),
-    Series("speed/error", ("speed_err_rpm",), ("ω̂ - ω (r/min)",), True),
+           ("reference", "true", "estimated")),
+    Series("speed/error", ("speed_err_rpm",), ("ω̂ - ω (r/min)",)),
     Series("current/dq", ("truth.id", "truth.iq", "fw.id", "fw.iq", "fw.id_ref", "fw.iq_ref"),
            ("id", "iq", "id (est. frame)", "iq (est. frame)", "id ref", "iq ref")),
     Series("current/magnitude", ("i_mag",), ("|i|",)),
@@ -116,7 +128,12 @@ def _get(cap: Capture, extra: Mapping[str, Arr], key: str, a: int, b: int) -> Ar
     return None
 
 
-def blueprint(*, with_counters: bool = True) -> rrb.Blueprint:
+# Views every recording's blueprint shows (the web-viewer check waits for their names).
+THETA_VIEW, ERROR_VIEW, SPEED_VIEW = "θ vs θ̂ (deg el.)", "position error (deg el.)", "speed (r/min)"
+VIEW_NAMES = [THETA_VIEW, ERROR_VIEW, SPEED_VIEW]
+
+
+def blueprint(*, with_counters: bool = True, with_evidence: bool = False) -> rrb.Blueprint:
     trail = rrb.VisibleTimeRange(
         "sim_time",
         start=rrb.TimeRangeBoundary.cursor_relative(seconds=-TRAIL_S),
@@ -125,12 +142,12 @@ def blueprint(*, with_counters: bool = True) -> rrb.Blueprint:
     ts = rrb.TimeSeriesView
     tabs: list[Any] = [
         rrb.Vertical(
-            ts(origin="/position/theta", name="θ vs θ̂ (deg el.)"),
-            ts(origin="/position/error", name="position error (deg el.)"),
+            ts(origin="/position/theta", name=THETA_VIEW),
+            ts(origin="/position/error", name=ERROR_VIEW),
             name="Position (Fig. 5, 6, 11)",
         ),
         rrb.Vertical(
-            ts(origin="/speed/rpm", name="speed (r/min)"),
+            ts(origin="/speed/rpm", name=SPEED_VIEW),
             ts(origin="/speed/error", name="speed error (r/min)"),
             name="Speed (Fig. 5, 9a, 10a, 11b, 12)",
         ),
@@ -172,6 +189,11 @@ def blueprint(*, with_counters: bool = True) -> rrb.Blueprint:
     if with_counters:
         bus_views.append(ts(origin="/counters", name="bus and plant counters"))
     tabs.append(rrb.Grid(*bus_views, name="Bus & timing"))
+    if with_evidence:
+        tabs.append(rrb.Vertical(
+            ts(origin=f"/{EVIDENCE_ENTITY}", name="what the criteria read (10 kHz)"),
+            name="Criteria (full rate)",
+        ))
     tabs.append(rrb.TextDocumentView(origin="/report", name="Report"))
     return rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=False)
 
@@ -184,6 +206,34 @@ class TimedSamples:
     values: Mapping[str, Sequence[float]]
 
 
+Ranges = Sequence[tuple[int, int]]
+
+
+def merge_ranges(ranges: Ranges) -> list[tuple[int, int]]:
+    """Row ranges ``[a, b)`` sorted and merged (overlapping or touching ones joined)."""
+    out: list[tuple[int, int]] = []
+    for a, b in sorted((int(a), int(b)) for a, b in ranges if b > a):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def evidence_ranges(reads: Sequence[tuple[str, int, int]]) -> dict[str, list[tuple[int, int]]]:
+    """The rows each column was read on (``rig.metrics.Window.reads``), merged."""
+    by: dict[str, list[tuple[int, int]]] = {}
+    for name, a, b in reads:
+        by.setdefault(name, []).append((a, b))
+    return {name: merge_ranges(r) for name, r in sorted(by.items())}
+
+
+def display_step(n: int, decimate: int = DISPLAY_DECIMATE,
+                 max_rows: int = DISPLAY_MAX_ROWS) -> int:
+    """Every how many periods the display series are logged for a run of ``n`` periods."""
+    return max(decimate, math.ceil(n / max_rows)) if max_rows > 0 else decimate
+
+
 def write(
     path: str | Path,
     cap: Capture,
@@ -192,45 +242,48 @@ def write(
     report_markdown: str = "",
     timing: TimedSamples | None = None,
     counters: TimedSamples | None = None,
-    full_rate_max_s: float = FULL_RATE_MAX_S,
-    decimate: int = DECIMATE,
+    evidence: Mapping[str, Ranges] | None = None,
+    decimate: int = DISPLAY_DECIMATE,
+    display_max_rows: int = DISPLAY_MAX_ROWS,
     recording_id: str | None = None,
 ) -> dict[str, Any]:
-    """Writes the recording; returns what was written (entities, rows, decimation)."""
+    """Writes the recording; returns what was written (rows per entity, display step,
+    evidence columns and rows)."""
     path = Path(path)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id or f"hil-{path.parent.name}")
-    rec.save(path, default_blueprint=blueprint(with_counters=counters is not None))
+    evidence = {k: merge_ranges(v) for k, v in (evidence or {}).items() if k in cap}
+    evidence = {k: v for k, v in evidence.items() if v}
+    rec.save(path, default_blueprint=blueprint(with_counters=counters is not None,
+                                               with_evidence=bool(evidence)))
     if title:
         rec.send_recording_name(title)
-    long_run = cap.duration > full_rate_max_s
+    step = display_step(cap.n, decimate, display_max_rows)
     rows: dict[str, int] = {}
-    rates: dict[str, int] = {}
 
     probe = _derived(cap, 0, min(cap.n, 1))
     present = {k for s in SERIES for k in s.keys if k in probe or k in cap}
     series = [
         Series(s.entity, tuple(k for k in s.keys if k in present),
-               tuple(nm for k, nm in zip(s.keys, s.names, strict=True) if k in present), s.core)
+               tuple(nm for k, nm in zip(s.keys, s.names, strict=True) if k in present))
         for s in SERIES
     ]
     series = [s for s in series if s.keys]
     for s in series:
-        rec.log(s.entity, rr.SeriesLines(names=list(s.names)), static=True)
-        rates[s.entity] = 1 if (s.core or not long_run) else decimate
-    for ent in TRAJECTORIES:
-        rates[ent] = TRAJECTORY_DECIMATE
+        rec.log(s.entity, rr.SeriesLines(names=list(s.names),
+                                         colors=[PALETTE[i % len(PALETTE)]
+                                                 for i in range(len(s.names))]), static=True)
     colors = {"trajectory/current": [40, 120, 220], "trajectory/flux_est": [220, 80, 40],
               "trajectory/flux_true": [60, 160, 60]}
 
     for a in range(0, cap.n, CHUNK):
         b = min(cap.n, a + CHUNK)
-        extra = _derived(cap, a, b)
         periods = np.asarray(cap["period"][a:b], dtype=np.int64)
+        sel = _every(periods, step)
+        extra = _derived(cap, a, b)
         for s in series:
             arrays = [_get(cap, extra, k, a, b) for k in s.keys]
             if any(x is None for x in arrays):
                 continue
-            sel = _every(periods, rates[s.entity])
             data = np.stack([x[sel] for x in arrays if x is not None], axis=1)
             _send(rec, s.entity, periods[sel], rr.Scalars.columns(scalars=data))
             rows[s.entity] = rows.get(s.entity, 0) + int(sel.size)
@@ -238,7 +291,6 @@ def write(
             x, y = _get(cap, extra, kx, a, b), _get(cap, extra, ky, a, b)
             if x is None or y is None:
                 continue
-            sel = _every(periods, rates[ent])
             pos = np.stack([x[sel], y[sel]], axis=1)
             cols = rr.Points2D.columns(
                 positions=pos, radii=np.full(sel.size, -2.0, dtype=np.float32),
@@ -248,6 +300,10 @@ def write(
             rows[ent] = rows.get(ent, 0) + int(sel.size)
         rec.flush()  # bounded memory: each chunk reaches the file before the next one
         cap.release()
+
+    evidence_rows = _write_evidence(rec, cap, evidence)
+    if evidence_rows:
+        rows[EVIDENCE_ENTITY] = evidence_rows
 
     for prefix, samples in (("timing", timing), ("counters", counters)):
         if samples is None or not len(samples.periods):
@@ -264,7 +320,40 @@ def write(
                 static=True)
     rec.flush()
     _finalize(rec)
-    return {"path": str(path), "rows": rows, "decimation": rates, "long_run": long_run}
+    return {"path": str(path), "rows": rows, "display_step": step,
+            "evidence": {k: [[a, b] for a, b in v] for k, v in evidence.items()},
+            "evidence_rows": evidence_rows}
+
+
+def _write_evidence(rec: rr.RecordingStream, cap: Capture,
+                    evidence: Mapping[str, list[tuple[int, int]]]) -> int:
+    """The evidence columns at full rate over the union of their rows; returns the rows."""
+    if not evidence:
+        return 0
+    names = sorted(evidence)
+    manifest = {"entity": EVIDENCE_ENTITY, "columns": names, "first_period": cap.first_period,
+                "ts": cap.ts, "rows": {k: [[a, b] for a, b in evidence[k]] for k in names}}
+    rec.log(EVIDENCE_MANIFEST, rr.TextDocument(json.dumps(manifest, indent=1),
+                                               media_type="text/plain"), static=True)
+    rec.log(EVIDENCE_ENTITY, rr.SeriesLines(
+        names=names, colors=[PALETTE[i % len(PALETTE)] for i in range(len(names))]), static=True)
+    union = merge_ranges([r for k in names for r in evidence[k]])
+    total = 0
+    for a0, b0 in union:
+        for a in range(a0, b0, CHUNK):
+            b = min(b0, a + CHUNK)
+            data = np.full((b - a, len(names)), np.nan)
+            for j, name in enumerate(names):
+                for ra, rb in evidence[name]:
+                    lo, hi = max(a, ra), min(b, rb)
+                    if hi > lo:
+                        data[lo - a : hi - a, j] = np.asarray(cap[name][lo:hi], dtype=np.float64)
+            periods = np.asarray(cap["period"][a:b], dtype=np.int64)
+            _send(rec, EVIDENCE_ENTITY, periods, rr.Scalars.columns(scalars=data))
+            total += b - a
+            rec.flush()
+            cap.release()
+    return total
 
 
 def _finalize(rec: rr.RecordingStream) -> None:
@@ -329,6 +418,32 @@ def read_column(path: str | Path, entity: str) -> tuple[npt.NDArray[np.int64], n
     return np.concatenate(ps)[order], np.concatenate(vs)[order]
 
 
+def read_evidence(path: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The evidence of a recording: its manifest and, per column, an array over the capture's
+    rows (``first_period`` onwards, up to the last row kept) with the values the criteria
+    read and NaN elsewhere."""
+    from rerun.chunk import RrdReader
+
+    manifest: dict[str, Any] = {}
+    for chunk in RrdReader(Path(path)).stream():
+        if chunk.is_static and chunk.entity_path.lstrip("/") == EVIDENCE_MANIFEST:
+            batch = chunk.to_record_batch()
+            col = next(n for n in batch.schema.names if n.endswith(":text"))
+            manifest = json.loads(str(batch.column(col).to_pylist()[0][0]))
+    if not manifest:
+        return {}, {}
+    periods, values = read_column(path, EVIDENCE_ENTITY)
+    names: list[str] = list(manifest["columns"])
+    rows = periods - int(manifest["first_period"])
+    n = int(rows.max()) + 1 if rows.size else 0
+    out: dict[str, np.ndarray] = {}
+    for j, name in enumerate(names):
+        arr = np.full(n, np.nan)
+        arr[rows] = values[:, j]
+        out[name] = arr
+    return manifest, out
+
+
 # --------------------------------------------------------------------------------------
 # Live view
 
@@ -349,7 +464,7 @@ class LiveView:
         self.min_interval = min_interval
         self._last: dict[str, int] = {}
         self._buf: dict[str, tuple[list[int], list[list[float]]]] = {}
-        self._named: set[str] = set()
+        self._named: dict[str, list[str]] = {}
         self.rows: dict[str, int] = {}
         rec.send_blueprint(self.blueprint())
 
@@ -372,13 +487,16 @@ class LiveView:
         if last is not None and 0 <= period - last < self.min_interval:
             return
         self._last[entity] = period
-        names = sorted(values)
         if entity not in self._named:
-            self.rec.log(f"live/{entity}", rr.SeriesLines(names=names), static=True)
-            self._named.add(entity)
+            self._named[entity] = sorted(values)
+            self.rec.log(f"live/{entity}", rr.SeriesLines(names=self._named[entity]),
+                         static=True)
+        # an entity's lines are fixed by its first sample: a value missing later is NaN (a
+        # gap), one never seen before is left out (one row shape per entity)
+        names = self._named[entity]
         ps, vs = self._buf.setdefault(entity, ([], []))
         ps.append(period)
-        vs.append([float(values[k]) for k in names])
+        vs.append([float(values.get(k, math.nan)) for k in names])
 
     def flush(self) -> None:
         for entity, (ps, vs) in self._buf.items():
@@ -396,10 +514,14 @@ class LiveView:
         self.rec.flush()
 
 
-def spawn_live(title: str) -> rr.RecordingStream:
-    """A recording stream connected to a freshly spawned local viewer."""
+def spawn_live(title: str, grpc_url: str | None = None) -> rr.RecordingStream:
+    """A recording stream connected to a freshly spawned local viewer, or with ``grpc_url``
+    to a running server (the web viewer's: ``rig.webview``)."""
     rec = rr.RecordingStream(APP_ID + "_live")
-    rec.spawn(connect=True)
+    if grpc_url:
+        rec.connect_grpc(grpc_url)
+    else:
+        rec.spawn(connect=True)
     rec.send_recording_name(title)
     return rec
 

@@ -104,11 +104,25 @@ def scenario_report(result: Mapping[str, Any]) -> str:
             "## Recording",
             "",
             f"- `{rec.get('path')}`: {_size(rec.get('bytes'))}, "
-            f"{_size(rec.get('bytes_per_sim_s'))} per simulated second"
-            + (" (long run: secondary series decimated)" if rec.get("long_run") else ""),
+            f"{_size(rec.get('bytes_per_sim_s'))} per simulated second",
+            f"- display series every {rec.get('display_step')} periods; what the criteria "
+            f"read at full rate ({rec.get('evidence_rows')} periods of "
+            f"{', '.join(f'`{c}`' for c in rec.get('evidence') or {}) or 'no column'})",
             f"- capture columns: {_size(rec.get('capture_bytes'))}",
-            f"- open it: `rig view {result.get('out_dir', '.')}`",
+            f"- open it: `rig view {result.get('out_dir', '.')}` "
+            f"(in a browser: `rig view --web {result.get('out_dir', '.')}`)",
         ]
+    kept = result.get("kept") or {}
+    if kept:
+        lines += ["", "## Kept", ""]
+        if kept.get("full_rate"):
+            lines.append("- full-rate traces (`*.trace`) and capture columns (`capture/`) kept"
+                         f" (policy `{kept.get('policy')}`): `rig export` works on this run")
+        elif kept.get("removed"):
+            lines.append(f"- {kept.get('note')}: {', '.join(kept['removed'])} "
+                         f"({_size(kept.get('removed_bytes'))})")
+        else:
+            lines.append("- no full-rate traces or capture")
     counters = result.get("counters") or {}
     if counters:
         lines += ["", "## Counters", "", "| counter | value |", "|---|---|"]

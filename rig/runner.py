@@ -30,7 +30,6 @@ import datetime as dt
 import hashlib
 import json
 import math
-import os
 import platform
 import shutil
 import sys
@@ -51,6 +50,7 @@ from rig import (
     drive_link,
     faults,
     metrics,
+    outdirs,
     output,
     protocols,
     recording,
@@ -104,11 +104,16 @@ class RunOptions:
     realtime: bool = False
     live: bool = False
     live_stream: Any = None  # an rr.RecordingStream to use instead of spawning a viewer
+    live_url: str | None = None  # stream the live view to this gRPC server (the web viewer)
     progress: bool = True
     timeout_s: float | None = None
     grace_s: float = 5.0
     stall_s: float = STALL_S
     record: bool = True
+    # what a run keeps besides result.json, report.md and recording.rrd: "all" keeps the
+    # full-rate traces (*.trace) and capture columns (capture/) of every run, "failing" only
+    # of runs that did not pass (rig run's default; the API's is "all": callers read captures)
+    keep: str = "all"
     extra_plant_args: Sequence[str] = ()
     extra_fw_args: Sequence[str] = ()
     env: Mapping[str, str] = field(default_factory=dict)
@@ -506,7 +511,7 @@ class Monitor:
         if name == "TLM_POS":
             p = self._full_period(int(v["period"]))
             live.add("speed", p, {"estimated": v["speed_hat"]})
-            values = {"θ̂": v["theta_hat"]}
+            values = {"θ̂": v["theta_hat"], "θ": math.nan}  # θ: when the truth is known
             th = self._truth_by_p16.get(int(v["period"]))
             if th is not None:
                 true_deg = math.degrees(th) % 360.0
@@ -877,6 +882,30 @@ def execute_realtime(
     return plan.n_periods
 
 
+KEEP_CHOICES = ("failing", "all")
+FULL_RATE_FILES = ("plant.trace", "fw.trace", "capture")
+
+
+def _prune(out: Path, *, keep_full: bool, keep: str) -> dict[str, Any]:
+    """Removes the full-rate traces and capture columns of a run that need not keep them;
+    returns what was kept and removed (for result.json)."""
+    present = [name for name in FULL_RATE_FILES if (out / name).exists()]
+    if keep_full:
+        return {"full_rate": bool(present), "policy": keep, "removed": [], "removed_bytes": 0}
+    removed_bytes = 0
+    for name in present:
+        target = out / name
+        if target.is_dir():
+            removed_bytes += _dir_size(target)
+            shutil.rmtree(target)
+        else:
+            removed_bytes += target.stat().st_size
+            target.unlink()
+    return {"full_rate": False, "policy": keep, "removed": present,
+            "removed_bytes": removed_bytes,
+            "note": "passed: full-rate traces and capture removed (rig run --keep-all keeps them)"}
+
+
 def _dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.is_dir() else 0
 
@@ -988,7 +1017,8 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             _refuse_foreign_nodes(bus, transport, channel)
             if opts.live:
                 try:
-                    stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)")
+                    stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)",
+                                                                      opts.live_url)
                     live = recording.LiveView(stream)
                 except Exception as exc:  # no display, no viewer binary: run without live view
                     print(f"rig: live view unavailable ({exc}); running without it",
@@ -1122,7 +1152,8 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
 
     result["counters"] = counters
     coverage = _coverage(plan, cap, loss, periods_done, realtime, interrupted, failure)
-    crit_results = [evaluate_one(cr, cap, counters, coverage) for cr in sc.criteria]
+    reads: list[tuple[str, int, int]] = []
+    crit_results = [evaluate_one(cr, cap, counters, coverage, reads) for cr in sc.criteria]
     result["criteria"] = crit_results
     all_ok = all(outcome(c) not in AGAINST for c in crit_results)
     if failure is None:
@@ -1172,17 +1203,22 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             info = recording.write(
                 rrd, cap, title=f"{sc.name} ({result['mode']}, {result['bus']})",
                 report_markdown=report.scenario_report(result), timing=timing,
-                counters=counter_samples,
+                counters=counter_samples, evidence=recording.evidence_ranges(reads),
             )
             size = rrd.stat().st_size
             result["recording"] = {
                 "path": rrd.name, "bytes": size,
                 "bytes_per_sim_s": size / (cap.n * TS) if cap.n else None,
-                "long_run": info["long_run"], "decimation": info["decimation"],
+                "display_step": info["display_step"],
+                "evidence_rows": info["evidence_rows"], "evidence": info["evidence"],
                 "capture_bytes": _dir_size(out / "capture"),
             }
         except Exception as exc:  # the verdict stands without the recording
             result["recording"] = {"path": None, "error": f"{type(exc).__name__}: {exc}"}
+    result["kept"] = _prune(out, keep_full=opts.keep == "all" or not result["passed"],
+                            keep=opts.keep)
+    if not result["kept"]["full_rate"]:
+        cap = None
     output.write_text(out / "result.json", json.dumps(result, indent=1, default=_json_default))
     output.write_text(out / "report.md", report.scenario_report(result))
     res = RunResult(out, result, cap)
@@ -1358,5 +1394,5 @@ def exit_code(passed: bool, status: str) -> int:
 
 
 def default_out(name: str) -> Path:
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path(os.environ.get("HIL_OUT", "out")) / f"{name}-{stamp}"
+    """``$HIL_OUT`` (else ``./out``) / ``<name>-<YYYYmmdd-HHMMSS>`` (``rig.outdirs``)."""
+    return outdirs.default_out(name)

@@ -95,8 +95,10 @@ def outcome(c: Mapping[str, Any]) -> str:
 
 
 def evaluate_one(cr: Criterion, cap: capture.Capture | None, counters: Mapping[str, float],
-                 coverage: Coverage) -> dict[str, Any]:
-    """One criterion's entry of result.json."""
+                 coverage: Coverage,
+                 reads: list[tuple[str, int, int]] | None = None) -> dict[str, Any]:
+    """One criterion's entry of result.json; the capture rows it read are added to
+    ``reads`` (the recording keeps them at full rate as the criterion's evidence)."""
     entry: dict[str, Any] = {
         "name": cr.name,
         "metric": cr.metric,
@@ -124,7 +126,7 @@ def evaluate_one(cr: Criterion, cap: capture.Capture | None, counters: Mapping[s
         cols: metrics.ColumnSource = cap if cap is not None else {}
         first = cap.first_period if cap is not None else 0
         w = metrics.Window(cols, cr.window[0], cr.window[1], ts=TS, first_period=first,
-                           counters=counters)
+                           counters=counters, reads=reads)
         try:
             value = metrics.compute(cr.metric, w, cr.params)
         except KeyError as exc:

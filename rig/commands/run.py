@@ -16,9 +16,12 @@ or scenario schema error; 3 the run could not start here (programs not built, bu
 unavailable); 130 interrupted.
 
 output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
-DIR/recording.rrd (open with `rig view DIR`), DIR/capture/ (merged full-rate columns),
-DIR/*.trace and the programs' logs. A suite writes one sub-folder per scenario plus a
-summary result.json and report.md in DIR.
+DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture
+column a criterion read at the full 10 kHz over the rows it read) and the programs' logs.
+A scenario that does not pass also keeps DIR/*.trace (every frame) and DIR/capture/ (the
+merged full-rate columns); --keep-all keeps them for every scenario. A suite writes one
+sub-folder per scenario plus a summary result.json and report.md in DIR. Without --out:
+$HIL_OUT or ./out, plus name and time; `rig clean` lists and removes old runs.
 """
 
 
@@ -44,10 +47,21 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="pace the plant on the wall clock instead of lockstep")
     p.add_argument("--live", action="store_true",
                    help="stream decimated telemetry to a spawned Rerun viewer while running")
+    p.add_argument("--web", action="store_true",
+                   help="with --live: stream to the Rerun web viewer instead (its address is "
+                   "printed; it stops with the run: afterwards `rig view --web DIR`)")
+    p.add_argument("--web-port", type=int, default=None, metavar="PORT",
+                   help="with --live --web: the web viewer's HTTP port (default 9090)")
+    p.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+                   help="with --live --web: the gRPC server's port (default 9876)")
     p.add_argument("--timeout", type=float, default=None, metavar="S",
                    help="wall-clock limit per scenario (default: from the scenario)")
     p.add_argument("--no-record", action="store_true",
                    help="skip writing recording.rrd (the verdict does not depend on it)")
+    p.add_argument("--keep-all", action="store_true",
+                   help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
+                   "passing scenarios too (default: only of scenarios that did not pass; "
+                   "`rig export` needs them)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=cmd_run)
 
@@ -68,12 +82,23 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "folder, or an .rrd file) in the Rerun viewer.",
     )
     v.add_argument("path", type=Path, metavar="DIR", help="a run folder or an .rrd file")
+    v.add_argument("--web", action="store_true",
+                   help="serve the recording(s) to the Rerun web viewer and print its address "
+                   "(open it in a browser; Ctrl-C stops)")
+    v.add_argument("--web-port", type=int, default=None, metavar="PORT",
+                   help="the web viewer's HTTP port (default 9090)")
+    v.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+                   help="the port of the gRPC server that holds the data (default 9876)")
+    v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                   help="address both listen on (default 127.0.0.1: this machine only)")
+    v.add_argument("--screenshot", type=Path, default=None, metavar="PNG",
+                   help="with --web: open the viewer in headless Chromium, save a screenshot "
+                   "once the blueprint is drawn, and exit (1 if the viewer reported an error)")
     v.set_defaults(func=cmd_view)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from rig import output, runner, scenario
-    from rig.supervisor import Terminated, terminate_as_exception
+    from rig import runner, scenario
 
     try:
         target = scenario.load(args.target)
@@ -95,9 +120,46 @@ def cmd_run(args: argparse.Namespace) -> int:
                   "(run.realtime_ok = false)", file=sys.stderr)
             return runner.EXIT_USAGE
     out = args.out or runner.default_out(target.name)
+    try:
+        return _run(args, target, out)
+    finally:
+        if args.out is None:  # runs named by time pile up: say so when they have
+            from rig.commands.clean import notice
+
+            hint = notice(out.parent)
+            if hint:
+                print(hint, file=sys.stderr)
+
+
+def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
+    from rig import runner, webview
+
+    if args.web and not args.live:
+        print("rig run: --web goes with --live (a finished run: rig view --web DIR)",
+              file=sys.stderr)
+        return runner.EXIT_USAGE
+    if not args.web:
+        return _run_with(args, target, out, None)
+    try:
+        viewer = webview.start(web_port=args.web_port or webview.DEFAULT_WEB_PORT,
+                               grpc_port=args.grpc_port or webview.DEFAULT_GRPC_PORT)
+    except webview.WebViewerError as exc:
+        print(f"rig run: {exc}", file=sys.stderr)
+        return runner.EXIT_ENV
+    with viewer:
+        print(f"rig run: live view in the web viewer at {viewer.url()} (until the run ends)",
+              file=sys.stderr)
+        return _run_with(args, target, out, viewer.grpc_url)
+
+
+def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | None) -> int:
+    from rig import output, runner, scenario
+    from rig.supervisor import Terminated, terminate_as_exception
+
     opts = runner.RunOptions(
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
-        progress=not args.quiet, timeout_s=args.timeout, record=not args.no_record,
+        live_url=live_url, progress=not args.quiet, timeout_s=args.timeout,
+        record=not args.no_record, keep="all" if args.keep_all else "failing",
     )
     try:
         with terminate_as_exception():
@@ -216,4 +278,51 @@ def cmd_view(args: argparse.Namespace) -> int:
     if not files:
         print(f"rig view: no recording.rrd in {path}", file=sys.stderr)
         return 2
-    return subprocess.call([sys.executable, "-m", "rerun", *map(str, files)])
+    if args.screenshot is not None and not args.web:
+        print("rig view: --screenshot needs --web", file=sys.stderr)
+        return 2
+    if not args.web:
+        return subprocess.call([sys.executable, "-m", "rerun", *map(str, files)])
+    return _view_web(args, files)
+
+
+def _view_web(args: argparse.Namespace, files: list[Path]) -> int:
+    import time
+
+    from rig import webview
+
+    try:
+        viewer = webview.start(files, web_port=args.web_port or webview.DEFAULT_WEB_PORT,
+                               grpc_port=args.grpc_port or webview.DEFAULT_GRPC_PORT,
+                               bind=args.bind)
+    except webview.WebViewerError as exc:
+        print(f"rig view: {exc}", file=sys.stderr)
+        return 3
+    with viewer:
+        if args.screenshot is not None:
+            return _screenshot(viewer, files, args.screenshot)
+        print(f"rig view: the web viewer is at {viewer.url()}\n"
+              f"          (data on {viewer.grpc_url}; Ctrl-C stops)", file=sys.stderr)
+        try:
+            while viewer.running():
+                time.sleep(0.5)
+        except KeyboardInterrupt:
+            return 0
+        return 0 if viewer.proc.returncode in (0, None) else 1
+
+
+def _screenshot(viewer: Any, files: list[Path], png: Path) -> int:
+    from rig import browser, recording
+
+    expect = [f"hil-{f.parent.name}" for f in files if f.name == "recording.rrd"]
+    expect += recording.VIEW_NAMES
+    try:
+        seen = browser.look(viewer.url(renderer="webgl"), png, expect=expect)
+    except browser.BrowserError as exc:
+        print(f"rig view: {exc}", file=sys.stderr)
+        return 3
+    print(f"rig view: screenshot -> {png} ({seen.seconds:.0f} s; {len(seen.blocked_requests)} "
+          "requests outside this machine blocked)", file=sys.stderr)
+    for e in ([seen.panic] if seen.panic else []) + seen.errors:
+        print(f"rig view: the viewer reported: {e}", file=sys.stderr)
+    return 0 if seen.ok else 1

@@ -133,7 +133,9 @@ def test_scenario_runs_and_writes_every_output(with_fakes: Path, channel: str,
     ref = np.asarray(r.capture["speed_ref_rpm"])
     assert ref[500] == pytest.approx(100.0) and ref[1500] == pytest.approx(200.0)
     rows = recording.entity_rows(out / "recording.rrd")
-    assert rows["position/error"] == 2000 and rows["speed/rpm"] == 2000
+    assert rows["position/error"] == 200 and rows["speed/rpm"] == 200  # display: 1 kHz
+    assert rows[recording.EVIDENCE_ENTITY] == 1500  # pos_err_deg over [0.05 s, end]
+    assert data["recording"]["evidence"] == {"pos_err_deg": [[500, 2000]]}
     assert data["recording"]["bytes"] == (out / "recording.rrd").stat().st_size
     assert "# tiny: PASS" in (out / "report.md").read_text()
     assert "fake plant" not in (out / "plant_rt.stderr.log").read_text()

@@ -1,0 +1,135 @@
+"""The Rerun web viewer: recordings (or a live stream) served to a browser.
+
+``start()`` runs rerun-sdk's own server (``python -m rerun --serve-web``, rerun-sdk 0.41): a
+gRPC server on ``grpc_port`` that holds the recordings (files given, or whatever an SDK
+streams to it: ``grpc_url``) and the web viewer (HTML + Wasm) on ``web_port``; ``url`` opens
+the viewer connected to that server. Both listen on ``bind`` (default 127.0.0.1: this
+machine only; ``--bind 0.0.0.0`` to view from another one).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import quote
+
+DEFAULT_WEB_PORT = 9090  # Rerun's defaults
+DEFAULT_GRPC_PORT = 9876
+START_TIMEOUT_S = 30.0
+
+
+class WebViewerError(RuntimeError):
+    """The server did not come up (port taken, rerun missing)."""
+
+
+@dataclass
+class WebViewer:
+    proc: subprocess.Popen[bytes]
+    bind: str
+    web_port: int
+    grpc_port: int
+    log: Path | None = None
+
+    @property
+    def host(self) -> str:
+        return "127.0.0.1" if self.bind in ("0.0.0.0", "::", "") else self.bind
+
+    @property
+    def grpc_url(self) -> str:
+        return f"rerun+http://{self.host}:{self.grpc_port}/proxy"
+
+    def url(self, **params: str) -> str:
+        """The page that opens the viewer on this server (extra query parameters: e.g.
+        ``renderer="webgl"``)."""
+        query = f"url={quote(self.grpc_url, safe='')}"
+        for k, v in params.items():
+            query += f"&{k}" if v == "" else f"&{k}={quote(v, safe='')}"
+        return f"http://{self.host}:{self.web_port}/?{query}"
+
+    def running(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self) -> None:
+        """Ends the server: its whole process group (``python -m rerun`` runs the viewer
+        binary as a child of its own)."""
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(self.proc.pid, sig)
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline:
+                self.proc.poll()  # reap the leader, or the group looks alive
+                if not _group_alive(self.proc.pid):
+                    return
+                time.sleep(0.05)
+
+    def __enter__(self) -> WebViewer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def free_port() -> int:
+    """A TCP port that nothing listens on right now (for tests and parallel runs)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _listening(host: str, port: int) -> bool:
+    with contextlib.suppress(OSError), socket.create_connection((host, port), timeout=0.5):
+        return True
+    return False
+
+
+def start(files: Sequence[Path] = (), *, web_port: int = DEFAULT_WEB_PORT,
+          grpc_port: int = DEFAULT_GRPC_PORT, bind: str = "127.0.0.1",
+          log: Path | None = None, env: Mapping[str, str] | None = None,
+          timeout_s: float = START_TIMEOUT_S) -> WebViewer:
+    """Starts the server (and waits until both ports answer)."""
+    for port in (web_port, grpc_port):
+        if _listening("127.0.0.1" if bind in ("0.0.0.0", "::") else bind, port):
+            raise WebViewerError(f"port {port} is already in use (another viewer?): choose "
+                                 "another with --web-port / --grpc-port")
+    argv = [sys.executable, "-m", "rerun", "--serve-web", "--bind", bind,
+            "--web-viewer-port", str(web_port), "--port", str(grpc_port),
+            *[str(f) for f in files]]
+    out = open(log, "wb") if log is not None else subprocess.DEVNULL
+    try:
+        proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out,
+                                stderr=subprocess.STDOUT, start_new_session=True,
+                                env={**os.environ, **(env or {})})
+    finally:
+        if log is not None:
+            out.close()  # type: ignore[union-attr]
+    viewer = WebViewer(proc, bind, web_port, grpc_port, log)
+    deadline = time.monotonic() + timeout_s
+    while not (_listening(viewer.host, web_port) and _listening(viewer.host, grpc_port)):
+        if proc.poll() is not None:
+            tail = log.read_text(errors="replace")[-2000:] if log is not None else ""
+            raise WebViewerError(f"the Rerun web viewer exited with status {proc.returncode}"
+                                 + (f":\n{tail}" if tail else ""))
+        if time.monotonic() > deadline:
+            viewer.stop()
+            raise WebViewerError(f"the Rerun web viewer did not listen on ports {web_port} and "
+                                 f"{grpc_port} within {timeout_s:g} s")
+        time.sleep(0.1)
+    return viewer
