@@ -3,7 +3,7 @@
  * ISR k (after the last conversion of PWM period k):
  *   1. bookkeeping: is this the ADC frame of the period the core planned (else: ADC loss)?
  *   2. protection on every sample (over-current) and on the DC link;
- *   3. slopes of the measured states, least-squares estimate, PLL (theta_hat with its stamp);
+ *   3. slopes of the measured states, least-squares estimate, tracker (theta_hat, its stamp);
  *   4. period-mean current from the samples and the slopes, dq currents, online Ld/Lq and
  *      the flux estimator;
  *   5. state machine: idle / polarity / run / fault; 1 kHz tasks on every 10th call;
@@ -164,10 +164,10 @@ int16_t fw_core_set_limits(fw_core_t *c, real_t i_max, real_t speed_max_rpm, rea
 /* ---------------------------------------------------------------------------------------- */
 /* measurement and estimation of period k                                                    */
 
-/* Slopes, least-squares estimate and PLL for the period just measured; with pll_freeze the
- * flux estimator updates the PLL this period and only the branch is taken here. Returns 1 when
- * the period counted as implausible. */
-static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_freeze)
+/* Slopes, least-squares estimate and tracker for the period just measured; with by_flux the
+ * flux estimator updates the tracker this period and only the branch is taken here. Returns 1
+ * when the period counted as implausible. */
+static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_flux)
 {
     const real_t *p = c->p;
     fw_plan_t *pl = &c->plan_cur;
@@ -228,7 +228,7 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
     c->slopes_ok = n_act;
     if (n_act > 0) {
         fw_slope_solve(n_act, vec, di, t, FW_REAL(2.0) / FW_REAL(3.0) * pl->vdc, omega,
-                     fw_paramest_gamma0_prior(&c->pe, c->iq), &c->est);
+                       fw_paramest_gamma0_prior(&c->pe, c->iq), &c->est);
         /* cross-saturation turns the saliency axes the slopes see by a load-dependent angle:
          * remove it (xsat_ldq_per_a, identified at speed: xsat_learn). Measured on the harsh
          * profile at 1 r/min, 2 N*m: +5 deg of bias without it, and the loop crept away */
@@ -262,7 +262,7 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
             fw_tracker_reset(&c->trk, c->est.theta_raw, FW_REAL(0.0), stamp);
             c->theta_raw_branch = fw_wrap_2pi(c->est.theta_raw);
             updated = 1;
-        } else if (!pll_freeze) {
+        } else if (!by_flux) {
             real_t eps = fw_tracker_update(&c->trk, c->est.theta_raw, stamp, &theta_meas);
             c->theta_raw_branch = theta_meas;
             updated = 1;
@@ -291,17 +291,16 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t pll_
 }
 
 /* Speed- and load-dependent hand-over (docs/estimator.md §5-§7): above flux_pos_min_rpm and
- * flux_pos_min_iq_a the d axis
- * comes from the flux estimator's active flux psi - Lq_app i (docs/estimator.md §4.6: its
- * direction is the magnet's whatever Ld does), which needs no saliency, so q saturation under
- * load cannot take the position away; the slopes keep feeding the online Ld/Lq. Below it, the current slopes
- * carry the PLL. */
+ * flux_pos_min_iq_a the d axis comes from the flux estimator's active flux psi - Lq_app i
+ * (docs/estimator.md §4.6: its direction is the magnet's whatever Ld does), which needs no
+ * saliency, so q saturation under load cannot take the position away; the slopes keep
+ * feeding the online Ld/Lq. Below it, the current slopes carry the tracker. */
 static int16_t flux_carries_position(fw_core_t *c)
 {
     const real_t *p = c->p;
     /* only under load (|iq| above flux_pos_min_iq_a, 25 % hysteresis), where q saturation
      * erodes the saliency; at light load the slopes keep the position (measured: the hand-over
-     * at no load let the PLL and the flux estimator's speed-dependent filter oscillate) */
+     * at no load let the tracker and the flux estimator's speed-dependent filter oscillate) */
     real_t on = p[FW_IDX_FLUX_POS_MIN_IQ_A];
     real_t iq = fw_fabs(c->iq);
     if (iq > on) {
@@ -317,7 +316,7 @@ static int16_t flux_carries_position(fw_core_t *c)
                      fw_fabs(c->speed_f_rpm) >= p[FW_IDX_FLUX_POS_MIN_RPM]);
 }
 
-/* PLL update from the active flux at the end of the period; 1 when plausible */
+/* Tracker update from the active flux at the end of the period; 1 when plausible */
 static int16_t flux_position(fw_core_t *c)
 {
     const real_t *p = c->p;
@@ -589,7 +588,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
 
     /* 3.-4. estimation (the tracker's gains for the present speed first) */
     (void)fw_tracker_schedule(&c->trk);
-    /* (the polarity test runs with the PLL tracking: polarity_detect.c) */
+    /* (the polarity test runs with the tracker running: polarity_detect.c) */
     if (data_ok) {
         int16_t by_flux = flux_carries_position(c);
         c->flux_pos_active = by_flux;
@@ -710,13 +709,13 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     }
     if (c->state == FW_STATE_RUN || c->state == FW_STATE_POLARITY) {
         c->te_hat = fw_refs_torque(c->id, c->iq, c->ld_use, c->lq_use, c->lambda_use,
-                              p[FW_IDX_POLE_PAIRS]);
+                                   p[FW_IDX_POLE_PAIRS]);
         /* the torque the current loop is delivering: its references through the loop's
          * first-order response (the measured currents carry the ripple and noise of the
          * per-period reconstruction, which would shake the tracker's prediction) */
         c->te_model += FW_TE_MODEL_ALPHA *
-                       (fw_refs_torque(c->id_ref, c->iq_ref, c->ld_use, c->lq_use, c->lambda_use,
-                                  p[FW_IDX_POLE_PAIRS]) - c->te_model);
+                       (fw_refs_torque(c->id_ref, c->iq_ref, c->ld_use, c->lq_use,
+                                       c->lambda_use, p[FW_IDX_POLE_PAIRS]) - c->te_model);
         /* plus the reluctance torque of the next pattern's current ripple (its mean over the
          * period, with the incremental inductances the ripple sees) */
         c->te_ripple = FW_REAL(1.5) * p[FW_IDX_POLE_PAIRS] * (c->pe.ld_inc - c->pe.lq_inc) *
@@ -728,9 +727,11 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     }
     /* the tracker predicts the rotor with this torque, less the known viscous friction, until
      * the next update (the load and any model error are its disturbance state) */
-    fw_tracker_set_accel(&c->trk, (c->te_model + c->te_ripple - p[FW_IDX_FRICTION_NMS] * c->trk.omega /
-                                                 p[FW_IDX_POLE_PAIRS]) *
-                                  p[FW_IDX_POLE_PAIRS] / p[FW_IDX_INERTIA_KGM2]);
+    {
+        const real_t te_friction = p[FW_IDX_FRICTION_NMS] * c->trk.omega / p[FW_IDX_POLE_PAIRS];
+        fw_tracker_set_accel(&c->trk, (c->te_model + c->te_ripple - te_friction) *
+                                          p[FW_IDX_POLE_PAIRS] / p[FW_IDX_INERTIA_KGM2]);
+    }
     c->vdq_sum = fw_cadd(c->vdq_sum, fw_c(c->vd, c->vq));
     c->vdq_sum_n++;
     if (c->vdq_sum_n >= FW_SPEED_DIVIDER) {
