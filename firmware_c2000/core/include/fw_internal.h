@@ -127,6 +127,7 @@ void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);
 int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gate, real_t ratio,
                        real_t omega_min, real_t theta_end, fw_cplx_t i_end, real_t ld_app,
                        real_t lambda_nom, real_t alpha);
+int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc); /* active, start forgotten */
 
 /* ---- current_refs.c (paper eqs. 10, 50, 53) ----------------------------------------------------- */
 real_t fw_refs_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda);

@@ -308,10 +308,13 @@ static int16_t flux_carries_position(fw_core_t *c)
     } else if (iq < p[FW_IDX_FLUX_POS_IQ_HYST] * on) {
         c->flux_pos_load = 0;
     }
-    if (c->full_mod) {
-        return (int16_t)(c->flux.active && c->state == FW_STATE_RUN);
+    if (!fw_flux_settled(&c->flux, p[FW_IDX_FLUX_SETTLE_TC])) {
+        return 0;
     }
-    return (int16_t)(c->flux.active && c->state == FW_STATE_RUN && c->flux_pos_load &&
+    if (c->full_mod) {
+        return (int16_t)(c->state == FW_STATE_RUN);
+    }
+    return (int16_t)(c->state == FW_STATE_RUN && c->flux_pos_load &&
                      p[FW_IDX_FLUX_POS_MIN_RPM] > FW_REAL(0.0) &&
                      fw_fabs(c->speed_f_rpm) >= p[FW_IDX_FLUX_POS_MIN_RPM]);
 }
@@ -397,7 +400,8 @@ static void update_full_mod(fw_core_t *c)
     const real_t *p = c->p;
     real_t on = p[FW_IDX_FULL_MOD_MIN_RPM];
     real_t spd = fw_fabs(c->speed_f_rpm);
-    if (!(on > FW_REAL(0.0)) || c->state != FW_STATE_RUN || !c->flux.active) {
+    if (!(on > FW_REAL(0.0)) || c->state != FW_STATE_RUN ||
+        !fw_flux_settled(&c->flux, p[FW_IDX_FLUX_SETTLE_TC])) {
         c->full_mod = 0;
     } else if (spd >= on) {
         c->full_mod = 1;
