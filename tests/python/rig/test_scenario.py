@@ -394,9 +394,10 @@ def test_suite_comparisons_and_includes(tmp_path: Path) -> None:
         sc.load_suite(_write(tmp_path, 'include = ["cmp"]\nscenarios = ["ok_one"]\n', "dup"))
 
 
-def test_paper_suite_is_table2_then_figures_with_the_fig9_comparisons() -> None:
-    paper, t2, figs = (sc.load(n) for n in ("paper", "table2", "figures"))
-    assert isinstance(paper, sc.Suite) and isinstance(t2, sc.Suite) and isinstance(figs, sc.Suite)
-    assert paper.scenarios == t2.scenarios + figs.scenarios
+def test_paper_suite_is_table2_then_figures_then_robustness_with_the_fig9_comparisons() -> None:
+    paper, t2, figs, rob = (sc.load(n) for n in ("paper", "table2", "figures", "robustness"))
+    assert isinstance(paper, sc.Suite) and isinstance(t2, sc.Suite)
+    assert isinstance(figs, sc.Suite) and isinstance(rob, sc.Suite)
+    assert paper.scenarios == t2.scenarios + figs.scenarios + rob.scenarios
     assert {(c.a, c.b) for c in paper.comparisons} == {
         ("fig09_load_step_realtime", "fig09_load_step_conventional")}
