@@ -340,7 +340,9 @@ void fwh_drive_telemetry(fwh_t *app, const fw_status_t *s)
         if (deg < 0.0) {
             deg += 360.0;
         }
-        m.theta_hat = (uint16_t)(HIL_ENCODE(hil_drive_tlm_pos_theta_hat, deg) & 0xFFFF); /* 360 = 0 */
+        /* 360 = 0: raw 65536 wraps in the generated encoder's uint16_t (it converts through
+         * uint64_t) */
+        m.theta_hat = hil_drive_tlm_pos_theta_hat_encode(deg);
         FWH_SAT_ENCODE(r, hil_drive_tlm_pos_speed_hat, s->speed_hat_rpm, INT32_MIN, INT32_MAX);
         m.speed_hat = (int32_t)r;
         hil_drive_tlm_pos_pack(buf, &m, sizeof(buf));
