@@ -123,13 +123,13 @@ int fwh_params_save_store(fwh_t *app, int *count, char *msg, size_t msglen)
     *count = 0;
     if (app->opt.params == NULL) {
         snprintf(msg, msglen, "no parameter file (start fw_host with --params FILE)");
-        return FWH_STORE_ERROR;
+        return FW_STATUS_STORE_ERROR;
     }
     n = fwh_params_save(&app->core, app->opt.params, err, sizeof(err));
     if (n < 0) {
         snprintf(msg, msglen, "%s", err);
         fwh_log(app, "SAVE failed: %s", err);
-        return FWH_STORE_ERROR;
+        return FW_STATUS_STORE_ERROR;
     }
     *count = n;
     return FW_STATUS_OK;
@@ -145,12 +145,12 @@ int fwh_params_load_store(fwh_t *app, int *count, char *msg, size_t msglen)
     *count = 0;
     if (app->opt.params == NULL) {
         snprintf(msg, msglen, "no parameter file (start fw_host with --params FILE)");
-        return FWH_STORE_ERROR;
+        return FW_STATUS_STORE_ERROR;
     }
     if (fwh_params_parse_file(app->opt.params, &load_list, err, sizeof(err)) != 0) {
         snprintf(msg, msglen, "%s", err);
         fwh_log(app, "LOAD failed: %s", err);
-        return FWH_STORE_ERROR;
+        return FW_STATUS_STORE_ERROR;
     }
     st = fwh_params_apply(&app->core, &load_list, &failed, &changed);
     if (st != FW_STATUS_OK) {
