@@ -20,7 +20,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-TS = 1e-4
+from rig import protocols
+
+TS = protocols.timebase().ts  # PWM period
 
 
 def main(run_dir: Path, out: Path) -> None:

@@ -25,11 +25,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rig import _paths
+from rig import _paths, protocols
 from rig import bus as rigbus
 
 PROFILES = ("ideal", "paper", "harsh")
-TS = 100e-6
+TS = protocols.timebase().ts  # PWM period
 RESPONDER_RT_PRIORITY = 70  # below plant_rt's default 80: the plant's timer comes first
 
 

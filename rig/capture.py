@@ -36,8 +36,8 @@ from cantools.database.can import Message
 from rig import protocols
 from rig.trace import DEFAULT_CHUNK, MessageDecoder, TraceDecoder, TraceFile, frame_ids
 
-TS = 100e-6  # PWM period (docs/interfaces.md): 2 * TBPRD ticks of TBCLK 100 MHz
-TICKS_PER_PERIOD = 10000
+TS = protocols.timebase().ts  # PWM period, 100 us: 2 * TBPRD ticks of TBCLK 100 MHz
+TICKS_PER_PERIOD = protocols.timebase().period_ticks
 TICK_S = TS / TICKS_PER_PERIOD
 DEFAULT_POLE_PAIRS = 2  # DESIGN.md §5: P = 4 poles
 

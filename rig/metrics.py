@@ -16,6 +16,8 @@ from typing import Any, Literal, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from rig import protocols
+
 FloatArray = npt.NDArray[np.float64]
 
 POLARITY_THRESHOLD_DEG = 90.0
@@ -324,7 +326,8 @@ def _spd_err_max(w: Window, p: Mapping[str, float]) -> float:
     return error_stats(w.get("speed_err_rpm")).max_abs
 
 
-SPEED_LOOP_PERIODS = 10  # the firmware's speed loop and telemetry run at 1 kHz (10 periods)
+# the firmware's speed loop and telemetry run every 10th period (1 kHz; drive.dbc)
+SPEED_LOOP_PERIODS = protocols.timebase().speed_loop_divider
 
 
 def block_means(x: npt.ArrayLike, n: int) -> FloatArray:
@@ -514,11 +517,7 @@ def _slopes(w: Window, p: Mapping[str, float]) -> float:
 
 
 def _drive_status_choice(signal: str, name: str) -> int:
-    from rig import protocols
-
-    sig = protocols.database("drive").get_message_by_name("DRIVE_STATUS").get_signal_by_name(
-        signal)
-    return next(int(v) for v, n in (sig.choices or {}).items() if str(n) == name)
+    return protocols.choices("drive", "DRIVE_STATUS", signal)[name]
 
 
 def firmware_state(name: str) -> int:

@@ -110,13 +110,8 @@ class FrameLink(Protocol):
                  timeout_s: float, what: str) -> Mapping[str, Any]: ...
 
 
-def _choices(message: str, signal: str) -> dict[str, int]:
-    sig = protocols.database("drive").get_message_by_name(message).get_signal_by_name(signal)
-    return {str(n): int(v) for v, n in (sig.choices or {}).items()}
-
-
-OPS = _choices("PARAM_REQ", "op")
-STATUS = {v: k for k, v in _choices("PARAM_RESP", "status").items()}
+OPS = protocols.choices("drive", "PARAM_REQ", "op")
+STATUS = {v: k for k, v in protocols.choices("drive", "PARAM_RESP", "status").items()}
 
 
 @dataclass

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
@@ -31,3 +32,48 @@ def quantize(db: str, message: str, signal: str, value: float) -> float:
     sig = database(db).get_message_by_name(message).get_signal_by_name(signal)
     raw = round((value - float(sig.offset)) / float(sig.scale))
     return raw * float(sig.scale) + float(sig.offset)
+
+
+@dataclass(frozen=True)
+class TimeBase:
+    """The PWM time base every program shares (docs/interfaces.md): defined once, as database
+    attributes of the DBC files (vio.dbc ``HilTbclkHz``, ``HilTbprd``; drive.dbc
+    ``HilSpeedLoopDivider``), from which the C programs get theirs generated at build time
+    (firmware_c2000/tools/gen_wire.py, which also checks the ranges that follow from it)."""
+
+    tbclk_hz: int  # ticks per second
+    tbprd: int  # up-down count half period, ticks
+    speed_loop_divider: int  # PWM periods per speed-loop (and telemetry) period
+
+    @property
+    def period_ticks(self) -> int:
+        return 2 * self.tbprd
+
+    @property
+    def ts(self) -> float:
+        """One PWM period, s."""
+        return self.period_ticks / self.tbclk_hz
+
+    @property
+    def period_ns(self) -> int:
+        return self.period_ticks * 1_000_000_000 // self.tbclk_hz
+
+
+def _attribute(db: str, name: str) -> int:
+    dbc = database(db).dbc
+    attr = dbc.attributes.get(name) if dbc is not None else None
+    if attr is None or not isinstance(attr.value, int):
+        raise ValueError(f"protocols/{db}.dbc: database attribute {name} missing")
+    return attr.value
+
+
+@cache
+def timebase() -> TimeBase:
+    return TimeBase(_attribute("vio", "HilTbclkHz"), _attribute("vio", "HilTbprd"),
+                    _attribute("drive", "HilSpeedLoopDivider"))
+
+
+def choices(db: str, message: str, signal: str) -> dict[str, int]:
+    """A signal's value table, name -> value (e.g. DRIVE_STATUS.fault_code)."""
+    sig = database(db).get_message_by_name(message).get_signal_by_name(signal)
+    return {str(n): int(v) for v, n in (sig.choices or {}).items()}

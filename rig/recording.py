@@ -33,11 +33,13 @@ import numpy.typing as npt
 import rerun as rr
 import rerun.blueprint as rrb
 
+from rig import protocols
 from rig.capture import Capture
 
 APP_ID = "sensorless_hil"
-TS_NS = 100_000  # one PWM period in ns
-DISPLAY_DECIMATE = 10  # display series: every 10th period (1 kHz of simulated time) ...
+TS_NS = protocols.timebase().period_ns  # one PWM period in ns
+# display series: every 10th period (1 kHz of simulated time, the telemetry's rate) ...
+DISPLAY_DECIMATE = protocols.timebase().speed_loop_divider
 DISPLAY_MAX_ROWS = 2000  # ... and at most this many rows per series (long runs: coarser)
 CHUNK = 1 << 16
 TRAIL_S = 0.1  # trajectories show the last 100 ms around the time cursor

@@ -14,7 +14,6 @@
 #include "drive_codec.h"
 #include "fw_core.h"
 #include "hil_bench.h"
-#include "hil_codec.h"
 #include "hil_drive.h"
 #include "hil_vio.h"
 #include "hiltrace.h"
@@ -340,8 +339,8 @@ int sil_bench_drive_cmd(sil_bench_t *b, int enable, int fault_reset, int ctrl_mo
     m.ctrl_mode = (uint8_t)ctrl_mode;
     m.fw_mode = (uint8_t)fw_mode;
     m.alive = b->alive++;
-    m.speed_ref = HIL_ENCODE(hil_drive_drive_cmd_speed_ref, speed_ref_rpm);
-    m.iq_ref = HIL_ENCODE(hil_drive_drive_cmd_iq_ref, iq_ref_a);
+    m.speed_ref = hil_drive_drive_cmd_speed_ref_encode(speed_ref_rpm);
+    m.iq_ref = hil_drive_drive_cmd_iq_ref_encode(iq_ref_a);
     hil_drive_drive_cmd_pack(buf, &m, sizeof(buf));
     return sil_bench_frame(b, HIL_DRIVE_DRIVE_CMD_FRAME_ID, 0, buf, HIL_DRIVE_DRIVE_CMD_LENGTH,
                            NULL, 0);
@@ -353,9 +352,9 @@ int sil_bench_drive_limits(sil_bench_t *b, double i_max_a, double speed_max_rpm,
     struct hil_drive_drive_limits_t m;
     uint8_t buf[8];
     memset(&m, 0, sizeof(m));
-    m.i_max = HIL_ENCODE(hil_drive_drive_limits_i_max, i_max_a);
-    m.speed_max = HIL_ENCODE(hil_drive_drive_limits_speed_max, speed_max_rpm);
-    m.accel_max = HIL_ENCODE(hil_drive_drive_limits_accel_max, accel_rpm_s);
+    m.i_max = hil_drive_drive_limits_i_max_encode(i_max_a);
+    m.speed_max = hil_drive_drive_limits_speed_max_encode(speed_max_rpm);
+    m.accel_max = hil_drive_drive_limits_accel_max_encode(accel_rpm_s);
     hil_drive_drive_limits_pack(buf, &m, sizeof(buf));
     return sil_bench_frame(b, HIL_DRIVE_DRIVE_LIMITS_FRAME_ID, 0, buf,
                            HIL_DRIVE_DRIVE_LIMITS_LENGTH, NULL, 0);

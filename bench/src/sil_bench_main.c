@@ -133,7 +133,7 @@ int main(int argc, char **argv)
             const int stepped = it >= step_at;
             sil_bench_drive_cmd(b, 1, 0, FW_CTRL_SPEED, FW_FWMODE_REALTIME, stepped ? speed : 0.0,
                                 0.0);
-            sil_bench_load_cmd(b, PLANT_LOAD_TORQUE, stepped ? load : 0.0, 0.0, 0.0);
+            sil_bench_load_cmd(b, HIL_BENCH_LOAD_CMD_MODE_TORQUE_CHOICE, stepped ? load : 0.0, 0.0, 0.0);
         }
         fw_core_status(sil_bench_core(b), &before);
         if (sil_bench_step(b) != 0) {

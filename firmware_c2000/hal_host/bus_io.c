@@ -4,8 +4,8 @@
  * VIO_PWM(k+1) goes out at once. A repeated ADC(k) is handed to the core again, which answers
  * with the same PWM(k+1). Periods whose data never came run the ISR without data (the core
  * counts the ADC loss and faults after adc_loss_max); their PWM is not sent (the plant is
- * past them). Every ISR writes one FW_TRACE record; every 10*tlm_div-th period (the 1 kHz
- * speed-loop rate, in ISR time) sends the TLM_* frames. A VIO_SYNC (the plant's lockstep
+ * past them). Every ISR writes one FW_TRACE record; every FW_SPEED_DIVIDER*tlm_div-th period
+ * (the 1 kHz speed-loop rate, in ISR time) sends the TLM_* frames. A VIO_SYNC (the plant's lockstep
  * barrier after a faulted exchange, protocols/vio.dbc) is answered with VIO_SYNC_ACK once
  * everything received before it is handled: frames are handled in order, so its PWM (if any)
  * went out first.
@@ -73,7 +73,7 @@ static void after_isr(fwh_t *app)
     fw_status_t s;
     fw_core_status(&app->core, &s);
     write_trace(app, &s);
-    if (app->opt.tlm_div > 0 && s.period % (10u * app->opt.tlm_div) == 0u) {
+    if (app->opt.tlm_div > 0 && s.period % ((uint32_t)FW_SPEED_DIVIDER * app->opt.tlm_div) == 0u) {
         fwh_drive_telemetry(app, &s);
     }
     fwh_drive_status_if_changed(app);

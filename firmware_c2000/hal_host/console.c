@@ -344,7 +344,7 @@ static void execute(fwh_t *app, char **tok, int ntok, const con_cmd_info_t *cmd)
             fwh_drive_status_if_changed(app);
         } else if (rc == FW_STATUS_BUSY) {
             err_line(app, CON_ERR_BUSY, "%s", msg);
-        } else if (rc == FWH_STORE_ERROR) {
+        } else if (rc == FW_STATUS_STORE_ERROR) {
             err_line(app, CON_ERR_STORE_ERROR, "%s", msg);
         } else {
             err_line(app, CON_ERR_OUT_OF_RANGE, "%s", msg);

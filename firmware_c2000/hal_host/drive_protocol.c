@@ -123,13 +123,13 @@ int fwh_params_save_store(fwh_t *app, int *count, char *msg, size_t msglen)
     *count = 0;
     if (app->opt.params == NULL) {
         snprintf(msg, msglen, "no parameter file (start fw_host with --params FILE)");
-        return FWH_STORE_ERROR;
+        return FW_STATUS_STORE_ERROR;
     }
     n = fwh_params_save(&app->core, app->opt.params, err, sizeof(err));
     if (n < 0) {
         snprintf(msg, msglen, "%s", err);
         fwh_log(app, "SAVE failed: %s", err);
-        return FWH_STORE_ERROR;
+        return FW_STATUS_STORE_ERROR;
     }
     *count = n;
     return FW_STATUS_OK;
@@ -145,12 +145,12 @@ int fwh_params_load_store(fwh_t *app, int *count, char *msg, size_t msglen)
     *count = 0;
     if (app->opt.params == NULL) {
         snprintf(msg, msglen, "no parameter file (start fw_host with --params FILE)");
-        return FWH_STORE_ERROR;
+        return FW_STATUS_STORE_ERROR;
     }
     if (fwh_params_parse_file(app->opt.params, &load_list, err, sizeof(err)) != 0) {
         snprintf(msg, msglen, "%s", err);
         fwh_log(app, "LOAD failed: %s", err);
-        return FWH_STORE_ERROR;
+        return FW_STATUS_STORE_ERROR;
     }
     st = fwh_params_apply(&app->core, &load_list, &failed, &changed);
     if (st != FW_STATUS_OK) {
@@ -340,7 +340,9 @@ void fwh_drive_telemetry(fwh_t *app, const fw_status_t *s)
         if (deg < 0.0) {
             deg += 360.0;
         }
-        m.theta_hat = (uint16_t)(HIL_ENCODE(hil_drive_tlm_pos_theta_hat, deg) & 0xFFFF); /* 360 = 0 */
+        /* 360 = 0: raw 65536 wraps in the generated encoder's uint16_t (it converts through
+         * uint64_t) */
+        m.theta_hat = hil_drive_tlm_pos_theta_hat_encode(deg);
         FWH_SAT_ENCODE(r, hil_drive_tlm_pos_speed_hat, s->speed_hat_rpm, INT32_MIN, INT32_MAX);
         m.speed_hat = (int32_t)r;
         hil_drive_tlm_pos_pack(buf, &m, sizeof(buf));

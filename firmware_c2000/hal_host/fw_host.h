@@ -13,6 +13,7 @@
 #include "adc_assembly.h"
 #include "fw_core.h"
 #include "hil_log_limit.h"
+#include "hil_wire.h"
 #include "hilbus.h"
 #include "hiltrace.h"
 #include "pty.h"
@@ -22,7 +23,7 @@
 #define FWH_NS_PER_S 1000000000LL
 #define FWH_STATUS_PERIOD_NS (100LL * 1000000LL) /* DRIVE_STATUS, HEARTBEAT */
 #define FWH_TICK_NS (10LL * 1000000LL)           /* housekeeping timer */
-#define FWH_OVERRUN_NS (100LL * 1000LL)          /* ADC received -> PWM sent, real time */
+#define FWH_OVERRUN_NS HIL_PERIOD_NS             /* ADC received -> PWM sent, real time */
 
 enum { FWH_OWNER_NONE, FWH_OWNER_CAN, FWH_OWNER_CONSOLE };
 
@@ -111,8 +112,7 @@ void fwh_drive_send_heartbeat(fwh_t *app);
 void fwh_drive_status_if_changed(fwh_t *app);
 void fwh_drive_telemetry(fwh_t *app, const fw_status_t *s);
 /* SAVE / LOAD of the parameter file (shared by PARAM_REQ and the console). msg gets a
- * human-readable reason on failure. Returns FW_STATUS_* or FWH_STORE_ERROR. */
-#define FWH_STORE_ERROR 6 /* PARAM_RESP.status STORE_ERROR (drive.dbc) */
+ * human-readable reason on failure. Returns FW_STATUS_* (FW_STATUS_STORE_ERROR: the file). */
 int fwh_params_save_store(fwh_t *app, int *count, char *msg, size_t msglen);
 int fwh_params_load_store(fwh_t *app, int *count, char *msg, size_t msglen);
 /* Sends a drive command to the core on behalf of a source; updates owner on success. */

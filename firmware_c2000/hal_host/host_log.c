@@ -7,6 +7,7 @@
 #include <time.h>
 
 #include "fw_host.h"
+#include "hil_wire.h"
 
 int64_t fwh_now_ns(void)
 {
@@ -15,19 +16,17 @@ int64_t fwh_now_ns(void)
     return (int64_t)ts.tv_sec * FWH_NS_PER_S + ts.tv_nsec;
 }
 
+/* The names are drive.dbc's value tables (DRIVE_STATUS.state, .fault_code). */
 const char *fwh_state_name(int16_t state)
 {
-    static const char *const n[] = {"INIT", "IDLE", "POLARITY", "RUN", "FAULT"};
-    return state >= 0 && state <= 4 ? n[state] : "?";
+    const char *n = hil_drive_drive_status_state_name(state);
+    return n != NULL ? n : "?";
 }
 
 const char *fwh_fault_name(uint16_t code)
 {
-    static const char *const n[] = {"NONE",       "OVERCURRENT",     "DC_OVERVOLTAGE",
-                                    "DC_UNDERVOLTAGE", "ESTIMATOR",  "CMD_TIMEOUT",
-                                    "ADC_LOSS",   "POLARITY",        "POLARITY_LOST",
-                                    "OVERSPEED",  "PARAMS"};
-    return code < sizeof(n) / sizeof(n[0]) ? n[code] : "UNKNOWN";
+    const char *n = hil_drive_drive_status_fault_code_name(code);
+    return n != NULL ? n : "UNKNOWN";
 }
 
 uint64_t fwh_rejected_total(const fwh_t *a)

@@ -22,20 +22,21 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "hil_bench.h" /* LOAD_CMD.mode: HIL_BENCH_LOAD_CMD_MODE_*_CHOICE (protocols/bench.dbc) */
+#include "hil_wire.h"  /* the time base of protocols/vio.dbc (generated) */
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-/* Time base of the virtual ePWM (docs/interfaces.md). */
-#define PLANT_TBCLK_HZ 100000000.0
-#define PLANT_TBPRD 5000
+/* Time base of the virtual ePWM (docs/interfaces.md; defined in protocols/vio.dbc). */
+#define PLANT_TBCLK_HZ HIL_TBCLK_HZ
+#define PLANT_TBPRD HIL_TBPRD
 #define PLANT_PERIOD_TICKS (2 * PLANT_TBPRD)
 #define PLANT_TS_S (PLANT_PERIOD_TICKS / PLANT_TBCLK_HZ)
-#define PLANT_MAX_SOC 16
+#define PLANT_MAX_SOC HIL_MAX_SOC
 
 /* ---------------------------------------------------------------- configuration */
-
-enum plant_load_mode { PLANT_LOAD_TORQUE = 0, PLANT_LOAD_SPEED_HOLD = 1, PLANT_LOAD_OFF = 2 };
 
 /* All fields in SI units. Every field is a key `section.key` of the profile TOML files;
  * the files in plant_rt/profiles document each one. */
@@ -88,7 +89,7 @@ typedef struct plant_config {
         double b_load_nms;  /* load-machine friction (beyond the torque sensor) */
     } shaft;
     struct {
-        double mode; /* enum plant_load_mode */
+        double mode; /* LOAD_CMD.mode: HIL_BENCH_LOAD_CMD_MODE_*_CHOICE */
         double torque_nm;
         double speed_rpm;
         double k_speed_nms; /* N*m*s/rad */

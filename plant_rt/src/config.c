@@ -107,7 +107,7 @@ void plant_config_defaults(plant_config_t *c)
     c->adc.vdc_range_v = 400.0;
     c->shaft.j_kgm2 = 0.0005;
     c->shaft.b_nms = 0.003;
-    c->load.mode = PLANT_LOAD_OFF;
+    c->load.mode = HIL_BENCH_LOAD_CMD_MODE_OFF_CHOICE;
     c->solver.max_step_s = 10e-6;
 }
 

@@ -87,12 +87,12 @@ static void phase_axes(plant_machine_t *m, double theta, double cph[3][2], doubl
 static void mechanics(const plant_machine_t *m, double te, double w, double *tl, double *dw)
 {
     switch (m->load_mode) {
-    case PLANT_LOAD_SPEED_HOLD:
+    case HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE:
         /* The dynamometer holds the speed: it supplies whatever torque that takes. */
         *dw = 0.0;
         *tl = te - m->b_total * w;
         return;
-    case PLANT_LOAD_TORQUE:
+    case HIL_BENCH_LOAD_CMD_MODE_TORQUE_CHOICE:
         *tl = m->load_torque + m->load_k * w;
         break;
     default:

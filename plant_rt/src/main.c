@@ -368,8 +368,7 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
         if (r == PLANT_REJ_STALE_PERIOD && a->opt.realtime) {
             /* A frame for a period that already ran on the old values: it was due before
              * that period started, (expected - p) periods before the current one. */
-            const int64_t due = period_start_ns - (int64_t)(expected - raw_period) *
-                                                      (int64_t)(PLANT_TS_S * 1e9 + 0.5);
+            const int64_t due = period_start_ns - (int64_t)(expected - raw_period) * HIL_PERIOD_NS;
             const int64_t late_ns = now_ns() - due;
             if (late_ns > 0 && (uint64_t)(late_ns / 1000) > a->cnt.max_late_us) {
                 a->cnt.max_late_us = (uint64_t)(late_ns / 1000);
@@ -601,7 +600,7 @@ static double wake_quantile_us(const counters_t *c, double q)
  * (slipped_periods). Simulated time stays k*Ts; wall time lags it by the slip. */
 static int realtime(app_t *a)
 {
-    const int64_t ts_ns = (int64_t)(PLANT_TS_S * 1e9 + 0.5);
+    const int64_t ts_ns = HIL_PERIOD_NS;
     int64_t start, next_housekeeping;
     plant_pwm_cmd_t current;
     inbox_t in;
@@ -923,9 +922,15 @@ int main(int argc, char **argv)
         }
         case O_LOAD_MODE: {
             const char *m = optarg;
-            const char *num = strcmp(m, "torque") == 0 ? "0" : strcmp(m, "speed") == 0 ? "1"
-                            : strcmp(m, "off") == 0 ? "2" : m;
-            snprintf(buf, sizeof(buf), "load.mode=%s", num);
+            const int mode = strcmp(m, "torque") == 0 ? (int)HIL_BENCH_LOAD_CMD_MODE_TORQUE_CHOICE
+                           : strcmp(m, "speed") == 0 ? (int)HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE
+                           : strcmp(m, "off") == 0   ? (int)HIL_BENCH_LOAD_CMD_MODE_OFF_CHOICE
+                                                     : -1;
+            if (mode >= 0) {
+                snprintf(buf, sizeof(buf), "load.mode=%d", mode);
+            } else {
+                snprintf(buf, sizeof(buf), "load.mode=%s", m);
+            }
             sets[n_sets++] = strdup(buf);
             break;
         }
@@ -954,9 +959,9 @@ int main(int argc, char **argv)
             } else if (c == O_TRUTH_EVERY) {
                 a.opt.truth_every = (uint32_t)v;
             } else if (c == O_RT_SPIN) {
-                if (v >= (uint64_t)(PLANT_TS_S * 1e6)) {
-                    fprintf(stderr, "plant_rt: --rt-spin-us %s: must be below the period (100)\n",
-                            optarg);
+                if (v >= (uint64_t)(HIL_PERIOD_NS / 1000)) {
+                    fprintf(stderr, "plant_rt: --rt-spin-us %s: must be below the period (%lld)\n",
+                            optarg, HIL_PERIOD_NS / 1000);
                     free_sets(sets, n_sets);
                     return 2;
                 }

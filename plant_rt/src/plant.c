@@ -98,7 +98,7 @@ plant_t *plant_new(const plant_config_t *cfg, char *err, size_t errlen)
     plant_set_load(p, (int)cfg->load.mode, cfg->load.torque_nm, cfg->load.speed_rpm,
                    cfg->load.k_speed_nms);
     plant_set_state(p, cfg->initial.theta_e_deg * PLANT_PI / 180.0,
-                    p->mach.load_mode == PLANT_LOAD_SPEED_HOLD
+                    p->mach.load_mode == HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE
                         ? p->mach.load_speed_rad
                         : cfg->initial.speed_rpm * PLANT_TWO_PI / 60.0,
                     0.0, 0.0);
@@ -165,7 +165,7 @@ void plant_set_load(plant_t *p, int mode, double torque_nm, double speed_rpm, do
     p->mach.load_torque = torque_nm;
     p->mach.load_speed_rad = speed_rpm * PLANT_TWO_PI / 60.0;
     p->mach.load_k = k_speed_nms;
-    if (mode == PLANT_LOAD_SPEED_HOLD) {
+    if (mode == HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE) {
         p->x.omega_m = p->mach.load_speed_rad; /* the dynamometer imposes the speed */
     }
     plant_machine_rhs(&p->mach, &p->x, &p->d);

@@ -1,6 +1,5 @@
 /* The plant's frames (see plant_vio.h): moved out of plant_rt's main.c so that the
  * in-process bench packs and checks exactly what the bus program does. */
-#include <math.h>
 #include <string.h>
 
 #include "hil_bench.h"
@@ -124,8 +123,11 @@ int plant_decode_load_cmd(int fd, const uint8_t *data, size_t len, plant_load_cm
         return PLANT_REJ_BAD_LENGTH;
     }
     hil_bench_load_cmd_unpack(&m, data, len);
-    if (m.mode > 2 || !(fabsf(m.torque) <= 10.0f) || !(fabsf(m.speed) <= 4000.0f) ||
-        !(m.k_speed >= 0.0f && m.k_speed <= 1.0f)) {
+    /* the DBC ranges (a NaN is in none) */
+    if (!hil_bench_load_cmd_mode_is_in_range(m.mode) ||
+        !hil_bench_load_cmd_torque_is_in_range(m.torque) ||
+        !hil_bench_load_cmd_speed_is_in_range(m.speed) ||
+        !hil_bench_load_cmd_k_speed_is_in_range(m.k_speed)) {
         return PLANT_REJ_OUT_OF_RANGE;
     }
     out->mode = m.mode;

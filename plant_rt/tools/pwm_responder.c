@@ -28,6 +28,7 @@
 #include <unistd.h>
 
 #include "hil_vio.h"
+#include "hil_wire.h"
 #include "hilbus.h"
 
 #define MAX_DEFERRED 64
@@ -67,8 +68,8 @@ static void build_pwm(uint32_t period, int cycle6, struct hil_vio_vio_pwm_t *m)
         up[1] = &m->cmp_b_up, dn[1] = &m->cmp_b_dn;
         up[2] = &m->cmp_c_up, dn[2] = &m->cmp_c_dn;
         for (x = 0; x < 3; ++x) {
-            *up[x] = (high >> x) & 1u ? 0 : 5000; /* 5000/5000: an empty on-interval */
-            *dn[x] = 5000;
+            *up[x] = (high >> x) & 1u ? 0 : HIL_TBPRD; /* TBPRD/TBPRD: an empty on-interval */
+            *dn[x] = HIL_TBPRD;
         }
         m->n_soc = 1;
         m->soc_0 = 0;

@@ -21,9 +21,10 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 
+from rig import protocols
 from rig.commissioning.link import CanLink, Signals
 
-TS = 1e-4  # PWM period of the bench (docs/interfaces.md)
+TS = protocols.timebase().ts  # PWM period of the bench (docs/interfaces.md)
 CYCLE_S = 0.01  # DRIVE_CMD cycle (drive.dbc GenMsgCycleTime)
 IDLE_S = 0.1
 RESEND_S = 1.0

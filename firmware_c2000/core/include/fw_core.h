@@ -13,19 +13,17 @@
 #define FW_CORE_H
 
 #include "fw_types.h" /* real_t, fixed-width ints, no uint8_t */
+/* What the wire defines, generated from the DBC files in protocols/ at configure time (never
+ * committed): the PWM time base FW_TBPRD, FW_PERIOD_TICKS, FW_TBCLK_HZ, FW_TS (100 us),
+ * FW_SPEED_DIVIDER (speed loop, MTPA/FW every 10th ISR: 1 kHz), FW_MAX_SOC, and the value
+ * tables FW_STATE_* (DRIVE_STATUS.state, FW_TRACE.state), FW_CTRL_*, FW_FWMODE_* (DRIVE_CMD),
+ * FW_FAULT_* (DRIVE_STATUS.fault_code: the first fault since the last reset), FW_STATUS_*
+ * (PARAM_RESP.status). */
+#include "fw_wire_gen.h"
 
 #ifdef __cplusplus
 extern "C" {
 #endif
-
-/* ---- PWM time base (docs/interfaces.md) -------------------------------------------------- */
-#define FW_TBPRD 5000u                  /* up-down count half period, ticks */
-#define FW_PERIOD_TICKS 10000u          /* one PWM period = 2*TBPRD ticks = 100 us */
-#define FW_TBCLK_HZ 100000000.0f        /* ticks per second */
-#define FW_TS 1.0e-4f                   /* PWM / current-loop period, s */
-#define FW_SPEED_DIVIDER 10             /* speed loop, MTPA/FW every 10th ISR (1 kHz) */
-
-#define FW_MAX_SOC 16
 
 /* Raw ADC codes of period k, in the order of the SOCs the core asked for (pwm.soc[]). */
 typedef struct {
@@ -57,42 +55,11 @@ typedef struct {
     real_t iq_ref;
 } fw_cmd_t;
 
-/* ---- Status codes of the API (same numbers as PARAM_RESP.status in drive.dbc) ------------ */
-#define FW_STATUS_OK 0
-#define FW_STATUS_UNKNOWN_ID 1
-#define FW_STATUS_OUT_OF_RANGE 2
-#define FW_STATUS_READ_ONLY 3
-#define FW_STATUS_BUSY 4
-#define FW_STATUS_BAD_OP 5
-#define FW_STATUS_STORE_ERROR 6 /* parameter store (HAL side) */
-#define FW_STATUS_BAD_ARG 7     /* NULL pointer (a programming error of the caller) */
-
-/* ---- Drive states (DRIVE_STATUS.state, FW_TRACE.state) ---------------------------------- */
-#define FW_STATE_INIT 0
-#define FW_STATE_IDLE 1
-#define FW_STATE_POLARITY 2
-#define FW_STATE_RUN 3
-#define FW_STATE_FAULT 4
-
-/* ---- Modes (DRIVE_CMD) -------------------------------------------------------------------- */
-#define FW_CTRL_SPEED 0
-#define FW_CTRL_CURRENT 1
-#define FW_FWMODE_REALTIME 0     /* MTPA/FW from the online parameter estimates */
-#define FW_FWMODE_CONVENTIONAL 1 /* MTPA/FW from the nominal parameters */
-#define FW_FWMODE_ID_ZERO 2      /* id = 0, no flux weakening */
-
-/* ---- Fault codes (DRIVE_STATUS.fault_code: the first fault since the last reset) ---------- */
-#define FW_FAULT_NONE 0
-#define FW_FAULT_OVERCURRENT 1
-#define FW_FAULT_DC_OVERVOLTAGE 2
-#define FW_FAULT_DC_UNDERVOLTAGE 3
-#define FW_FAULT_ESTIMATOR 4       /* implausible slopes / residual / PLL error for too long */
-#define FW_FAULT_CMD_TIMEOUT 5     /* no valid command for cmd_timeout_ms (ISR ticks) */
-#define FW_FAULT_ADC_LOSS 6        /* ADC data of a period missing, stale or incomplete */
-#define FW_FAULT_POLARITY 7        /* start-up polarity detection inconclusive */
-#define FW_FAULT_POLARITY_LOST 8   /* polarity flip detected while running, not recoverable */
-#define FW_FAULT_OVERSPEED 9
-/* 10.. reserved */
+/* ---- Status codes of the API: PARAM_RESP.status's table (fw_wire_gen.h), and one more ---- */
+#define FW_STATUS_BAD_ARG (FW_STATUS_WIRE_MAX + 1) /* NULL pointer (a caller's programming
+                                                      error; never on the wire) */
+/* What each mode and fault means: the comments of DRIVE_CMD.fw_mode and
+ * DRIVE_STATUS.fault_code in protocols/drive.dbc. */
 
 /* Everything FW_TRACE and the TLM_* / DRIVE_STATUS frames carry. */
 typedef struct {

@@ -154,7 +154,7 @@ static void modes(void)
     s->cmd.enable = 1;
     CHECK(run_until_state(s, FW_STATE_RUN, 20000), "modes: no RUN");
     s->cmd.speed_ref_rpm = 1000.0f;
-    CHECK(sil_bench_load_cmd(s->b, PLANT_LOAD_TORQUE, 1.5, 0.0, 0.0) == 0, "load 1.5 N*m");
+    CHECK(sil_bench_load_cmd(s->b, HIL_BENCH_LOAD_CMD_MODE_TORQUE_CHOICE, 1.5, 0.0, 0.0) == 0, "load 1.5 N*m");
     for (m = 0; m < 3; m++) {
         static const int16_t order[3] = {FW_FWMODE_REALTIME, FW_FWMODE_CONVENTIONAL,
                                          FW_FWMODE_ID_ZERO};
@@ -203,7 +203,7 @@ static void q_saturation(void)
      * plant's, averaged over the last n_mean periods (the current ripple moves it) */
     for (k = 0; k < 40000; k++) {
         if (k % 10 == 0) {
-            (void)sil_bench_load_cmd(s->b, PLANT_LOAD_TORQUE, 1.8 * fmin(1.0, (double)k / 30000.0),
+            (void)sil_bench_load_cmd(s->b, HIL_BENCH_LOAD_CMD_MODE_TORQUE_CHOICE, 1.8 * fmin(1.0, (double)k / 30000.0),
                                      0.0, 0.0);
         }
         sim_step(s);

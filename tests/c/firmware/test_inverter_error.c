@@ -61,7 +61,7 @@ static double check_point(double td_us, double vdrop, double vdc, double vmag, d
         return 1e9;
     }
     CHECK(fabs(plant_config(pl)->machine.rs_ohm - rs) < 1e-12, "default Rs changed");
-    plant_set_load(pl, PLANT_LOAD_SPEED_HOLD, 0.0, 0.0, 0.0);
+    plant_set_load(pl, HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE, 0.0, 0.0, 0.0);
     /* start near the steady current (rotor d axis at 0: dq = alpha-beta) */
     plant_set_state(pl, 0.0, 0.0, vmag / rs * cos(ang), vmag / rs * sin(ang));
 

@@ -16,8 +16,10 @@ from cantools.database.can import Message, Signal
 VECTORS_PER_MESSAGE = 200
 
 
-def random_value(sig: Signal, rng: random.Random) -> float | int:
-    """A physical value inside the DBC range that the signal represents exactly."""
+def random_value(sig: Signal, rng: random.Random, between: bool = False) -> float | int:
+    """A physical value inside the DBC range that the signal represents exactly, or with
+    `between` one up to 0.45 raw steps off such a value (inside the range): the C encoder must
+    round it to the nearest raw value as the Python encoder does, not truncate it."""
     lo = sig.minimum if sig.minimum is not None else 0
     hi = sig.maximum if sig.maximum is not None else 1
     if sig.is_float:
@@ -28,6 +30,13 @@ def random_value(sig: Signal, rng: random.Random) -> float | int:
     raw_lo = max(raw_lo, int((lo - offset) / scale + 0.999999))
     raw_hi = min(raw_hi, int((hi - offset) / scale + 1e-9))
     raw = rng.randint(raw_lo, raw_hi)
+    if between:
+        off = rng.uniform(0.05, 0.45) * rng.choice((-1.0, 1.0))
+        if raw == raw_lo:
+            off = abs(off)
+        elif raw == raw_hi:
+            off = -abs(off)
+        return (raw + off) * scale + offset
     if scale == 1 and offset == 0:
         return raw
     return raw * scale + offset
@@ -55,14 +64,24 @@ def check_message(tool: subprocess.Popen[str], msg: Message, rng: random.Random)
             if abs(c - p) > tol:
                 print(f"{msg.name}.{sig.name}: C decoded {c}, Python {p}")
                 failures += 1
-        kv = " ".join(f"{s.name}={py_values[s.name]!r}" for s in msg.signals)
-        tool.stdin.write(f"encode 0x{msg.frame_id:x} {kv}\n")
-        tool.stdin.flush()
-        c_bytes = tool.stdout.readline().strip()
-        if c_bytes != data.hex():
-            print(f"{msg.name}: C encoded {c_bytes}, Python {data.hex()}")
-            failures += 1
+        failures += check_encode(tool, msg, py_values, data.hex())
+        between = {s.name: random_value(s, rng, between=True) for s in msg.signals}
+        failures += check_encode(tool, msg, between, msg.encode(between, strict=True).hex())
     return failures
+
+
+def check_encode(tool: subprocess.Popen[str], msg: Message, values: dict[str, float | int],
+                 want: str) -> int:
+    """The C encoder's bytes for `values` against the Python encoder's `want`."""
+    assert tool.stdin is not None and tool.stdout is not None
+    kv = " ".join(f"{s.name}={values[s.name]!r}" for s in msg.signals)
+    tool.stdin.write(f"encode 0x{msg.frame_id:x} {kv}\n")
+    tool.stdin.flush()
+    c_bytes = tool.stdout.readline().strip()
+    if c_bytes != want:
+        print(f"{msg.name}: C encoded {c_bytes}, Python {want} ({kv})")
+        return 1
+    return 0
 
 
 def main() -> int:

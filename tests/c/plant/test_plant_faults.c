@@ -123,7 +123,7 @@ static void test_sensor_loss_and_open_phase(void)
         ++g_failures;
         return;
     }
-    plant_set_load(p, PLANT_LOAD_SPEED_HOLD, 0.0, 0.0, 0.0); /* locked rotor */
+    plant_set_load(p, HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE, 0.0, 0.0, 0.0); /* locked rotor */
     drive_phase_a(p, 20, &t, &s);
     CHECK(t.ia > 1.0); /* the current flows... */
     fault(p, 0, KIND(SENSOR_LOSS), 0, 0, 0, 0.0, 0);
@@ -157,11 +157,11 @@ static void test_gate_off(void)
         plant_free(healthy);
         return;
     }
-    plant_set_load(healthy, PLANT_LOAD_SPEED_HOLD, 0.0, 0.0, 0.0);
+    plant_set_load(healthy, HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE, 0.0, 0.0, 0.0);
     drive_phase_a(healthy, 30, &t, &s);
     CHECK(t.ia > 1.0 && fabs(t.ib - t.ic) < 1e-6 * t.ia); /* b and c share the return */
     plant_free(healthy);
-    plant_set_load(p, PLANT_LOAD_SPEED_HOLD, 0.0, 0.0, 0.0);
+    plant_set_load(p, HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE, 0.0, 0.0, 0.0);
     /* the upper switch of phase a never conducts: nothing drives current into phase a (its
      * upper diode only carries current out of the machine) */
     fault(p, 0, KIND(GATE_OFF), 0, 0, 0, 0.0, 0);

@@ -14,18 +14,21 @@ from functools import cache
 
 import numpy as np
 
-from rig import _paths
+from rig import _paths, protocols
 
-TBPRD = 5000
-PERIOD_TICKS = 2 * TBPRD
-TBCLK_HZ = 100e6
+TBPRD = protocols.timebase().tbprd
+PERIOD_TICKS = protocols.timebase().period_ticks
+TBCLK_HZ = float(protocols.timebase().tbclk_hz)
 TICK = 1.0 / TBCLK_HZ
 TS = PERIOD_TICKS * TICK
 MAX_SOC = 16
 
-# FW_STATE_* and FW_FAULT_* of fw_core.h
-STATE_IDLE, STATE_POLARITY, STATE_RUN, STATE_FAULT = 1, 2, 3, 4
-FAULT_ADC_LOSS, FAULT_CMD_TIMEOUT = 6, 5
+# the core's FW_STATE_* and FW_FAULT_*: DRIVE_STATUS's value tables (protocols/drive.dbc)
+_STATE = protocols.choices("drive", "DRIVE_STATUS", "state")
+_FAULT = protocols.choices("drive", "DRIVE_STATUS", "fault_code")
+STATE_IDLE, STATE_POLARITY, STATE_RUN, STATE_FAULT = (
+    _STATE["IDLE"], _STATE["POLARITY"], _STATE["RUN"], _STATE["FAULT"])
+FAULT_ADC_LOSS, FAULT_CMD_TIMEOUT = _FAULT["ADC_LOSS"], _FAULT["CMD_TIMEOUT"]
 
 STATUS_FIELDS = (
     "state fault_code period stamp theta_hat omega_hat speed_hat_rpm id iq id_ref iq_ref vd vq "

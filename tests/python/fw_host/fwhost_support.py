@@ -27,9 +27,11 @@ from rig import _paths, protocols
 ZERO_A = 32768
 VDC_200V = 32768
 READY_TIMEOUT_S = 30.0  # sanitizer builds and the VM start slowly
-STATE = {"INIT": 0, "IDLE": 1, "POLARITY": 2, "RUN": 3, "FAULT": 4}
-FAULT_CMD_TIMEOUT = 5
-FAULT_ADC_LOSS = 6
+# the DRIVE_STATUS value tables of protocols/drive.dbc
+STATE = protocols.choices("drive", "DRIVE_STATUS", "state")
+FAULT = protocols.choices("drive", "DRIVE_STATUS", "fault_code")
+FAULT_CMD_TIMEOUT = FAULT["CMD_TIMEOUT"]
+FAULT_ADC_LOSS = FAULT["ADC_LOSS"]
 
 
 def fw_binary() -> Path:

@@ -5,8 +5,10 @@ from __future__ import annotations
 import pytest
 from fwhost_support import FAULT_ADC_LOSS, STATE, Peer, StartFw
 
-TBPRD = 5000
-PERIOD_TICKS = 10000
+from rig import protocols
+
+TBPRD = protocols.timebase().tbprd
+PERIOD_TICKS = protocols.timebase().period_ticks
 
 
 def check_pwm(pwm: dict[str, int], period: int) -> None:

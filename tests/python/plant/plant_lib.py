@@ -10,13 +10,13 @@ from typing import Any
 
 import numpy as np
 
-from rig import _paths
+from rig import _paths, protocols
 
 MAX_SOC = 16
-TBPRD = 5000
-PERIOD_TICKS = 2 * TBPRD
-TBCLK_HZ = 100e6
-TS = PERIOD_TICKS / TBCLK_HZ
+TBPRD = protocols.timebase().tbprd
+PERIOD_TICKS = protocols.timebase().period_ticks
+TBCLK_HZ = float(protocols.timebase().tbclk_hz)
+TS = protocols.timebase().ts
 PROFILES = Path(__file__).resolve().parents[3] / "plant_rt" / "profiles"
 
 

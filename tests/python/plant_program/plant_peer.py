@@ -23,10 +23,10 @@ from cantools.database.can import Database, Message
 
 from rig import _paths
 from rig import bus as rigbus
-from rig.protocols import database
+from rig.protocols import database, timebase
 
-TBPRD = 5000
-TS = 100e-6
+TBPRD = timebase().tbprd
+TS = timebase().ts
 TRACE_MAGIC = b"HILTRACE"
 TRACE_RECORD = struct.Struct("<IBBBB64s")  # struct canfd_frame
 

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from plant_peer import Peer, PlantProcess, Pwm, read_trace, run_plant
 
-from rig import _paths
+from rig import _paths, protocols
 
 # paper profile
 J, B = 0.0005, 0.003
 POLE_PAIRS = 2
-TS = 100e-6
+TS = protocols.timebase().ts
 
 
 def test_load_modes_change_the_truth(transport: str, channel: str, tmp_path: Path) -> None:

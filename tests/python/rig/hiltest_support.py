@@ -12,8 +12,8 @@ import numpy as np
 from rig import protocols
 from rig.trace import TraceWriter
 
-TS = 100e-6
-TICK = 10e-9
+TS = protocols.timebase().ts
+TICK = 1.0 / protocols.timebase().tbclk_hz
 
 
 def message(db: str, name: str):  # type: ignore[no-untyped-def]

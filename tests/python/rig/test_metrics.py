@@ -10,9 +10,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.optimize import brentq
 
-from rig import metrics
+from rig import metrics, protocols
 
-TS = 100e-6
+TS = protocols.timebase().ts
 
 
 def test_sinusoidal_error_statistics() -> None:

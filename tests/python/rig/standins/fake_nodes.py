@@ -34,7 +34,7 @@ from rig import bus as rigbus
 from rig import protocols
 from rig.trace import TraceWriter
 
-TS = 100e-6
+TS = protocols.timebase().ts
 POLE_PAIRS = 2
 J = 0.0005
 B = 0.003

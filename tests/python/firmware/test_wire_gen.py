@@ -1,0 +1,75 @@
+"""The wire facts C gets generated from protocols/*.dbc (firmware_c2000/tools/gen_wire.py):
+the same numbers Python reads, and a build that stops on a DBC whose facts disagree."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from rig import protocols
+
+REPO = Path(__file__).resolve().parents[3]
+GEN = REPO / "firmware_c2000" / "tools" / "gen_wire.py"
+
+
+def generate(mode: str, out: Path, protocols_dir: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, str(GEN), mode, str(out), str(protocols_dir)],
+                          capture_output=True, text=True, timeout=60)
+
+
+def defines(path: Path) -> dict[str, str]:
+    return dict(re.findall(r"^#define (\w+) (\S+)", path.read_text(), re.M))
+
+
+def test_core_header_holds_the_dbc_facts(tmp_path: Path) -> None:
+    assert generate("core", tmp_path, REPO / "protocols").returncode == 0
+    d = defines(tmp_path / "fw_wire_gen.h")
+    tb = protocols.timebase()
+    assert d["FW_TBPRD"] == f"{tb.tbprd}u" and d["FW_PERIOD_TICKS"] == f"{tb.period_ticks}u"
+    assert float(d["FW_TBCLK_HZ"].rstrip("f")) == tb.tbclk_hz
+    assert float(d["FW_TS"].rstrip("f")) == tb.ts == 100e-6
+    assert int(d["FW_SPEED_DIVIDER"]) == tb.speed_loop_divider == 10
+    for prefix, message, signal in (("FW_FAULT_", "DRIVE_STATUS", "fault_code"),
+                                    ("FW_STATE_", "DRIVE_STATUS", "state"),
+                                    ("FW_CTRL_", "DRIVE_CMD", "ctrl_mode"),
+                                    ("FW_FWMODE_", "DRIVE_CMD", "fw_mode"),
+                                    ("FW_STATUS_", "PARAM_RESP", "status")):
+        table = protocols.choices("drive", message, signal)
+        got = {k[len(prefix):]: int(v) for k, v in d.items()
+               if k.startswith(prefix) and not k.endswith("WIRE_MAX")}
+        assert got == table, prefix
+
+
+def test_host_header_time_base(tmp_path: Path) -> None:
+    assert generate("host", tmp_path, REPO / "protocols").returncode == 0
+    d = defines(tmp_path / "hil_wire.h")
+    tb = protocols.timebase()
+    assert int(d["HIL_TBPRD"]) == tb.tbprd and int(d["HIL_PERIOD_TICKS"]) == tb.period_ticks
+    assert d["HIL_PERIOD_NS"] == f"{tb.period_ns}LL" and tb.period_ns == 100_000
+    assert int(d["HIL_SPEED_LOOP_DIVIDER"]) == tb.speed_loop_divider
+
+
+@pytest.mark.parametrize("edit, needle", [
+    (("vio.dbc", 'BA_ "HilTbprd" 5000;', 'BA_ "HilTbprd" 4000;'),
+     "VIO_PWM.cmp_a_up range [0|5000], the time base (HilTbprd 4000) says [0|4000]"),
+    (("drive.dbc", 'BA_ "HilSpeedLoopDivider" 10;', 'BA_ "HilSpeedLoopDivider" 20;'),
+     "TLM_POS GenMsgCycleTime 1 ms is not HilSpeedLoopDivider (20) PWM periods"),
+    (("vio.dbc", 'BA_ "HilTbclkHz" 100000000;\n', ""), "HilTbclkHz missing"),
+    (("drive.dbc", ' 9 "OVERSPEED" ;', ' 9 "OVER SPEED" ;'), "is not an upper-case C identifier"),
+])
+def test_disagreeing_facts_stop_the_build(tmp_path: Path, edit: tuple[str, str, str],
+                                          needle: str) -> None:
+    protocols_dir = tmp_path / "protocols"
+    shutil.copytree(REPO / "protocols", protocols_dir)
+    name, old, new = edit
+    dbc = protocols_dir / name
+    text = dbc.read_text()
+    assert old in text
+    dbc.write_text(text.replace(old, new))
+    r = generate("core", tmp_path / "out", protocols_dir)
+    assert r.returncode == 1 and needle in r.stderr, r.stderr
