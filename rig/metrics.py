@@ -516,9 +516,7 @@ def _slopes(w: Window, p: Mapping[str, float]) -> float:
 def _drive_status_choice(signal: str, name: str) -> int:
     from rig import protocols
 
-    sig = protocols.database("drive").get_message_by_name("DRIVE_STATUS").get_signal_by_name(
-        signal)
-    return next(int(v) for v, n in (sig.choices or {}).items() if str(n) == name)
+    return protocols.choices("drive", "DRIVE_STATUS", signal)[name.lower()]
 
 
 def firmware_state(name: str) -> int:

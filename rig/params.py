@@ -110,13 +110,8 @@ class FrameLink(Protocol):
                  timeout_s: float, what: str) -> Mapping[str, Any]: ...
 
 
-def _choices(message: str, signal: str) -> dict[str, int]:
-    sig = protocols.database("drive").get_message_by_name(message).get_signal_by_name(signal)
-    return {str(n): int(v) for v, n in (sig.choices or {}).items()}
-
-
-OPS = _choices("PARAM_REQ", "op")
-STATUS = {v: k for k, v in _choices("PARAM_RESP", "status").items()}
+OPS = protocols.choices("drive", "PARAM_REQ", "op")
+STATUS = protocols.names("drive", "PARAM_RESP", "status")
 
 
 @dataclass
@@ -143,13 +138,13 @@ class ParamClient:
         for _ in range(self.retries + 1):
             self.seq = (self.seq + 1) % 256
             seq = self.seq
-            self.link.send("PARAM_REQ", {"op": OPS[op], "seq": seq, "param_id": pid,
+            self.link.send("PARAM_REQ", {"op": OPS[op.lower()], "seq": seq, "param_id": pid,
                                          "value": float(value)})
             t0 = time.monotonic()
 
             def answers(v: Mapping[str, Any], s: int = seq) -> bool:
                 return int(v["seq"]) == s and int(v["param_id"]) == pid and \
-                    int(v["op"]) == OPS[op]
+                    int(v["op"]) == OPS[op.lower()]
 
             try:
                 resp = self.link.wait_for("PARAM_RESP", answers, self.timeout_s,

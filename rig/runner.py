@@ -343,9 +343,9 @@ class Commander:
             "FAULT_CMD": _msg("bench", "FAULT_CMD"),
             "BENCH_STEP": _msg("bench", "BENCH_STEP"),
         }
-        self._ctrl = _choices("drive", "DRIVE_CMD", "ctrl_mode")
-        self._fw = _choices("drive", "DRIVE_CMD", "fw_mode")
-        self._load = _choices("bench", "LOAD_CMD", "mode")
+        self._ctrl = protocols.choices("drive", "DRIVE_CMD", "ctrl_mode")
+        self._fw = protocols.choices("drive", "DRIVE_CMD", "fw_mode")
+        self._load = protocols.choices("bench", "LOAD_CMD", "mode")
 
     def _send(self, name: str, values: Mapping[str, float | int]) -> None:
         m = self._m[name]
@@ -414,11 +414,6 @@ class Commander:
         return self.step_seq
 
 
-def _choices(db: str, message: str, signal: str) -> dict[str, int]:
-    sig = _msg(db, message).get_signal_by_name(signal)
-    return {str(n).lower(): int(v) for v, n in (sig.choices or {}).items()}
-
-
 # --------------------------------------------------------------------------------------
 # What the rig hears on the bus
 
@@ -432,7 +427,7 @@ LISTEN = (
 
 
 TLM_IDS = {int(_msg("drive", n).frame_id): n for db, n in LISTEN if n.startswith("TLM_")}
-FAULT_STATE = _choices("drive", "DRIVE_STATUS", "state")["fault"]
+FAULT_STATE = protocols.choices("drive", "DRIVE_STATUS", "state")["fault"]
 
 
 def listen_filters() -> list[dict[str, int]]:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rig import _paths, faults, metrics, params, plant_schema
+from rig import _paths, faults, metrics, params, plant_schema, protocols
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 SUITE_DIR = SCENARIO_DIR / "suites"
@@ -512,26 +512,6 @@ class Suite:
 # Validation
 
 
-@cache
-def _choices(db: str, message: str, signal: str) -> dict[str, int]:
-    from rig import protocols
-
-    sig = protocols.database(db).get_message_by_name(message).get_signal_by_name(signal)
-    return {str(name).lower(): int(value) for value, name in (sig.choices or {}).items()}
-
-
-def ctrl_modes() -> dict[str, int]:
-    return _choices("drive", "DRIVE_CMD", "ctrl_mode")
-
-
-def fw_modes() -> dict[str, int]:
-    return _choices("drive", "DRIVE_CMD", "fw_mode")
-
-
-def load_modes() -> dict[str, int]:
-    return _choices("bench", "LOAD_CMD", "mode")
-
-
 SEGMENT_KINDS = ("hold", "step", "ramp", "reversal", "trapezoid", "triangle")
 LOAD_KINDS = ("step", "ramp", "off", "speed_hold")
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -863,8 +843,10 @@ def parse_scenario(file: Path, text: str) -> Scenario:
 
     drive = c.table(data.get("drive", {}), ("drive",),
                     ("ctrl_mode", "fw_mode", "enable_at", "iq_ref"))
-    ctrl_mode = c.string(drive, ("drive",), "ctrl_mode", "speed", choices=ctrl_modes())
-    fw_mode = c.string(drive, ("drive",), "fw_mode", "realtime", choices=fw_modes())
+    ctrl_mode = c.string(drive, ("drive",), "ctrl_mode", "speed",
+                         choices=protocols.choices("drive", "DRIVE_CMD", "ctrl_mode"))
+    fw_mode = c.string(drive, ("drive",), "fw_mode", "realtime",
+                       choices=protocols.choices("drive", "DRIVE_CMD", "fw_mode"))
     enable_at = c.number(drive, ("drive",), "enable_at", 0.0, minimum=0.0)
     iq_ref = c.number(drive, ("drive",), "iq_ref", 0.0, minimum=-10, maximum=10)
     if enable_at >= duration > 0:

@@ -23,15 +23,10 @@ from rig.params import ParamClient
 READBACK_WALL_S = 1.0
 
 
-def _choices(message: str, signal: str) -> dict[str, int]:
-    sig = protocols.database("drive").get_message_by_name(message).get_signal_by_name(signal)
-    return {str(n).lower(): int(v) for v, n in (sig.choices or {}).items()}
-
-
-CTRL = _choices("DRIVE_CMD", "ctrl_mode")
-FWMODE = _choices("DRIVE_CMD", "fw_mode")
-STATE = {v: k.upper() for k, v in _choices("DRIVE_STATUS", "state").items()}
-CMD_STATUS = {v: k.upper() for k, v in _choices("PARAM_RESP", "status").items()}
+CTRL = protocols.choices("drive", "DRIVE_CMD", "ctrl_mode")
+FWMODE = protocols.choices("drive", "DRIVE_CMD", "fw_mode")
+STATE = protocols.names("drive", "DRIVE_STATUS", "state")
+CMD_STATUS = protocols.names("drive", "PARAM_RESP", "status")
 
 
 class DriveError(RuntimeError):
