@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rig import _paths, faults, metrics, params, plant_schema, protocols
+from rig import _paths, faults, metrics, params, plant_schema, profiles, protocols
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 SUITE_DIR = SCENARIO_DIR / "suites"
@@ -596,17 +596,6 @@ class _Checker:
         return v
 
 
-def _flatten(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in data.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(_flatten(v, key + "."))
-        else:
-            out[key] = v
-    return out
-
-
 # Upper bounds of the run's own numbers: a duration that would make the grant plan and the
 # traces unbounded (1e7 s: MemoryError), and waits no run needs.
 MAX_DURATION_S = 3600.0
@@ -659,24 +648,10 @@ TOP_KEYS = (
 )
 
 
-def profile_values(profile: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
-    """The flat ``section.key`` values of a fidelity profile with the overrides ({} when the
-    profile file is not there)."""
-    values: dict[str, Any] = {}
-    try:
-        path = _paths.data_dir("profiles") / f"{profile}.toml"
-        data = tomllib.loads(path.read_text())
-    except (FileNotFoundError, OSError, tomllib.TOMLDecodeError):
-        data = {}
-    values.update(_flatten(data))
-    values.update(overrides)
-    return values
-
-
 def _check_stuck_codes(c: _Checker, profile: str, overrides: Mapping[str, Any],
                        events: Sequence[faults.Fault]) -> None:
     """A stuck converter's code must be one the converter has, on this profile."""
-    bits = faults.adc_bits_of(profile_values(profile, overrides))
+    bits = faults.adc_bits_of(profiles.profile_values(profile, overrides))
     for i, f in enumerate(events):
         if f.kind == "adc_stuck" and f.channel in bits:
             top = (1 << bits[f.channel]) - 1
@@ -794,7 +769,7 @@ def _criterion(c: _Checker, raw: Any, path: Path_, duration: float) -> Criterion
 
 def _scalars(c: _Checker, raw: Any, path: Path_) -> dict[str, float | int | str | bool]:
     d = c.table(raw, path, raw.keys() if isinstance(raw, dict) else ())
-    flat = _flatten(d)
+    flat = profiles.flatten(d)
     for k, v in flat.items():
         if not isinstance(v, int | float | str | bool):
             c.err((*path, *k.split(".")), f"must be a number, string or boolean, not {v!r}")
@@ -903,7 +878,7 @@ def parse_scenario(file: Path, text: str) -> Scenario:
     if not isinstance(raw_faults, list):
         c.err(("faults",), "must be a list of events ([[faults]] tables)")
         raw_faults = []
-    adc_bits = faults.adc_bits_of(profile_values(profile, overrides)) if profile else {}
+    adc_bits = faults.adc_bits_of(profiles.profile_values(profile, overrides)) if profile else {}
     for i, raw in enumerate(raw_faults):
         fe = faults.parse(c, raw, ("faults", i), duration, adc_bits)
         if fe is not None:

@@ -11,13 +11,11 @@ from __future__ import annotations
 
 import json
 import sys
-import tomllib
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rig import _paths
+from rig import _paths, profiles
 from rig.bench_description import BenchDescription
 from rig.firmware_from_profile import firmware_settings
 from rig.supervisor import Supervisor
@@ -31,24 +29,12 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def profile_path(name: str) -> Path:
-    p = Path(name)
-    if p.suffix == ".toml" and p.is_file():
-        return p
-    return _paths.data_dir("profiles") / f"{name}.toml"
-
-
 def plant_values(desc: BenchDescription) -> dict[str, Any]:
     """The plant's flat ``section.key`` configuration: profile file plus overrides."""
     assert desc.virtual is not None
-    data = tomllib.loads(profile_path(desc.virtual.profile).read_text())
-    values: dict[str, Any] = {}
-    for section, table in data.items():
-        if isinstance(table, Mapping):
-            for k, v in table.items():
-                values[f"{section}.{k}"] = v
-    values.update(desc.virtual.plant)
-    return values
+    if profiles.profile_file(desc.virtual.profile) is None:
+        raise FileNotFoundError(f"virtual.profile: no profile {desc.virtual.profile!r}")
+    return profiles.profile_values(desc.virtual.profile, desc.virtual.plant)
 
 
 def plant_truth(desc: BenchDescription) -> dict[str, float]:
@@ -86,7 +72,8 @@ class VirtualBench:
         common = ["--bus", transport, "--channel", channel, pacing]
         out: dict[str, list[str]] = {}
         plant = [str(_paths.binary("plant_rt")), *common, "--config",
-                 str(profile_path(v.profile)), "--ready-file", str(self.dir / "plant.ready"),
+                 str(profiles.profile_file(v.profile)),
+                 "--ready-file", str(self.dir / "plant.ready"),
                  "--truth-every", str(v.truth_every)]
         for k, val in v.plant.items():
             plant += ["--set", f"{k}={_fmt(val)}"]
