@@ -102,7 +102,7 @@ class ParamTimeout(ParamError):
 
 
 class FrameLink(Protocol):
-    """What the parameter client needs from the bus (rig.commissioning.link.CanLink)."""
+    """What the parameter client needs from the bus (rig.link.bus.BusLink)."""
 
     def send(self, name: str, values: Mapping[str, Any]) -> None: ...
 
