@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields
-from functools import cache
 from typing import Any, Protocol
 
 from rig import protocols
@@ -59,11 +58,9 @@ def _fault_cmd() -> Any:
     return protocols.database("bench").get_message_by_name("FAULT_CMD")
 
 
-@cache
 def choices(signal: str) -> dict[str, int]:
     """A FAULT_CMD value table, lower-case names (kind, channel, phase, gate)."""
-    sig = _fault_cmd().get_signal_by_name(signal)
-    return {str(name).lower(): int(value) for value, name in (sig.choices or {}).items()}
+    return protocols.choices("bench", "FAULT_CMD", signal)
 
 
 def signal_range(signal: str) -> tuple[float, float]:

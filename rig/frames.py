@@ -36,6 +36,7 @@ class FrameDecoder:
     databases: Iterable[str] = protocols.DATABASES
     rejected: Counter[str] = field(default_factory=Counter)
     _by_id: dict[int, Message] = field(default_factory=dict, init=False)
+    _by_name: dict[str, Message] = field(default_factory=dict, init=False)
     _logged: Counter[tuple[str, int]] = field(default_factory=Counter, init=False)
 
     def __post_init__(self) -> None:
@@ -44,12 +45,10 @@ class FrameDecoder:
                 if msg.frame_id in self._by_id:
                     raise ValueError(f"frame id 0x{msg.frame_id:X} defined twice ({msg.name})")
                 self._by_id[msg.frame_id] = msg
+                self._by_name[msg.name] = msg
 
     def message(self, name: str) -> Message:
-        for msg in self._by_id.values():
-            if msg.name == name:
-                return msg
-        raise KeyError(name)
+        return self._by_name[name]
 
     def decode(self, frame: can.Message) -> Decoded | None:
         """The decoded frame, or None (counted and logged) when it is not acceptable."""

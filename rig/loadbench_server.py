@@ -228,9 +228,7 @@ class BusSide:
         truth = protocols.database("bench").get_message_by_name("BENCH_TRUTH")
         self.bus = rigbus.open_bus(transport, channel,
                                    can_filters=[{"can_id": truth.frame_id, "can_mask": 0x7FF}])
-        self._mode_values = {str(n): int(v) for v, n in
-                             (protocols.database("bench").get_message_by_name("LOAD_CMD")
-                              .get_signal_by_name("mode").choices or {}).items()}
+        self._mode_values = protocols.choices("bench", "LOAD_CMD", "mode")
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name="loadbench-bus", daemon=True)
         self._thread.start()
@@ -238,7 +236,7 @@ class BusSide:
     def send(self, cmd: LoadCommand) -> None:
         try:
             frame = self.decoder.encode("LOAD_CMD", {
-                "mode": self._mode_values[cmd.mode], "seq": self.model.cmd_seq,
+                "mode": self._mode_values[cmd.mode.lower()], "seq": self.model.cmd_seq,
                 "torque": cmd.torque, "speed": cmd.speed, "k_speed": cmd.k_speed})
             self.bus.send(frame)
         except (can.CanError, OSError, ValueError, KeyError) as exc:

@@ -517,7 +517,7 @@ def _slopes(w: Window, p: Mapping[str, float]) -> float:
 
 
 def _drive_status_choice(signal: str, name: str) -> int:
-    return protocols.choices("drive", "DRIVE_STATUS", signal)[name]
+    return protocols.choices("drive", "DRIVE_STATUS", signal)[name.lower()]
 
 
 def firmware_state(name: str) -> int:

@@ -102,7 +102,7 @@ class ParamTimeout(ParamError):
 
 
 class FrameLink(Protocol):
-    """What the parameter client needs from the bus (rig.commissioning.link.CanLink)."""
+    """What the parameter client needs from the bus (rig.link.bus.BusLink)."""
 
     def send(self, name: str, values: Mapping[str, Any]) -> None: ...
 
@@ -111,7 +111,7 @@ class FrameLink(Protocol):
 
 
 OPS = protocols.choices("drive", "PARAM_REQ", "op")
-STATUS = {v: k for k, v in protocols.choices("drive", "PARAM_RESP", "status").items()}
+STATUS = protocols.names("drive", "PARAM_RESP", "status")
 
 
 @dataclass
@@ -138,13 +138,13 @@ class ParamClient:
         for _ in range(self.retries + 1):
             self.seq = (self.seq + 1) % 256
             seq = self.seq
-            self.link.send("PARAM_REQ", {"op": OPS[op], "seq": seq, "param_id": pid,
+            self.link.send("PARAM_REQ", {"op": OPS[op.lower()], "seq": seq, "param_id": pid,
                                          "value": float(value)})
             t0 = time.monotonic()
 
             def answers(v: Mapping[str, Any], s: int = seq) -> bool:
                 return int(v["seq"]) == s and int(v["param_id"]) == pid and \
-                    int(v["op"]) == OPS[op]
+                    int(v["op"]) == OPS[op.lower()]
 
             try:
                 resp = self.link.wait_for("PARAM_RESP", answers, self.timeout_s,

@@ -27,6 +27,19 @@ def database(name: str) -> Database:
     return db
 
 
+@cache
+def choices(db: str, message: str, signal: str) -> dict[str, int]:
+    """A signal's value table (the DBC's ``VAL_``): lower-case name -> raw value."""
+    sig = database(db).get_message_by_name(message).get_signal_by_name(signal)
+    return {str(name).lower(): int(value) for value, name in (sig.choices or {}).items()}
+
+
+def names(db: str, message: str, signal: str) -> dict[int, str]:
+    """The inverse of ``choices``: raw value -> the DBC's name (as the DBC spells it)."""
+    sig = database(db).get_message_by_name(message).get_signal_by_name(signal)
+    return {int(value): str(name) for value, name in (sig.choices or {}).items()}
+
+
 def quantize(db: str, message: str, signal: str, value: float) -> float:
     """The physical value a signal actually carries for `value` (nearest raw step)."""
     sig = database(db).get_message_by_name(message).get_signal_by_name(signal)
@@ -72,8 +85,3 @@ def timebase() -> TimeBase:
     return TimeBase(_attribute("vio", "HilTbclkHz"), _attribute("vio", "HilTbprd"),
                     _attribute("drive", "HilSpeedLoopDivider"))
 
-
-def choices(db: str, message: str, signal: str) -> dict[str, int]:
-    """A signal's value table, name -> value (e.g. DRIVE_STATUS.fault_code)."""
-    sig = database(db).get_message_by_name(message).get_signal_by_name(signal)
-    return {str(n): int(v) for v, n in (sig.choices or {}).items()}

@@ -52,10 +52,10 @@ from rig import (
     metrics,
     outdirs,
     output,
+    profiles,
     protocols,
     recording,
     report,
-    scenario,
     sil,
 )
 from rig.firmware_from_profile import firmware_settings
@@ -343,9 +343,9 @@ class Commander:
             "FAULT_CMD": _msg("bench", "FAULT_CMD"),
             "BENCH_STEP": _msg("bench", "BENCH_STEP"),
         }
-        self._ctrl = _choices("drive", "DRIVE_CMD", "ctrl_mode")
-        self._fw = _choices("drive", "DRIVE_CMD", "fw_mode")
-        self._load = _choices("bench", "LOAD_CMD", "mode")
+        self._ctrl = protocols.choices("drive", "DRIVE_CMD", "ctrl_mode")
+        self._fw = protocols.choices("drive", "DRIVE_CMD", "fw_mode")
+        self._load = protocols.choices("bench", "LOAD_CMD", "mode")
 
     def _send(self, name: str, values: Mapping[str, float | int]) -> None:
         m = self._m[name]
@@ -414,11 +414,6 @@ class Commander:
         return self.step_seq
 
 
-def _choices(db: str, message: str, signal: str) -> dict[str, int]:
-    sig = _msg(db, message).get_signal_by_name(signal)
-    return {str(n).lower(): int(v) for v, n in (sig.choices or {}).items()}
-
-
 # --------------------------------------------------------------------------------------
 # What the rig hears on the bus
 
@@ -432,7 +427,7 @@ LISTEN = (
 
 
 TLM_IDS = {int(_msg("drive", n).frame_id): n for db, n in LISTEN if n.startswith("TLM_")}
-FAULT_STATE = _choices("drive", "DRIVE_STATUS", "state")["fault"]
+FAULT_STATE = protocols.choices("drive", "DRIVE_STATUS", "state")["fault"]
 
 
 def listen_filters() -> list[dict[str, int]]:
@@ -588,21 +583,7 @@ def _flatten(prefix: str, value: Any, out: dict[str, float]) -> None:
 
 def profile_values(sc: Scenario) -> tuple[Path | None, dict[str, Any]]:
     """The fidelity profile file and its flat ``section.key`` values with the overrides."""
-    try:
-        path = _paths.data_dir("profiles") / f"{sc.profile}.toml"
-    except FileNotFoundError:
-        return None, dict(sc.overrides)
-    return (path if path.is_file() else None), scenario.profile_values(sc.profile, sc.overrides)
-
-
-def pole_pairs(values: Mapping[str, Any]) -> int:
-    for key in ("machine.pole_pairs", "motor.pole_pairs", "pole_pairs"):
-        if key in values:
-            return int(values[key])
-    for key in ("machine.poles", "motor.poles", "poles"):
-        if key in values:
-            return int(values[key]) // 2
-    return capture.DEFAULT_POLE_PAIRS
+    return profiles.profile_file(sc.profile), profiles.profile_values(sc.profile, sc.overrides)
 
 
 # Plant configuration keys of the initial rotor state (set only when not zero).
@@ -1125,7 +1106,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
             expected = (0, periods_done - 1) if failure is None and not realtime else None
             cap, loss = capture.build(
                 out / "capture", capture.default_specs(plant_trace, fw_trace),
-                expected=expected, pole_pairs=pole_pairs(profile_values(sc)[1]),
+                expected=expected, pole_pairs=profiles.pole_pairs(profile_values(sc)[1]),
                 speed_reference=lambda t: sc.speed_reference(t, accel_step_limit()),
                 # memory per period is bounded by what the run can have produced: the
                 # scenario's periods and a minute (real time starts before the firmware)

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from rig import _paths, faults, metrics, params, plant_schema
+from rig import _paths, faults, metrics, params, plant_schema, profiles, protocols
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 SUITE_DIR = SCENARIO_DIR / "suites"
@@ -512,26 +512,6 @@ class Suite:
 # Validation
 
 
-@cache
-def _choices(db: str, message: str, signal: str) -> dict[str, int]:
-    from rig import protocols
-
-    sig = protocols.database(db).get_message_by_name(message).get_signal_by_name(signal)
-    return {str(name).lower(): int(value) for value, name in (sig.choices or {}).items()}
-
-
-def ctrl_modes() -> dict[str, int]:
-    return _choices("drive", "DRIVE_CMD", "ctrl_mode")
-
-
-def fw_modes() -> dict[str, int]:
-    return _choices("drive", "DRIVE_CMD", "fw_mode")
-
-
-def load_modes() -> dict[str, int]:
-    return _choices("bench", "LOAD_CMD", "mode")
-
-
 SEGMENT_KINDS = ("hold", "step", "ramp", "reversal", "trapezoid", "triangle")
 LOAD_KINDS = ("step", "ramp", "off", "speed_hold")
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -616,17 +596,6 @@ class _Checker:
         return v
 
 
-def _flatten(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in data.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(_flatten(v, key + "."))
-        else:
-            out[key] = v
-    return out
-
-
 # Upper bounds of the run's own numbers: a duration that would make the grant plan and the
 # traces unbounded (1e7 s: MemoryError), and waits no run needs.
 MAX_DURATION_S = 3600.0
@@ -679,24 +648,10 @@ TOP_KEYS = (
 )
 
 
-def profile_values(profile: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
-    """The flat ``section.key`` values of a fidelity profile with the overrides ({} when the
-    profile file is not there)."""
-    values: dict[str, Any] = {}
-    try:
-        path = _paths.data_dir("profiles") / f"{profile}.toml"
-        data = tomllib.loads(path.read_text())
-    except (FileNotFoundError, OSError, tomllib.TOMLDecodeError):
-        data = {}
-    values.update(_flatten(data))
-    values.update(overrides)
-    return values
-
-
 def _check_stuck_codes(c: _Checker, profile: str, overrides: Mapping[str, Any],
                        events: Sequence[faults.Fault]) -> None:
     """A stuck converter's code must be one the converter has, on this profile."""
-    bits = faults.adc_bits_of(profile_values(profile, overrides))
+    bits = faults.adc_bits_of(profiles.profile_values(profile, overrides))
     for i, f in enumerate(events):
         if f.kind == "adc_stuck" and f.channel in bits:
             top = (1 << bits[f.channel]) - 1
@@ -814,7 +769,7 @@ def _criterion(c: _Checker, raw: Any, path: Path_, duration: float) -> Criterion
 
 def _scalars(c: _Checker, raw: Any, path: Path_) -> dict[str, float | int | str | bool]:
     d = c.table(raw, path, raw.keys() if isinstance(raw, dict) else ())
-    flat = _flatten(d)
+    flat = profiles.flatten(d)
     for k, v in flat.items():
         if not isinstance(v, int | float | str | bool):
             c.err((*path, *k.split(".")), f"must be a number, string or boolean, not {v!r}")
@@ -863,8 +818,10 @@ def parse_scenario(file: Path, text: str) -> Scenario:
 
     drive = c.table(data.get("drive", {}), ("drive",),
                     ("ctrl_mode", "fw_mode", "enable_at", "iq_ref"))
-    ctrl_mode = c.string(drive, ("drive",), "ctrl_mode", "speed", choices=ctrl_modes())
-    fw_mode = c.string(drive, ("drive",), "fw_mode", "realtime", choices=fw_modes())
+    ctrl_mode = c.string(drive, ("drive",), "ctrl_mode", "speed",
+                         choices=protocols.choices("drive", "DRIVE_CMD", "ctrl_mode"))
+    fw_mode = c.string(drive, ("drive",), "fw_mode", "realtime",
+                       choices=protocols.choices("drive", "DRIVE_CMD", "fw_mode"))
     enable_at = c.number(drive, ("drive",), "enable_at", 0.0, minimum=0.0)
     iq_ref = c.number(drive, ("drive",), "iq_ref", 0.0, minimum=-10, maximum=10)
     if enable_at >= duration > 0:
@@ -921,7 +878,7 @@ def parse_scenario(file: Path, text: str) -> Scenario:
     if not isinstance(raw_faults, list):
         c.err(("faults",), "must be a list of events ([[faults]] tables)")
         raw_faults = []
-    adc_bits = faults.adc_bits_of(profile_values(profile, overrides)) if profile else {}
+    adc_bits = faults.adc_bits_of(profiles.profile_values(profile, overrides)) if profile else {}
     for i, raw in enumerate(raw_faults):
         fe = faults.parse(c, raw, ("faults", i), duration, adc_bits)
         if fe is not None:

@@ -3,7 +3,7 @@
 Software in the loop: the real plant and the real firmware core linked together, with the bus
 programs' own frame code between them (``bench/include/sil_bench.h``). The rig drives it as it
 drives the bus in lockstep: the same DRIVE_LIMITS, DRIVE_CMD and LOAD_CMD frames (encoded by
-``rig.runner.Commander``) go in before each grant, and a grant runs the bench up to its
+``rig.link.bus.BusLink``) go in before each grant, and a grant runs the bench up to its
 ``run_until``. The bench writes the same trace files as ``plant_rt`` and ``fw_host``.
 """
 
@@ -163,8 +163,9 @@ class SilBench:
 
 
 class BenchPort:
-    """What ``rig.runner.Commander`` sends on: hands its frames to the bench (a stand-in for
-    ``can.BusABC.send`` with the same message objects, so both paths encode identically)."""
+    """What the rig's link (``rig.link.bus.BusLink``) sends on in process: hands its frames
+    to the bench (a stand-in for ``can.BusABC`` with the same message objects, so both paths
+    encode identically)."""
 
     def __init__(self, bench: SilBench) -> None:
         self.bench = bench
@@ -172,6 +173,13 @@ class BenchPort:
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self.bench.frame(int(msg.arbitration_id), bytes(msg.data), bool(msg.is_fd))
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """Nothing: the bench answers no frames (its counters are read directly)."""
+        return None
+
+    def shutdown(self) -> None:
+        """The bench closes with its run (``SilBench.close``)."""
 
     def send_faulted(self, msg: can.Message) -> None:
         """A frame the rig corrupted on purpose (a scenario fault): its refusal is the

@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 def cmd_param(args: argparse.Namespace) -> int:
     from rig import bench_description
-    from rig.commissioning.link import CanLink, LinkError
+    from rig.link.bus import BusLink, LinkError
     from rig.params import ParamClient, ParamError, ParamTimeout
 
     bus, channel = args.bus, args.channel
@@ -47,7 +47,7 @@ def cmd_param(args: argparse.Namespace) -> int:
             return EXIT_USAGE
         bus, channel = bus or desc.can.transport, channel or desc.can.channel
     try:
-        link = CanLink(bus, channel)
+        link = BusLink.open(bus, channel)
     except (LinkError, ValueError) as exc:
         print(f"rig param: {exc}", file=sys.stderr)
         return EXIT_LINK

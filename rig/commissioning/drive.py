@@ -1,94 +1,57 @@
-"""The commissioning scripts as the drive's CAN master (DRIVE_CMD, DRIVE_LIMITS).
+"""The commissioning scripts' hand on the drive: every change checked.
 
-DRIVE_CMD goes out on every clock cycle (before each lockstep grant, or every 10 ms), which
-keeps the firmware's command time-out alive; changes go out at once. Every change is read
-back: the modes and the command status from DRIVE_STATUS, the references from the console's
-``status`` line (``speed_ref``, ``iq_ref_cmd``, ``enable``, ``owner``) when a console is
-open, the limits from the parameters they write (PARAM_REQ reads).
+DRIVE_CMD (``rig.link.drive``) goes out on every clock cycle (before each lockstep grant,
+or every 10 ms) once the scripts command the drive, which keeps the firmware's command
+time-out alive; changes go out at once. Every change is read back: the modes and the
+command status from DRIVE_STATUS, the references from the console's ``status`` line
+(``speed_ref``, ``iq_ref_cmd``, ``enable``, ``owner``) when a console is open, the limits
+from the parameters they write (PARAM_REQ reads).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 from rig import protocols
-from rig.commissioning.clock import BenchClock, BenchTimeout
-from rig.commissioning.link import CanLink
 from rig.console import ConsoleClient
+from rig.link.clock import BenchClock, BenchTimeout
+from rig.link.drive import CTRL_MODES, FW_MODES, DriveLimits, DriveMaster, quantize
 from rig.params import ParamClient
 
 READBACK_WALL_S = 1.0
-
-
-def _choices(message: str, signal: str) -> dict[str, int]:
-    sig = protocols.database("drive").get_message_by_name(message).get_signal_by_name(signal)
-    return {str(n).lower(): int(v) for v, n in (sig.choices or {}).items()}
-
-
-CTRL = _choices("DRIVE_CMD", "ctrl_mode")
-FWMODE = _choices("DRIVE_CMD", "fw_mode")
-STATE = {v: k.upper() for k, v in _choices("DRIVE_STATUS", "state").items()}
-CMD_STATUS = {v: k.upper() for k, v in _choices("PARAM_RESP", "status").items()}
+CMD_STATUS = protocols.names("drive", "PARAM_RESP", "status")
 
 
 class DriveError(RuntimeError):
     """The drive did not do what it was told (fault, refused command, no read-back)."""
 
 
-@dataclass(frozen=True)
-class DriveCommand:
-    enable: int = 0
-    ctrl_mode: str = "speed"
-    fw_mode: str = "conventional"
-    speed_ref: float = 0.0
-    iq_ref: float = 0.0
-    fault_reset: int = 0
-
-
-def _quantize(signal: str, value: float) -> float:
-    return protocols.quantize("drive", "DRIVE_CMD", signal, value)
-
-
-class DriveMaster:
-    def __init__(self, link: CanLink, clock: BenchClock, params: ParamClient,
+class CheckedDrive:
+    def __init__(self, master: DriveMaster, clock: BenchClock, params: ParamClient,
                  console: ConsoleClient | None = None) -> None:
-        self.link = link
+        self.master = master
+        self.link = master.link
         self.clock = clock
         self.params = params
         self.console = console
-        self.cmd = DriveCommand()
-        self.alive = 0
-        self.sent = 0
-        self.master = False  # True once the scripts have commanded the drive
+        self.in_command = False  # True once the scripts have commanded the drive
         clock.on_cycle(self.cyclic)
 
-    # -- frames ------------------------------------------------------------------------
-    def _send_cmd(self) -> None:
-        self.alive = (self.alive + 1) % 256
-        c = self.cmd
-        self.link.send("DRIVE_CMD", {
-            "enable": c.enable, "fault_reset": c.fault_reset, "ctrl_mode": CTRL[c.ctrl_mode],
-            "fw_mode": FWMODE[c.fw_mode], "alive": self.alive,
-            "speed_ref": _quantize("speed_ref", c.speed_ref),
-            "iq_ref": _quantize("iq_ref", c.iq_ref)})
-        self.sent += 1
-
     def cyclic(self) -> None:
-        if self.master:
-            self._send_cmd()
+        if self.in_command:
+            self.master.send_command()
 
     # -- status ------------------------------------------------------------------------
     @property
     def status(self) -> dict[str, Any]:
-        return dict(self.link.latest.get("DRIVE_STATUS", {}))
+        return self.master.status
 
     @property
     def state(self) -> str:
-        st = self.status
-        return STATE.get(int(st["state"]), "?") if st else "UNKNOWN"
+        return self.master.state
 
     def fault_text(self) -> str:
         st = self.status
@@ -108,30 +71,38 @@ class DriveMaster:
     # -- commands ----------------------------------------------------------------------
     def command(self, **changes: Any) -> None:
         """Changes fields of the drive command, sends it at once and reads it back."""
-        self.cmd = replace(self.cmd, **changes)
-        self.master = True
-        self._send_cmd()
+        self.master.cmd = replace(self.master.cmd, **changes)
+        self.in_command = True
+        self.master.send_command()
         self.readback()
+
+    def send_stop(self, times: int = 3) -> None:
+        """Enable 0 and zero references, sent at once and without read-back (the safe
+        stop: the drive may not answer)."""
+        self.master.cmd = replace(self.master.cmd, enable=0, speed_ref=0.0, iq_ref=0.0)
+        self.in_command = True
+        for _ in range(times):
+            self.master.send_command()
 
     def readback(self) -> None:
         """DRIVE_STATUS: modes and command status; console status: references and enable."""
-        want = self.cmd
+        want = self.master.cmd
         deadline = time.monotonic() + READBACK_WALL_S
         while True:
             self.link.pump(0.01)
             st = self.status
-            ok_status = bool(st) and int(st["ctrl_mode"]) == CTRL[want.ctrl_mode] and \
-                int(st["fw_mode"]) == FWMODE[want.fw_mode] and int(st["cmd_status"]) == 0
+            ok_status = bool(st) and int(st["ctrl_mode"]) == CTRL_MODES[want.ctrl_mode] and \
+                int(st["fw_mode"]) == FW_MODES[want.fw_mode] and int(st["cmd_status"]) == 0
             ok_console = True
             detail = ""
             if self.console is not None:
                 cs = self.console.status()
                 ok_console = (cs.get("owner") == "can" and int(cs["enable"]) == want.enable
                               and math.isclose(float(cs["speed_ref"]),
-                                               _quantize("speed_ref", want.speed_ref),
+                                               quantize("speed_ref", want.speed_ref),
                                                abs_tol=2e-3)
                               and math.isclose(float(cs["iq_ref_cmd"]),
-                                               _quantize("iq_ref", want.iq_ref), abs_tol=2e-3))
+                                               quantize("iq_ref", want.iq_ref), abs_tol=2e-3))
                 detail = (f"console: owner={cs.get('owner')} enable={cs.get('enable')} "
                           f"speed_ref={cs.get('speed_ref')} iq_ref_cmd={cs.get('iq_ref_cmd')}")
             if ok_status and ok_console:
@@ -146,8 +117,7 @@ class DriveMaster:
 
     def set_limits(self, i_max: float, speed_max: float, accel: float) -> None:
         """DRIVE_LIMITS, read back through the parameters they set."""
-        self.link.send("DRIVE_LIMITS", {"i_max": i_max, "speed_max": speed_max,
-                                        "accel_max": accel})
+        self.master.send_limits(DriveLimits(i_max, speed_max, accel))
         for name, want in (("i_max_a", i_max), ("speed_max_rpm", speed_max),
                            ("accel_rpm_s", accel)):
             got = self.params.get(name)
@@ -159,7 +129,7 @@ class DriveMaster:
                iq_ref: float = 0.0, timeout_s: float = 1.0) -> float:
         """Enables the drive (polarity detection, then RUN); the bench time it took."""
         self.check_no_fault("enable")
-        if self.cmd.enable:
+        if self.master.cmd.enable:
             self.command(enable=0)
             self.clock.advance(0.002)
         self.command(enable=1, ctrl_mode=ctrl_mode, fw_mode=fw_mode, speed_ref=speed_ref,

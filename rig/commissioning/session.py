@@ -18,12 +18,14 @@ from pathlib import Path
 
 from rig import bus as rigbus
 from rig.bench_description import BenchDescription
-from rig.commissioning.clock import BenchClock, LockstepClock, WallClock
 from rig.commissioning.config import CommissioningConfig
-from rig.commissioning.drive import DriveMaster
-from rig.commissioning.link import CanLink
-from rig.commissioning.virtual import Endpoints, VirtualBench, plant_truth
+from rig.commissioning.drive import CheckedDrive
+from rig.commissioning.truth import plant_truth
 from rig.console import ConsoleClient
+from rig.link import bench
+from rig.link.bus import BusLink
+from rig.link.clock import BenchClock, LockstepClock, WallClock
+from rig.link.drive import DriveMaster
 from rig.load_bench import LoadBench
 from rig.params import ParamClient
 
@@ -37,12 +39,12 @@ class BenchSession:
         self.dir = Path(run_dir)
         self.log: Log = log or (lambda _m: None)
         self.config = CommissioningConfig.from_mapping(desc.commissioning)
-        self.virtual: VirtualBench | None = None
-        self.endpoints = Endpoints(None, None)
-        self._link: CanLink | None = None
+        self.virtual: bench.VirtualBench | None = None
+        self.endpoints = bench.Endpoints(None, None)
+        self._link: BusLink | None = None
         self._clock: BenchClock | None = None
         self._params: ParamClient | None = None
-        self._drive: DriveMaster | None = None
+        self._drive: CheckedDrive | None = None
         self.console: ConsoleClient | None = None
         self.load: LoadBench | None = None
         self.identified: dict[str, float] = {}
@@ -51,7 +53,7 @@ class BenchSession:
 
     # -- parts (raise when used before start()) ------------------------------------------
     @property
-    def link(self) -> CanLink:
+    def link(self) -> BusLink:
         assert self._link is not None, "session not started"
         return self._link
 
@@ -66,7 +68,7 @@ class BenchSession:
         return self._params
 
     @property
-    def drive(self) -> DriveMaster:
+    def drive(self) -> CheckedDrive:
         assert self._drive is not None, "session not started"
         return self._drive
 
@@ -87,11 +89,13 @@ class BenchSession:
         if d.virtual is not None:
             self.truth = plant_truth(d)
             if d.virtual.programs:
-                self.virtual = VirtualBench(d, self.dir)
+                self.virtual = bench.VirtualBench(bench.from_description(d), self.dir,
+                                                  log_dir=self.dir / "logs")
                 self.log(f"starting the virtual bench ({', '.join(d.virtual.programs)}) on "
                          f"{transport} {channel}")
-                self.endpoints = self.virtual.start(transport, channel)
-        self._link = CanLink(transport, channel, record=self.recording)
+                self.endpoints = self.virtual.start(transport, channel,
+                                                    ready_timeout_s=d.virtual.ready_timeout_s)
+        self._link = BusLink.open(transport, channel, record=self.recording)
         if d.lockstep:
             clock: BenchClock = LockstepClock(self._link, grant_s=d.clock.grant_s)
         else:
@@ -102,7 +106,7 @@ class BenchSession:
         if isinstance(clock, LockstepClock):
             clock.sync()
         self._params = ParamClient(self._link)
-        self._drive = DriveMaster(self._link, clock, self._params)
+        self._drive = CheckedDrive(DriveMaster(self._link), clock, self._params)
 
     def open_console(self) -> ConsoleClient:
         if self.console is None:
@@ -137,11 +141,7 @@ class BenchSession:
         notes: list[str] = []
         if self._drive is not None:
             try:
-                drv = self._drive
-                drv.cmd = replace(drv.cmd, enable=0, speed_ref=0.0, iq_ref=0.0)
-                drv.master = True
-                for _ in range(3):
-                    drv._send_cmd()
+                self._drive.send_stop()
                 notes.append("CAN: DRIVE_CMD enable 0 sent")
             except Exception as exc:
                 notes.append(f"CAN: DRIVE_CMD enable 0 FAILED: {exc}")
@@ -159,21 +159,22 @@ class BenchSession:
                 notes.append(f"load bench: zeroing FAILED: {exc}")
         if self._clock is not None:
             clock = self._clock
-            stall = getattr(clock, "stall_s", None)
+            lockstep = clock if isinstance(clock, LockstepClock) else None
+            stall = lockstep.stall_s if lockstep is not None else 0.0
             try:
-                if stall is not None:
-                    clock.stall_s = min(stall, SAFE_STOP_STALL_S)  # type: ignore[attr-defined]
-                with self._clock.without_idle_hooks():
-                    self._clock.advance(0.01)
+                if lockstep is not None:
+                    lockstep.stall_s = min(stall, SAFE_STOP_STALL_S)
+                with clock.without_idle_hooks():
+                    clock.advance(0.01)
                     if self._drive is not None:
                         drv = self._drive
-                        self._clock.wait(lambda: drv.state in ("IDLE", "FAULT", "UNKNOWN"),
-                                         0.2, "drive disabled", step_s=0.01)
+                        clock.wait(lambda: drv.state in ("IDLE", "FAULT", "UNKNOWN"),
+                                   0.2, "drive disabled", step_s=0.01)
             except Exception as exc:
                 notes.append(f"bench clock: could not advance after the stop: {exc}")
             finally:
-                if stall is not None:
-                    clock.stall_s = stall  # type: ignore[attr-defined]
+                if lockstep is not None:
+                    lockstep.stall_s = stall
         notes.append(f"drive state afterwards: {self._state_after()}")
         self.safety = notes
         return notes
@@ -199,7 +200,8 @@ class BenchSession:
         if self._link is not None:
             self._link.close()
         if self.virtual is not None:
-            stopped = self.virtual.stop()
+            stopped = {name: {"exit": rep.returncode, "clean": rep.clean}
+                       for name, rep in self.virtual.stop().items()}
         return stopped
 
     def elapsed(self) -> Callable[[], tuple[float, float]]:

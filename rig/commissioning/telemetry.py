@@ -14,7 +14,7 @@ from types import TracebackType
 
 import numpy as np
 
-from rig.commissioning.link import CanLink, Signals
+from rig.link.bus import BusLink, Signals
 
 NAMES = ("TLM_POS", "TLM_CUR", "TLM_REF", "TLM_PARAM", "TLM_VOLT", "BENCH_TRUTH",
          "DRIVE_STATUS")
@@ -25,7 +25,7 @@ class NoData(RuntimeError):
 
 
 class Window:
-    def __init__(self, link: CanLink, names: Sequence[str] = NAMES) -> None:
+    def __init__(self, link: BusLink, names: Sequence[str] = NAMES) -> None:
         self.link = link
         self.names = tuple(names)
         self.frames: dict[str, list[Signals]] = {n: [] for n in self.names}

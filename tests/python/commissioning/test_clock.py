@@ -16,8 +16,8 @@ from commission_support import MakeDesc
 from rig import bus as rigbus
 from rig import protocols
 from rig.commissioning import runner
-from rig.commissioning.clock import BenchTimeout, WallClock
-from rig.commissioning.link import CanLink
+from rig.link.bus import BusLink
+from rig.link.clock import BenchTimeout, WallClock
 
 
 @pytest.fixture
@@ -30,7 +30,7 @@ def listener(unix_channel: str) -> Iterator[can.BusABC]:
 
 
 def test_wall_clock_cycles_every_10_ms(unix_channel: str, listener: can.BusABC) -> None:
-    link = CanLink("unixcan", unix_channel)
+    link = BusLink.open("unixcan", unix_channel)
     try:
         clock = WallClock(link)
         sent: list[float] = []
@@ -62,8 +62,8 @@ def test_wall_clock_cycles_every_10_ms(unix_channel: str, listener: can.BusABC) 
 
 
 def test_lockstep_clock_grants_exact_periods(make_desc: MakeDesc, tmp_path: Path) -> None:
-    from rig.commissioning.clock import LockstepClock
     from rig.commissioning.session import BenchSession
+    from rig.link.clock import LockstepClock
 
     s = BenchSession(make_desc('virtual.programs=["plant_rt", "fw_host"]'), tmp_path)
     s.start()

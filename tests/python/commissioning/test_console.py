@@ -40,7 +40,7 @@ def csv_params() -> dict[str, dict[str, str]]:
 def bench(module_bench: BenchSession) -> Iterator[BenchSession]:
     """The shared bench with the console as the only commander; restored afterwards."""
     s = module_bench
-    s.drive.master = False  # no cyclic DRIVE_CMD: the console owns the drive command
+    s.drive.in_command = False  # no cyclic DRIVE_CMD: the console owns the drive command
     con = s.console
     assert con is not None
     yield s

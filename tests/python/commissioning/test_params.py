@@ -15,8 +15,8 @@ import pytest
 
 from rig import _paths
 from rig.bus import unixcan
-from rig.commissioning.link import CanLink
 from rig.commissioning.session import BenchSession
+from rig.link.bus import BusLink
 from rig.params import ParamClient, ParamError, ParamTimeout, table
 
 
@@ -110,7 +110,7 @@ def test_save_and_load(bench: BenchSession) -> None:
 
 
 def test_no_answer_times_out(unix_channel: str) -> None:
-    link = CanLink("unixcan", unix_channel)  # nobody else on this channel
+    link = BusLink.open("unixcan", unix_channel)  # nobody else on this channel
     try:
         client = ParamClient(link, timeout_s=0.2, retries=1)
         t0 = time.monotonic()

@@ -1,0 +1,274 @@
+"""The rig's node on the bench's CAN bus: validated frames in, DBC-encoded frames out.
+
+In: only the messages of ``LISTEN`` pass the ID filters (the 10 kHz virtual I/O of a virtual
+bench costs nothing here); each is validated by ``rig.frames`` (unknown IDs, bad lengths,
+out-of-range signals are counted rejections, never raised). The high-rate messages
+(``LAZY``) are decoded only while a handler wants them or when somebody asks for the last
+one. Frames are handled only while the owner pumps the link (``pump``, ``wait_for``, a clock
+advancing), in order.
+
+Out: frames are encoded by message name from the DBC (strict ranges). The drive-protocol
+frames of the rig pass the scenario's frame faults on the way (``rig.drive_link``). The
+frames sent since the last ``at(period)`` are kept, so a lost lockstep grant goes out again
+byte for byte (``resend``).
+
+With ``record``, everything sent and received also goes into a log file (python-can's
+``Logger``: candump format for ``.log``), readable with python-can and cantools.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any, Protocol
+
+import can
+from cantools.database.can import Message
+
+from rig import bus as rigbus
+from rig import drive_link, faults, sil
+from rig.frames import FrameDecoder
+
+LISTEN = (
+    ("drive", "DRIVE_STATUS"), ("drive", "HEARTBEAT"), ("drive", "PARAM_RESP"),
+    ("drive", "TLM_POS"), ("drive", "TLM_CUR"), ("drive", "TLM_REF"), ("drive", "TLM_PARAM"),
+    ("drive", "TLM_VOLT"), ("bench", "BENCH_TRUTH"), ("bench", "BENCH_PROGRESS"),
+    ("bench", "BENCH_COUNTERS"), ("bench", "BENCH_REJECTS"),
+)
+# the frames at the speed-loop rate and the plant's truth: decoded only on demand
+LAZY = frozenset({"TLM_POS", "TLM_CUR", "TLM_REF", "TLM_PARAM", "TLM_VOLT", "BENCH_TRUTH"})
+FOREIGN_LISTEN_S = 0.25  # how long the rig listens for other traffic before a run starts
+Signals = Mapping[str, Any]
+Handler = Callable[[Signals], None]
+
+
+class LinkError(RuntimeError):
+    """The bus cannot be opened or used."""
+
+
+class ForeignNodes(RuntimeError):
+    """Somebody else is on the channel (another run, another node)."""
+
+
+class FrameSink(Protocol):
+    """Where frames go: a python-can bus, or the in-process bench's port (``rig.sil``)."""
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None: ...
+
+    def recv(self, timeout: float | None = None) -> can.Message | None: ...
+
+    def shutdown(self) -> None: ...
+
+
+class BusLink:
+    """Send by message name, receive decoded signals, wait for a condition."""
+
+    def __init__(self, bus: FrameSink, *, transport: str = "", channel: str = "",
+                 record: Path | None = None,
+                 frame_faults: drive_link.DriveLink | None = None) -> None:
+        self.bus = bus
+        self.transport, self.channel = transport, channel
+        self.decoder = FrameDecoder()
+        self.faults = frame_faults if frame_faults is not None else drive_link.DriveLink()
+        self._names = {int(self.decoder.message(n).frame_id): n for _, n in LISTEN}
+        self.latest: dict[str, Signals] = {}
+        self.latest_wall: dict[str, float] = {}
+        self._undecoded: dict[str, can.Message] = {}
+        self._handlers: dict[str, list[Handler]] = {}
+        # the frames sent since the last at() (none kept before the first), and whether a
+        # fault corrupted each
+        self.batch: list[tuple[can.Message, bool]] | None = None
+        self.recording = record
+        self._log: Any = can.Logger(str(record)) if record is not None else None
+        self.rx = 0
+        self.tx = 0
+        self.lazy = 0
+
+    @classmethod
+    def open(cls, transport: str | None, channel: str | None, *, record: Path | None = None,
+             frame_faults: drive_link.DriveLink | None = None) -> BusLink:
+        """A link on a bus channel (``rig.bus.select_transport`` resolves ``auto``)."""
+        transport, channel = rigbus.select_transport(transport, channel)
+        try:
+            bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
+        except (can.CanError, OSError, ValueError) as exc:
+            raise LinkError(f"cannot open the {transport} bus {channel!r}: {exc}") from exc
+        return cls(bus, transport=transport, channel=channel, record=record,
+                   frame_faults=frame_faults)
+
+    @property
+    def where(self) -> str:
+        return f"{self.transport} {self.channel}"
+
+    # -- sending -----------------------------------------------------------------------
+    def send(self, name: str, values: Mapping[str, Any]) -> None:
+        m = self.decoder.message(name)
+        data = bytes(m.encode(dict(values), scaling=True, strict=True))
+        if name not in faults.RIG_MESSAGES:
+            self._send_frame(m, data)
+            return
+        sent = self.faults.filter(name, data)
+        if sent is not None:  # else dropped or held back by a fault (rig.drive_link)
+            self._send_frame(m, sent, faulted=sent != data)
+
+    def _send_frame(self, m: Message, data: bytes, faulted: bool = False) -> None:
+        msg = can.Message(arbitration_id=m.frame_id, is_extended_id=m.is_extended_frame,
+                          data=data, is_fd=bool(m.is_fd), bitrate_switch=False)
+        self._put(msg, faulted)
+        if self.batch is not None:
+            self.batch.append((msg, faulted))
+
+    def _put(self, msg: can.Message, faulted: bool) -> None:
+        msg.timestamp = time.time()
+        try:
+            if faulted and isinstance(self.bus, sil.BenchPort):
+                self.bus.send_faulted(msg)
+            else:
+                self.bus.send(msg)
+        except (can.CanError, OSError) as exc:
+            name = self._names.get(msg.arbitration_id, f"0x{msg.arbitration_id:X}")
+            raise LinkError(f"{self.where}: cannot send {name}: {exc}") from exc
+        self.tx += 1
+        if self._log is not None:
+            self._log(msg)
+
+    def at(self, period: int) -> None:
+        """The sends that follow are before ``period``: frames a fault held back until then
+        go first."""
+        self.batch = []
+        self.faults.at(period)
+        for name, data, corrupted in self.faults.due():
+            self._send_frame(self.decoder.message(name), data, faulted=corrupted)
+
+    def resend(self) -> None:
+        """The frames sent since the last ``at()`` again, byte for byte (a lost grant)."""
+        for msg, faulted in list(self.batch or ()):
+            self._put(msg, faulted)
+
+    # -- receiving ---------------------------------------------------------------------
+    def on(self, name: str, handler: Handler) -> Callable[[], None]:
+        """Calls handler(signals) for every valid frame of that name; returns the remover."""
+        self._handlers.setdefault(name, []).append(handler)
+
+        def remove() -> None:
+            with contextlib.suppress(ValueError):
+                self._handlers[name].remove(handler)
+
+        return remove
+
+    @contextlib.contextmanager
+    def subscribed(self, name: str, handler: Handler) -> Iterator[None]:
+        remove = self.on(name, handler)
+        try:
+            yield
+        finally:
+            remove()
+
+    def last(self, name: str) -> Signals | None:
+        """The last valid frame of a message (a lazy one decoded now)."""
+        raw = self._undecoded.pop(name, None)
+        if raw is not None:
+            self._decode(raw)
+        return self.latest.get(name)
+
+    def handle(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            return
+        self.rx += 1
+        if self._log is not None:
+            self._log(msg)
+        name = self._names.get(msg.arbitration_id)
+        if name is None:
+            return  # not a message the rig listens to (the filters let it through)
+        if name in LAZY and not self._handlers.get(name):
+            self._undecoded[name] = msg  # validated and decoded only when asked for
+            self.lazy += 1
+            return
+        self._decode(msg)
+
+    def _decode(self, msg: can.Message) -> None:
+        d = self.decoder.decode(msg)
+        if d is None:
+            return
+        self._undecoded.pop(d.name, None)
+        self.latest[d.name] = d.signals
+        self.latest_wall[d.name] = time.monotonic()
+        for h in list(self._handlers.get(d.name, ())):
+            h(d.signals)
+
+    def pump(self, timeout_s: float = 0.0, until: Callable[[], bool] | None = None) -> int:
+        """Handles the frames already received, waiting up to timeout_s for the first one;
+        stops early once ``until()`` holds (what follows stays queued)."""
+        n = 0
+        try:
+            msg = self.bus.recv(timeout=max(timeout_s, 0.0))
+            while msg is not None:
+                self.handle(msg)
+                n += 1
+                if until is not None and until():
+                    break
+                msg = self.bus.recv(timeout=0.0)
+        except (can.CanError, OSError) as exc:
+            raise LinkError(f"{self.where}: receive failed: {exc}") from exc
+        return n
+
+    def wait_for(self, name: str, predicate: Callable[[Signals], bool], timeout_s: float,
+                 what: str) -> Signals:
+        """The first frame of that name arriving from now on for which predicate holds."""
+        found: list[Signals] = []
+
+        def catch(v: Signals) -> None:
+            if not found and predicate(v):
+                found.append(v)
+
+        deadline = time.monotonic() + timeout_s
+        with self.subscribed(name, catch):
+            while not found:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"{self.where}: no {what} within {timeout_s:g} s")
+                self.pump(min(left, 0.05))
+        return found[0]
+
+    def refuse_foreign_nodes(self) -> None:
+        """Nobody else may be on the channel: a second run there paces or answers ours (a
+        180° error, 300 000 periods of capture loss). unixcan: no other live socket in the
+        channel folder; both transports: no frame within FOREIGN_LISTEN_S."""
+        transport, channel = self.transport, self.channel
+        if transport == "unixcan":
+            from rig.bus import unixcan
+
+            own = {str(getattr(self.bus, "socket_path", ""))}
+            others = unixcan.live_nodes(channel, own)
+            if others:
+                pids = sorted({Path(p).name.split("-", 1)[0] for p in others})
+                raise ForeignNodes(
+                    f"unixcan channel {channel!r} is in use: {len(others)} other node(s) in "
+                    f"{unixcan.base_dir() / channel} (pids {', '.join(pids[:8])}"
+                    f"{', ...' if len(pids) > 8 else ''}); another run on this channel? Use "
+                    "--channel NAME (a unixcan node reaches at most HILBUS_MAX_PEERS others, "
+                    "hilbus.h)")
+        deadline = time.monotonic() + FOREIGN_LISTEN_S
+        while (left := deadline - time.monotonic()) > 0:
+            msg = self.bus.recv(timeout=left)
+            if msg is not None and not msg.is_error_frame:
+                raise ForeignNodes(
+                    f"{transport} channel {channel!r} is in use: a frame "
+                    f"0x{msg.arbitration_id:03X} arrived before the run started (another run "
+                    "or node on this channel?); use --channel NAME")
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.bus.shutdown()
+        if self._log is not None:
+            with contextlib.suppress(Exception):
+                self._log.stop()
+            self._log = None
+
+
+def listen_filters() -> list[dict[str, int]]:
+    """The ID filters of the messages the rig listens to."""
+    return [{"can_id": int(m.frame_id), "can_mask": 0x7FF}
+            for m in (FrameDecoder().message(n) for _, n in LISTEN)]
