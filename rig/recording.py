@@ -85,6 +85,23 @@ SERIES: tuple[Series, ...] = (
     Series("plant/vdc", ("truth.vdc",), ("Vdc",)),
 )
 
+# The firmware trace (FW_TRACE, capture columns fw.<signal>) in the recording: a signal no
+# series above names is shown by itself as firmware/<signal> (trace_series), so a signal added
+# to FW_TRACE in protocols/vio.dbc appears without an edit here. These are shown through a
+# display array made from them (_derived, the capture's derived columns) or are the timeline.
+TRACE_PREFIX = "fw."
+TRACE_ENTITY = "firmware"
+SHOWN_DERIVED = frozenset({"fw.period", "fw.stamp", "fw.theta_hat", "fw.omega_hat", "fw.ld_hat",
+                           "fw.lq_hat"})
+
+
+def trace_series(columns: Sequence[str]) -> tuple[Series, ...]:
+    """One series for each firmware-trace column no curated series shows."""
+    shown = {k for s in SERIES for k in s.keys} | SHOWN_DERIVED
+    return tuple(Series(f"{TRACE_ENTITY}/{c[len(TRACE_PREFIX):]}", (c,), (c[len(TRACE_PREFIX):],))
+                 for c in columns if c.startswith(TRACE_PREFIX) and c not in shown)
+
+
 TRAJECTORIES = {
     "trajectory/current": ("truth.id", "truth.iq"),
     "trajectory/flux_est": ("flux_alpha_hat", "flux_beta_hat"),
@@ -185,6 +202,7 @@ def blueprint(*, with_counters: bool = True, with_evidence: bool = False) -> rrb
     bus_views: list[Any] = [
         ts(origin="/estimator/state", name="estimator state"),
         ts(origin="/estimator/residual", name="slope residual"),
+        ts(origin=f"/{TRACE_ENTITY}", name="firmware trace, other signals"),
         ts(origin="/plant/vdc", name="DC link (V)"),
         ts(origin="/timing", name="lockstep timing"),
     ]
@@ -263,11 +281,12 @@ def write(
     rows: dict[str, int] = {}
 
     probe = _derived(cap, 0, min(cap.n, 1))
-    present = {k for s in SERIES for k in s.keys if k in probe or k in cap}
+    candidates = (*SERIES, *trace_series(cap.columns))
+    present = {k for s in candidates for k in s.keys if k in probe or k in cap}
     series = [
         Series(s.entity, tuple(k for k in s.keys if k in present),
                tuple(nm for k, nm in zip(s.keys, s.names, strict=True) if k in present))
-        for s in SERIES
+        for s in candidates
     ]
     series = [s for s in series if s.keys]
     for s in series:

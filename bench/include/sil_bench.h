@@ -116,6 +116,12 @@ const struct plant_truth *sil_bench_truth(const sil_bench_t *b);
 
 size_t sil_bench_sizeof_stats(void);
 
+/* The FW_TRACE record fw_host and the bench write for a core status (vio_codec.c, packed by
+ * the code generated from protocols/vio.dbc): 64 data bytes into data; returns the length.
+ * For the test that every FW_TRACE signal is carried from its fw_status_t field. */
+int sil_bench_fw_trace_record(const fw_status_t *status, uint8_t *data);
+size_t sil_bench_sizeof_fw_status(void);
+
 /* The hardware parameters of fw_from_plant: firmware parameter i, the plant profile key it
  * comes from and the factor from the profile's SI unit (the rig's FIRMWARE_FROM_PROFILE,
  * which a test holds this table to). NULL past the end. */

@@ -595,6 +595,19 @@ size_t sil_bench_sizeof_stats(void)
     return sizeof(sil_bench_stats_t);
 }
 
+int sil_bench_fw_trace_record(const fw_status_t *status, uint8_t *data)
+{
+    struct canfd_frame f;
+    fwh_vio_trace_pack(status, &f);
+    memcpy(data, f.data, f.len);
+    return f.len;
+}
+
+size_t sil_bench_sizeof_fw_status(void)
+{
+    return sizeof(fw_status_t);
+}
+
 /* ------------------------------------------------------------------------ counters */
 
 #define APPEND(...)                                                                         \

@@ -83,7 +83,7 @@ static void after_isr(fwh_t *app)
 static void run_isr_without_data(fwh_t *app)
 {
     fw_pwm_t pwm;
-    fwh_command_refresh(app, fwh_now_ns());
+    fwh_command_refresh(app, hil_now_ns());
     fw_core_isr(&app->core, NULL, &pwm);
     app->cnt.isr++;
     app->cnt.isr_no_data++;
@@ -99,11 +99,11 @@ static void run_isr(fwh_t *app, const fw_adc_t *adc, int repeat, int64_t t_rx_ns
     }
     fw_core_isr(&app->core, adc, &pwm);
     send_pwm(app, &pwm, adc->period + 1u);
-    latency = fwh_now_ns() - t_rx_ns;
+    latency = hil_now_ns() - t_rx_ns;
     if (latency > app->cnt.max_latency_ns) {
         app->cnt.max_latency_ns = latency;
     }
-    if (app->opt.realtime && latency > FWH_OVERRUN_NS) {
+    if (app->opt.node.realtime && latency > FWH_OVERRUN_NS) {
         /* PWM(k+1) left after the plant's next period had (nearly) begun */
         fw_core_note_overrun(&app->core);
         app->cnt.overruns++;

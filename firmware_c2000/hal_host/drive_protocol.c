@@ -310,10 +310,10 @@ void fwh_drive_send_heartbeat(fwh_t *app)
     memset(&m, 0, sizeof(m));
     m.alive = app->alive++;
     FWH_SAT_ENCODE(uptime, hil_drive_heartbeat_uptime,
-                   (double)(fwh_now_ns() - app->t0_ns) * 1e-9, 0u, 4294967295u);
+                   (double)(hil_now_ns() - app->t0_ns) * 1e-9, 0u, 4294967295u);
     m.uptime = (uint32_t)uptime;
     m.isr_overruns = s.isr_overruns;
-    m.node = app->opt.node;
+    m.node = app->opt.node_number;
     hil_drive_heartbeat_pack(buf, &m, sizeof(buf));
     send_classic(app, HIL_DRIVE_HEARTBEAT_FRAME_ID, buf, HIL_DRIVE_HEARTBEAT_LENGTH);
     app->cnt.heartbeats++;

@@ -12,15 +12,12 @@
 
 #include "adc_assembly.h"
 #include "fw_core.h"
-#include "hil_log_limit.h"
 #include "hil_wire.h"
-#include "hilbus.h"
-#include "hiltrace.h"
+#include "hilnode.h" /* the bus, trace, log limit, node options */
 #include "pty.h"
 #include "rx_reject.h"
 
 #define FWH_VERSION "1.0"
-#define FWH_NS_PER_S 1000000000LL
 #define FWH_STATUS_PERIOD_NS (100LL * 1000000LL) /* DRIVE_STATUS, HEARTBEAT */
 #define FWH_TICK_NS (10LL * 1000000LL)           /* housekeeping timer */
 #define FWH_OVERRUN_NS HIL_PERIOD_NS             /* ADC received -> PWM sent, real time */
@@ -28,21 +25,15 @@
 enum { FWH_OWNER_NONE, FWH_OWNER_CAN, FWH_OWNER_CONSOLE };
 
 typedef struct {
-    const char *bus;
-    const char *channel;
-    int realtime;
-    const char *trace;
+    hil_node_opts_t node; /* --bus, --channel, pacing, --trace, --ready-file, ... (hilnode.h) */
     int send_trace;
-    const char *ready_file;
-    uint64_t max_periods;
     const char *params;
     const char *pty_link;
     int no_console;
     int64_t console_timeout_ns; /* 0: a console session lasts until the client hangs up */
     uint32_t tlm_div;           /* telemetry every 10*tlm_div periods; 0 = off */
     int32_t spin_us;
-    uint8_t node;
-    int rt_priority;
+    uint8_t node_number;  /* --node: the HEARTBEAT node */
     int64_t first_period; /* --first-period, or -1: the first ADC period may be any */
 } fwh_options_t;
 
@@ -88,10 +79,9 @@ typedef struct fwh {
     hil_log_limit_t log_limit; /* rejection and protocol lines on stderr */
     fwh_counters_t cnt;
     const char *rt_note;
-    volatile int stop;
+    volatile sig_atomic_t stop;
 } fwh_t;
 
-int64_t fwh_now_ns(void);
 const char *fwh_state_name(int16_t state);
 const char *fwh_fault_name(uint16_t code);
 uint64_t fwh_rejected_total(const fwh_t *app);

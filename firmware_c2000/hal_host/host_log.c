@@ -1,20 +1,11 @@
-/* host_log.c - fw_host's names (states, faults; rejections are in rx_reject.c), its clock and its rate-limited
+/* host_log.c - fw_host's names (states, faults; rejections are in rx_reject.c) and its rate-limited
  * rejection and log lines on stderr. Apart from main.c so that everything linking the host
  * HAL (the unit tests, the fuzz harnesses) has them. */
-#define _POSIX_C_SOURCE 200809L /* clock_gettime */
 #include <stdarg.h>
 #include <stdio.h>
-#include <time.h>
 
 #include "fw_host.h"
 #include "hil_wire.h"
-
-int64_t fwh_now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * FWH_NS_PER_S + ts.tv_nsec;
-}
 
 /* The names are drive.dbc's value tables (DRIVE_STATUS.state, .fault_code). */
 const char *fwh_state_name(int16_t state)
@@ -41,7 +32,7 @@ uint64_t fwh_rejected_total(const fwh_t *a)
 
 static int log_allowed(fwh_t *a)
 {
-    return hil_log_limit_allow(&a->log_limit, fwh_now_ns());
+    return hil_log_limit_allow(&a->log_limit, hil_now_ns());
 }
 
 void fwh_reject(fwh_t *a, int reason, const char *fmt, ...)

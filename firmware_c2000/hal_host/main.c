@@ -7,24 +7,15 @@
  * stderr; exit 2 on bad arguments or a bad parameter file; 1 when the bus, the trace or the
  * console cannot be opened.
  */
-#define _GNU_SOURCE /* getopt_long, timerfd, mlockall, sched_setscheduler */
+#define _GNU_SOURCE /* getopt_long, timerfd */
 #include <errno.h>
-#include <getopt.h>
-#include <limits.h>
 #include <poll.h>
-#include <sched.h>
-#include <signal.h>
-#include <stdarg.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
-#include <sys/mman.h>
 #include <sys/timerfd.h>
-#include <time.h>
 #include <unistd.h>
 
-#include "fw_host.h"
-#include "hil_ready.h"
+#include "fw_host.h" /* hilnode.h: options, real time, bus, trace, ready file, counters */
 #include "param_file.h"
 
 #define LOG_LINES_PER_S 10
@@ -34,26 +25,19 @@
 static fwh_t app; /* the core object is large: static storage, as on the DSP */
 static fwh_param_list_t start_list;
 
-static void on_signal(int sig)
-{
-    (void)sig;
-    app.stop = 1;
-}
-
 /* ------------------------------------------------------------------------ options */
 
 static void usage(FILE *out)
 {
-    fprintf(out,
-            "usage: fw_host [options]\n"
+    fputs("usage: fw_host [options]\n"
             "Runs the sensorless IPMSM control core on the bus: VIO_ADC in, VIO_PWM out (the\n"
             "ISR runs when a period's ADC data is complete), the drive protocol (DRIVE_CMD,\n"
             "DRIVE_LIMITS, PARAM_REQ/RESP, DRIVE_STATUS, HEARTBEAT, TLM_*) and the SCI console\n"
             "on a pseudo-terminal (protocols/console.md).\n"
-            "\n"
-            "  --bus socketcan|unixcan|auto   transport (default $HIL_BUS, else unixcan)\n"
-            "  --channel NAME                 channel (default $HIL_CHANNEL, else vcan0)\n"
-            "  --lockstep | --realtime        pacing of the plant (default lockstep); the firmware\n"
+            "\n",
+            out);
+    hil_node_usage(out);
+    fputs("  --lockstep | --realtime        pacing of the plant (default lockstep); the firmware\n"
             "                                 reacts to ADC frames in both; real time counts an\n"
             "                                 overrun when ADC-in to PWM-out exceeds a PWM\n"
             "                                 period\n"
@@ -70,48 +54,25 @@ static void usage(FILE *out)
             "  --console-timeout-ms N         a console-owned drive command stays refreshed while\n"
             "                                 a line came within N ms (default 5000; 0: until the\n"
             "                                 client hangs up)\n"
-            "  --ready-file FILE              written (atomically) once on the bus and ready\n"
-            "  --max-periods N                exit after N ISRs (0: until SIGTERM/SIGINT)\n"
             "  --spin-us N                    busy-poll the bus N us before sleeping (default 0)\n"
             "  --node N                       HEARTBEAT node number (default 1)\n"
-            "  --rt-priority N                real time: SCHED_FIFO priority (default 80; 0 off)\n"
             "  --first-period N               the paired plant's first ADC period (lockstep: 0);\n"
             "                                 ADC data of other periods before it is rejected\n"
             "  --help                         this text\n"
             "\n"
             "Exit: 0 on SIGTERM/SIGINT or after --max-periods (counters as one JSON line on\n"
-            "stderr), 2 on bad arguments or a bad parameter file, 1 on other errors.\n");
-}
-
-static int parse_u64(const char *s, uint64_t max, uint64_t *v)
-{
-    char *end;
-    unsigned long long x;
-    if (s[0] == '-' || s[0] == '\0') {
-        return -1;
-    }
-    errno = 0;
-    x = strtoull(s, &end, 10);
-    if (errno || *end || x > max) {
-        return -1;
-    }
-    *v = x;
-    return 0;
+            "stderr), 2 on bad arguments or a bad parameter file, 1 on other errors.\n",
+          out);
 }
 
 static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
 {
     enum {
-        O_BUS = 256, O_CHANNEL, O_LOCKSTEP, O_REALTIME, O_TRACE, O_SEND_TRACE, O_TLM_DIV,
-        O_PARAMS, O_SET, O_PTY_LINK, O_NO_CONSOLE, O_CONSOLE_TIMEOUT, O_READY, O_MAX_PERIODS,
-        O_SPIN, O_NODE, O_RT_PRIO, O_FIRST_PERIOD, O_HELP
+        O_SEND_TRACE = HIL_OPT_NODE_END, O_TLM_DIV, O_PARAMS, O_SET, O_PTY_LINK, O_NO_CONSOLE,
+        O_CONSOLE_TIMEOUT, O_SPIN, O_NODE, O_FIRST_PERIOD, O_HELP
     };
     static const struct option longopts[] = {
-        {"bus", required_argument, 0, O_BUS},
-        {"channel", required_argument, 0, O_CHANNEL},
-        {"lockstep", no_argument, 0, O_LOCKSTEP},
-        {"realtime", no_argument, 0, O_REALTIME},
-        {"trace", required_argument, 0, O_TRACE},
+        HIL_NODE_LONGOPTS,
         {"send-trace", no_argument, 0, O_SEND_TRACE},
         {"tlm-div", required_argument, 0, O_TLM_DIV},
         {"params", required_argument, 0, O_PARAMS},
@@ -120,11 +81,8 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
         {"pty-link", required_argument, 0, O_PTY_LINK},
         {"no-console", no_argument, 0, O_NO_CONSOLE},
         {"console-timeout-ms", required_argument, 0, O_CONSOLE_TIMEOUT},
-        {"ready-file", required_argument, 0, O_READY},
-        {"max-periods", required_argument, 0, O_MAX_PERIODS},
         {"spin-us", required_argument, 0, O_SPIN},
         {"node", required_argument, 0, O_NODE},
-        {"rt-priority", required_argument, 0, O_RT_PRIO},
         {"first-period", required_argument, 0, O_FIRST_PERIOD},
         {"help", no_argument, 0, O_HELP},
         {0, 0, 0, 0},
@@ -132,28 +90,27 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
     fwh_options_t *o = &app.opt;
     int c;
     char err[512];
-    o->bus = getenv("HIL_BUS") ? getenv("HIL_BUS") : "unixcan";
-    o->channel = getenv("HIL_CHANNEL") ? getenv("HIL_CHANNEL") : "vcan0";
+    hil_node_opts_init(&o->node, "fw_host");
     o->tlm_div = 1;
     o->console_timeout_ns = 5000LL * 1000000LL;
-    o->node = 1;
-    o->rt_priority = 80;
+    o->node_number = 1;
     o->first_period = -1; /* any */
     sets->n = 0;
     opterr = 0;
     while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+        const int node = hil_node_option(&o->node, c, optarg);
         uint64_t v;
+        if (node != 0) {
+            if (node < 0) {
+                return 2;
+            }
+            continue;
+        }
         switch (c) {
-        case O_BUS: o->bus = optarg; break;
-        case O_CHANNEL: o->channel = optarg; break;
-        case O_LOCKSTEP: o->realtime = 0; break;
-        case O_REALTIME: o->realtime = 1; break;
-        case O_TRACE: o->trace = optarg; break;
         case O_SEND_TRACE: o->send_trace = 1; break;
         case O_PARAMS: o->params = optarg; break;
         case O_PTY_LINK: o->pty_link = optarg; break;
         case O_NO_CONSOLE: o->no_console = 1; break;
-        case O_READY: o->ready_file = optarg; break;
         case O_SET:
             if (sets->n >= FWH_PARAM_ITEMS_MAX) {
                 fprintf(stderr, "fw_host: too many --set\n");
@@ -168,34 +125,24 @@ static int parse_options(int argc, char **argv, fwh_param_list_t *sets)
             break;
         case O_TLM_DIV:
         case O_CONSOLE_TIMEOUT:
-        case O_MAX_PERIODS:
         case O_SPIN:
         case O_NODE:
-        case O_FIRST_PERIOD:
-        case O_RT_PRIO: {
-            const uint64_t max = c == O_NODE ? 255u : c == O_RT_PRIO ? 99u
-                               : c == O_FIRST_PERIOD ? UINT32_MAX
-                               : c == O_MAX_PERIODS ? UINT64_MAX : c == O_SPIN ? 1000000u
+        case O_FIRST_PERIOD: {
+            const uint64_t max = c == O_NODE ? 255u : c == O_FIRST_PERIOD ? UINT32_MAX
                                : c == O_CONSOLE_TIMEOUT ? 86400000u : 1000000u;
-            if (parse_u64(optarg, max, &v) != 0) {
-                fprintf(stderr, "fw_host: %s %s: not an integer in 0..%llu\n", argv[optind - 2],
-                        optarg, (unsigned long long)max);
+            if (hil_node_u64_arg(&o->node, argv[optind - 2], optarg, max, &v) != 0) {
                 return 2;
             }
             if (c == O_TLM_DIV) {
                 o->tlm_div = (uint32_t)v;
             } else if (c == O_CONSOLE_TIMEOUT) {
                 o->console_timeout_ns = (int64_t)v * 1000000LL;
-            } else if (c == O_MAX_PERIODS) {
-                o->max_periods = v;
             } else if (c == O_SPIN) {
                 o->spin_us = (int32_t)v;
             } else if (c == O_NODE) {
-                o->node = (uint8_t)v;
-            } else if (c == O_FIRST_PERIOD) {
-                o->first_period = (int64_t)v;
+                o->node_number = (uint8_t)v;
             } else {
-                o->rt_priority = (int)v;
+                o->first_period = (int64_t)v;
             }
             break;
         }
@@ -261,35 +208,15 @@ static int load_parameters(const fwh_param_list_t *sets)
 
 /* ------------------------------------------------------------------------ start-up */
 
-static void setup_realtime(void)
-{
-    struct sched_param sp;
-    int ok_lock = mlockall(MCL_CURRENT | MCL_FUTURE) == 0;
-    int ok_sched = 0;
-    if (app.opt.rt_priority > 0) {
-        memset(&sp, 0, sizeof(sp));
-        sp.sched_priority = app.opt.rt_priority;
-        ok_sched = sched_setscheduler(0, SCHED_FIFO, &sp) == 0;
-    }
-    app.rt_note = ok_sched && ok_lock ? "SCHED_FIFO+mlockall"
-                  : ok_sched          ? "SCHED_FIFO; mlockall not permitted"
-                  : ok_lock           ? (app.opt.rt_priority > 0
-                                             ? "SCHED_OTHER (SCHED_FIFO not permitted)+mlockall"
-                                             : "SCHED_OTHER (--rt-priority 0)+mlockall")
-                                      : "SCHED_OTHER; SCHED_FIFO and mlockall not permitted";
-}
-
 static int open_bus(void)
 {
-    char err[256];
     /* 11-bit data frames of the drive (0x100-0x1FF) and virtual-I/O (0x00-0x3F) ranges */
     const struct can_filter filters[2] = {
         {.can_id = 0x100u, .can_mask = 0x700u | CAN_EFF_FLAG | CAN_RTR_FLAG},
         {.can_id = 0x000u, .can_mask = 0x7C0u | CAN_EFF_FLAG | CAN_RTR_FLAG},
     };
-    app.bus = hilbus_open(app.opt.bus, app.opt.channel, err, sizeof(err));
+    app.bus = hil_node_open_bus(&app.opt.node);
     if (app.bus == NULL) {
-        fprintf(stderr, "fw_host: cannot open bus %s/%s: %s\n", app.opt.bus, app.opt.channel, err);
         return -1;
     }
     if (hilbus_set_filters(app.bus, filters, 2) != 0) {
@@ -306,7 +233,7 @@ static int open_bus(void)
 
 static void handle_frame(const struct canfd_frame *f, int fd)
 {
-    const int64_t t_rx = fwh_now_ns();
+    const int64_t t_rx = hil_now_ns();
     const uint32_t id = f->can_id & CAN_SFF_MASK;
     if (f->can_id & (CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG)) {
         app.cnt.non_data_frames++; /* outside this protocol's 11-bit data frames */
@@ -321,7 +248,7 @@ static void handle_frame(const struct canfd_frame *f, int fd)
 
 static int periods_done(void)
 {
-    return app.opt.max_periods > 0 && app.cnt.isr >= app.opt.max_periods;
+    return app.opt.node.max_periods > 0 && app.cnt.isr >= app.opt.node.max_periods;
 }
 
 /* Receives what is waiting (and, with --spin-us, what comes within the spin). */
@@ -467,7 +394,7 @@ static int run(int tfd)
                 return 1;
             }
         }
-        now = fwh_now_ns();
+        now = hil_now_ns();
         if (i_pty >= 0 && p[i_pty].revents) {
             if (p[i_pty].revents & (POLLHUP | POLLERR)) {
                 console_hangup(now);
@@ -497,76 +424,60 @@ static int run(int tfd)
 
 static void print_counters(void)
 {
-    hilbus_stats_t bs;
+    static char buf[4096];
+    hil_json_t j;
     fw_status_t s;
     const fwh_counters_t *c = &app.cnt;
-    int k;
-    char last[24];
-    memset(&bs, 0, sizeof(bs));
-    if (app.bus != NULL) {
-        hilbus_get_stats(app.bus, &bs);
-    }
     fw_core_status(&app.core, &s);
+    hil_json_init(&j, buf, sizeof(buf));
+    hil_node_json_begin(&j, &app.opt.node, app.bus);
+    hil_json_u64(&j, "isr", c->isr);
+    hil_json_u64(&j, "isr_no_data", c->isr_no_data);
+    hil_json_u64(&j, "repeats", c->repeats);
     if (app.adc.have_last) {
-        snprintf(last, sizeof(last), "%lu", (unsigned long)app.adc.last);
+        hil_json_u64(&j, "last_period", app.adc.last);
     } else {
-        snprintf(last, sizeof(last), "null");
+        hil_json_raw(&j, "last_period", "null");
     }
-    fprintf(stderr,
-            "{\"program\": \"fw_host\", \"mode\": \"%s\", \"transport\": \"%s\", "
-            "\"isr\": %llu, \"isr_no_data\": %llu, \"repeats\": %llu, \"last_period\": %s, "
-            "\"pwm_sent\": %llu, \"pwm_invalid\": %llu, \"overruns\": %llu, "
-            "\"max_latency_us\": %.1f, \"rx_rejected\": %llu, \"rejects\": {",
-            app.opt.realtime ? "realtime" : "lockstep",
-            app.bus != NULL ? hilbus_transport(app.bus) : "none", (unsigned long long)c->isr,
-            (unsigned long long)c->isr_no_data, (unsigned long long)c->repeats, last,
-            (unsigned long long)c->pwm_sent, (unsigned long long)c->pwm_invalid,
-            (unsigned long long)c->overruns, (double)c->max_latency_ns * 1e-3,
-            (unsigned long long)fwh_rejected_total(&app));
-    for (k = 0; k < FWH_REJ_COUNT; k++) {
-        fprintf(stderr, "%s\"%s\": %llu", k ? ", " : "", fwh_reject_name(k),
-                (unsigned long long)c->rejects[k]);
-    }
-    fprintf(stderr,
-            "}, \"resyncs\": %llu, \"syncs\": %llu, \"drive_cmds\": %llu, "
-            "\"cmds_refused\": %llu, "
-            "\"limits\": %llu, \"param_reqs\": %llu, \"status_frames\": %llu, "
-            "\"heartbeats\": %llu, \"tlm_frames\": %llu, \"trace_records\": %llu, "
-            "\"trace_sent\": %llu, \"trace_errors\": %llu, \"console_sessions\": %llu, "
-            "\"console_lines\": %llu, \"console_errors\": %llu, "
-            "\"console_keepalive_lapses\": %llu, \"console_out_dropped\": %llu, "
-            "\"state\": \"%s\", \"fault_code\": %u, \"fault_name\": \"%s\", "
-            "\"core_overruns\": %u, \"tx_frames\": %llu, \"tx_drops\": %llu, "
-            "\"tx_errors\": %llu, \"rx_frames\": %llu, \"rx_overflows\": %llu, "
-            "\"rx_malformed\": %llu, \"rx_filtered\": %llu, \"non_data_frames\": %llu, "
-            "\"foreign_entries\": %llu, \"peers_beyond_limit\": %llu, \"rt\": \"%s\"}\n",
-            (unsigned long long)c->resyncs, (unsigned long long)c->syncs,
-            (unsigned long long)c->drive_cmds,
-            (unsigned long long)c->cmds_refused, (unsigned long long)c->limits,
-            (unsigned long long)c->param_reqs, (unsigned long long)c->status_frames,
-            (unsigned long long)c->heartbeats, (unsigned long long)c->tlm_frames,
-            (unsigned long long)c->trace_records, (unsigned long long)c->trace_sent,
-            (unsigned long long)(c->trace_errors + c->fw_trace_tx_errors),
-            (unsigned long long)c->console_sessions, (unsigned long long)c->console_lines,
-            (unsigned long long)c->console_errors,
-            (unsigned long long)c->console_keepalive_lapses,
-            (unsigned long long)app.pty.out_dropped, fwh_state_name(s.state), s.fault_code,
-            fwh_fault_name(s.fault_code), s.isr_overruns, (unsigned long long)bs.tx_frames,
-            (unsigned long long)bs.tx_drops, (unsigned long long)bs.tx_errors,
-            (unsigned long long)bs.rx_frames, (unsigned long long)bs.rx_overflows,
-            (unsigned long long)bs.rx_malformed, (unsigned long long)bs.rx_filtered,
-            (unsigned long long)c->non_data_frames, (unsigned long long)bs.foreign_entries,
-            (unsigned long long)bs.peers_beyond_limit,
-            app.rt_note != NULL ? app.rt_note : "not requested (lockstep)");
+    hil_json_u64(&j, "pwm_sent", c->pwm_sent);
+    hil_json_u64(&j, "pwm_invalid", c->pwm_invalid);
+    hil_json_u64(&j, "overruns", c->overruns);
+    hil_json_fmt(&j, "max_latency_us", "%.1f", (double)c->max_latency_ns * 1e-3);
+    hil_json_u64(&j, "rx_rejected", fwh_rejected_total(&app));
+    hil_json_counts(&j, "rejects", fwh_reject_name, c->rejects, 0, FWH_REJ_COUNT);
+    hil_json_u64(&j, "resyncs", c->resyncs);
+    hil_json_u64(&j, "syncs", c->syncs);
+    hil_json_u64(&j, "drive_cmds", c->drive_cmds);
+    hil_json_u64(&j, "cmds_refused", c->cmds_refused);
+    hil_json_u64(&j, "limits", c->limits);
+    hil_json_u64(&j, "param_reqs", c->param_reqs);
+    hil_json_u64(&j, "status_frames", c->status_frames);
+    hil_json_u64(&j, "heartbeats", c->heartbeats);
+    hil_json_u64(&j, "tlm_frames", c->tlm_frames);
+    hil_json_u64(&j, "trace_records", c->trace_records);
+    hil_json_u64(&j, "trace_sent", c->trace_sent);
+    hil_json_u64(&j, "trace_errors", c->trace_errors + c->fw_trace_tx_errors);
+    hil_json_u64(&j, "console_sessions", c->console_sessions);
+    hil_json_u64(&j, "console_lines", c->console_lines);
+    hil_json_u64(&j, "console_errors", c->console_errors);
+    hil_json_u64(&j, "console_keepalive_lapses", c->console_keepalive_lapses);
+    hil_json_u64(&j, "console_out_dropped", app.pty.out_dropped);
+    hil_json_str(&j, "state", fwh_state_name(s.state));
+    hil_json_u64(&j, "fault_code", s.fault_code);
+    hil_json_str(&j, "fault_name", fwh_fault_name(s.fault_code));
+    hil_json_u64(&j, "core_overruns", s.isr_overruns);
+    hil_node_json_bus(&j, app.bus, c->non_data_frames);
+    hil_json_str(&j, "rt", app.rt_note != NULL ? app.rt_note : HIL_NODE_RT_NONE);
+    hil_json_end(&j);
+    fprintf(stderr, "%s\n", buf);
     fflush(stderr);
 }
 
 int main(int argc, char **argv)
 {
     static fwh_param_list_t sets;
-    struct sigaction sa;
     struct itimerspec its;
-    int rc, tfd;
+    int rc, tfd, trace_failed;
     char err[512];
 
     rc = parse_options(argc, argv, &sets);
@@ -590,13 +501,7 @@ int main(int argc, char **argv)
         return 2;
     }
 
-    memset(&sa, 0, sizeof(sa));
-    sa.sa_handler = on_signal;
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
-    signal(SIGPIPE, SIG_IGN);
-    signal(SIGHUP, SIG_IGN);
+    hil_node_signals(&app.stop, 1); /* SIGHUP too: the console's terminal may hang up */
 
     if (open_bus() != 0) {
         if (app.bus != NULL) {
@@ -604,14 +509,10 @@ int main(int argc, char **argv)
         }
         return 1;
     }
-    if (app.opt.trace != NULL) {
-        app.trace = hiltrace_open(app.opt.trace);
-        if (app.trace == NULL) {
-            fprintf(stderr, "fw_host: cannot create trace %s: %s\n", app.opt.trace,
-                    strerror(errno));
-            hilbus_close(app.bus);
-            return 1;
-        }
+    app.trace = hil_node_open_trace(&app.opt.node, &trace_failed);
+    if (trace_failed) {
+        hilbus_close(app.bus);
+        return 1;
     }
     if (!app.opt.no_console) {
         if (fwh_pty_open(&app.pty, app.opt.pty_link, err, sizeof(err)) != 0) {
@@ -632,30 +533,24 @@ int main(int argc, char **argv)
         fprintf(stderr, "fw_host: timerfd: %s\n", strerror(errno));
         return 1;
     }
-    if (app.opt.realtime) {
-        setup_realtime();
+    if (app.opt.node.realtime) {
+        app.rt_note = hil_node_realtime(&app.opt.node);
     }
-    app.t0_ns = fwh_now_ns();
+    app.t0_ns = hil_now_ns();
     app.next_status_ns = app.t0_ns;
     app.next_heartbeat_ns = app.t0_ns;
     hil_log_limit_init(&app.log_limit, "fw_host", LOG_LINES_PER_S, app.t0_ns);
     housekeeping(app.t0_ns);
     fprintf(stderr, "fw_host: %s on %s/%s, console %s%s%s\n",
-            app.opt.realtime ? "real time" : "lockstep", hilbus_transport(app.bus),
-            app.opt.channel, app.pty_open ? app.pty.slave_path : "off",
+            app.opt.node.realtime ? "real time" : "lockstep", hilbus_transport(app.bus),
+            app.opt.node.channel, app.pty_open ? app.pty.slave_path : "off",
             app.pty.link[0] ? " linked from " : "", app.pty.link);
-    rc = 0;
-    if (app.opt.ready_file != NULL && hil_write_ready_file(app.opt.ready_file) != 0) {
-        fprintf(stderr, "fw_host: cannot write ready file %s: %s\n", app.opt.ready_file,
-                strerror(errno));
-        rc = 1;
-    }
+    rc = hil_node_ready(&app.opt.node) != 0 ? 1 : 0;
     if (rc == 0) {
         rc = run(tfd);
     }
     fwh_drive_send_status(&app);
-    if (app.trace != NULL && hiltrace_close(app.trace) != 0) {
-        fprintf(stderr, "fw_host: trace %s: write error\n", app.opt.trace);
+    if (hil_node_close_trace(&app.opt.node, app.trace) != 0) {
         rc = 1;
     }
     if (app.pty_open) {

@@ -5,6 +5,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "fw_trace_gen.h"
 #include "hil_vio.h"
 #include "param_file.h"
 
@@ -157,26 +158,7 @@ void fwh_vio_trace_pack(const fw_status_t *s, struct canfd_frame *f)
 {
     struct hil_vio_fw_trace_t m;
     memset(&m, 0, sizeof(m));
-    m.period = s->period;
-    m.stamp = s->stamp;
-    m.state = (uint8_t)(s->state >= 0 && s->state <= 4 ? s->state : 4);
-    m.slopes_ok = (uint8_t)(s->slopes_ok >= 0 && s->slopes_ok <= 3 ? s->slopes_ok : 0);
-    m.sector = (uint8_t)(s->sector >= 0 && s->sector <= 6 ? s->sector : 0);
-    m.fw_active = (uint8_t)(s->fw_active != 0);
-    m.theta_hat = s->theta_hat;
-    m.omega_hat = s->omega_hat;
-    m.id = s->id;
-    m.iq = s->iq;
-    m.id_ref = s->id_ref;
-    m.iq_ref = s->iq_ref;
-    m.vd = s->vd;
-    m.vq = s->vq;
-    m.ld_hat = s->ld_hat;
-    m.lq_hat = s->lq_hat;
-    m.lambda_hat = s->lambda_hat;
-    m.te_hat = s->te_hat;
-    m.theta_raw = s->theta_raw;
-    m.residual = s->residual;
+    fwh_trace_from_status(s, &m); /* generated from FW_TRACE in protocols/vio.dbc */
     memset(f, 0, sizeof(*f));
     f->can_id = HIL_VIO_FW_TRACE_FRAME_ID;
     f->len = HIL_VIO_FW_TRACE_LENGTH;

@@ -41,7 +41,8 @@ int fwh_vio_adc_codes_ok(const fw_core_t *core, const fwh_vio_adc_t *m, int *rea
  * value outside the DBC goes out with the gates off instead (returns 0; 1 when valid). */
 int fwh_vio_pwm_pack(const fw_pwm_t *pwm, uint32_t want_period, struct canfd_frame *f);
 
-/* FW_TRACE of one ISR. */
+/* FW_TRACE of one ISR: every signal from the fw_status_t field of its name (generated from
+ * protocols/vio.dbc, fw_trace_gen.c); integers saturated into their DBC ranges. */
 void fwh_vio_trace_pack(const fw_status_t *s, struct canfd_frame *f);
 
 #endif

@@ -229,30 +229,6 @@ int plant_current_from_flux(const plant_t *plant, double psi_d, double psi_q, do
 int32_t plant_adc_current_code(double i_a, int bits, double range_a, int *clipped);
 int32_t plant_adc_vdc_code(double vdc_v, int bits, double range_v, int *clipped);
 
-/* ---------------------------------------------------------------- validation and frames */
-
-enum plant_reject {
-    PLANT_REJ_NONE = 0,
-    PLANT_REJ_UNKNOWN_ID,
-    PLANT_REJ_BAD_LENGTH,
-    PLANT_REJ_OUT_OF_RANGE,
-    PLANT_REJ_STALE_PERIOD,
-    PLANT_REJ_FUTURE_PERIOD,
-    PLANT_REJ_TOO_MANY_SOC,
-    PLANT_REJ_SOC_OUTSIDE,
-    PLANT_REJ_MALFORMED,
-    PLANT_REJ_COUNT
-};
-const char *plant_reject_name(int reason);
-
-/* Checks a decoded PWM command against the limits and the expected period. */
-int plant_pwm_validate(const plant_pwm_cmd_t *cmd, uint32_t expected_period);
-
-/* Decodes and validates a VIO_PWM frame: can_id (without flags), fd (CAN FD frame?), data,
- * len. Returns PLANT_REJ_NONE with *out filled, or the reason. */
-int plant_decode_pwm(uint32_t can_id, int fd, const uint8_t *data, size_t len,
-                     uint32_t expected_period, plant_pwm_cmd_t *out);
-
 /* Size checks for ctypes mirrors. */
 size_t plant_sizeof_pwm_cmd(void);
 size_t plant_sizeof_samples(void);

@@ -31,7 +31,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "plant_core.h"
+#include "plant_vio.h" /* plant_core.h, the reasons a frame is refused */
 
 #ifdef __cplusplus
 extern "C" {

@@ -17,6 +17,29 @@ extern "C" {
 
 #define PLANT_VIO_ADC_FRAMES_MAX 3
 
+/* Why a frame was refused (the exit counters' "rejects", BENCH_REJECTS). */
+enum plant_reject {
+    PLANT_REJ_NONE = 0,
+    PLANT_REJ_UNKNOWN_ID,
+    PLANT_REJ_BAD_LENGTH,
+    PLANT_REJ_OUT_OF_RANGE,
+    PLANT_REJ_STALE_PERIOD,
+    PLANT_REJ_FUTURE_PERIOD,
+    PLANT_REJ_TOO_MANY_SOC,
+    PLANT_REJ_SOC_OUTSIDE,
+    PLANT_REJ_MALFORMED,
+    PLANT_REJ_COUNT
+};
+const char *plant_reject_name(int reason);
+
+/* Checks a decoded PWM command against the limits and the expected period. */
+int plant_pwm_validate(const plant_pwm_cmd_t *cmd, uint32_t expected_period);
+
+/* Decodes and validates a VIO_PWM frame: can_id (without flags), fd (CAN FD frame?), data,
+ * len. Returns PLANT_REJ_NONE with *out filled, or the reason. */
+int plant_decode_pwm(uint32_t can_id, int fd, const uint8_t *data, size_t len,
+                     uint32_t expected_period, plant_pwm_cmd_t *out);
+
 /* The command of period 0 (docs/interfaces.md, start-up): gates disabled, one SOC at tick 0,
  * so ADC(0) reaches the firmware, which answers with PWM(1). */
 void plant_startup_command(plant_pwm_cmd_t *cmd);

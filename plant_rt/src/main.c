@@ -13,30 +13,22 @@
  */
 #define _GNU_SOURCE
 #include <errno.h>
-#include <getopt.h>
 #include <limits.h>
 #include <math.h>
-#include <signal.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/mman.h>
-#include <sched.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "hil_bench.h"
-#include "hil_log_limit.h"
 #include "hil_vio.h"
-#include "hil_ready.h"
-#include "hilbus.h"
-#include "hiltrace.h"
+#include "hilnode.h"
 #include "plant_core.h"
 #include "plant_link.h"
 #include "plant_vio.h"
 
-#define NS_PER_S 1000000000LL
 #define HOUSEKEEPING_NS (100LL * 1000000LL) /* counters, progress: every 100 ms */
 #define RESEND_NS (100LL * 1000000LL)       /* lockstep: ADC(k) again after 100 ms */
 #define VIO_RANGE_LO 0x10u
@@ -47,25 +39,13 @@
 
 static volatile sig_atomic_t g_stop = 0;
 
-static void on_signal(int sig)
-{
-    (void)sig;
-    g_stop = 1;
-}
-
 typedef struct options {
-    const char *bus;
-    const char *channel;
-    int realtime;
+    hil_node_opts_t node; /* --bus, --channel, pacing, --trace, --ready-file, ... (hilnode.h) */
     const char *profile;
     const char *profiles_dir;
-    const char *trace;
     int trace_vio;
-    const char *ready_file;
-    uint64_t max_periods;
     uint32_t run_until;
     uint32_t truth_every;
-    int rt_priority;
     uint32_t rt_spin_us;
 } options_t;
 
@@ -100,19 +80,12 @@ typedef struct app {
     int n_adc_frames;
 } app_t;
 
-static int64_t now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * NS_PER_S + ts.tv_nsec;
-}
-
 /* ------------------------------------------------------------------ logging */
 
 static void log_reject(app_t *a, const char *fmt, ...)
 {
     va_list ap;
-    if (!hil_log_limit_allow(&a->log_limit, now_ns())) {
+    if (!hil_log_limit_allow(&a->log_limit, hil_now_ns())) {
         return;
     }
     fputs("plant_rt: rejected: ", stderr);
@@ -266,7 +239,7 @@ static void send_adc(app_t *a, const plant_samples_t *s)
             trace_frame(a, a->adc_frames[k].can_id, a->adc_frames[k].data, 64);
         }
     }
-    if (!a->opt.realtime && plant_link_barrier(&a->link)) {
+    if (!a->opt.node.realtime && plant_link_barrier(&a->link)) {
         a->sync_seq++;
         a->waiting_sync = 1;
         send_sync(a);
@@ -360,16 +333,16 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
         }
         if (r == PLANT_REJ_NONE && !a->waiting_sync) { /* under the barrier: at its answer */
             in->have_pwm = 1;
-            in->pwm_arrival_ns = now_ns();
+            in->pwm_arrival_ns = hil_now_ns();
         }
         if (r == PLANT_REJ_NONE) {
             return;
         }
-        if (r == PLANT_REJ_STALE_PERIOD && a->opt.realtime) {
+        if (r == PLANT_REJ_STALE_PERIOD && a->opt.node.realtime) {
             /* A frame for a period that already ran on the old values: it was due before
              * that period started, (expected - p) periods before the current one. */
             const int64_t due = period_start_ns - (int64_t)(expected - raw_period) * HIL_PERIOD_NS;
-            const int64_t late_ns = now_ns() - due;
+            const int64_t late_ns = hil_now_ns() - due;
             if (late_ns > 0 && (uint64_t)(late_ns / 1000) > a->cnt.max_late_us) {
                 a->cnt.max_late_us = (uint64_t)(late_ns / 1000);
             }
@@ -388,7 +361,7 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
             /* everything the firmware sent for this period is here: PWM(k+1) or none */
             plant_link_resolve(&a->link);
             in->have_pwm = 1;
-            in->pwm_arrival_ns = now_ns();
+            in->pwm_arrival_ns = hil_now_ns();
             a->waiting_sync = 0;
             a->cnt.sync_acks++;
         }
@@ -433,7 +406,7 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
         a->run_until = m.run_until;
         a->step_seq = m.seq;
         a->cnt.steps++;
-        if (!a->opt.realtime && !grant_open(a, plant_next_period(a->plant))) {
+        if (!a->opt.node.realtime && !grant_open(a, plant_next_period(a->plant))) {
             /* Nothing to simulate (a repeated grant, or one already reached): the grant is
              * used up on arrival, so say so now rather than at the next housekeeping. */
             send_progress(a, 0);
@@ -466,7 +439,7 @@ static void run_period(app_t *a, const plant_pwm_cmd_t *cmd)
 static int lockstep(app_t *a)
 {
     inbox_t in;
-    int64_t next_housekeeping = now_ns() + HOUSEKEEPING_NS, adc_sent_ns = 0;
+    int64_t next_housekeeping = hil_now_ns() + HOUSEKEEPING_NS, adc_sent_ns = 0;
     int waiting_pwm = 0;
     memset(&in, 0, sizeof(in));
     plant_startup_command(&in.pwm);
@@ -474,11 +447,11 @@ static int lockstep(app_t *a)
 
     while (!g_stop) {
         const uint32_t k = plant_next_period(a->plant);
-        int64_t t = now_ns(), timeout_ns;
+        int64_t t = hil_now_ns(), timeout_ns;
         struct canfd_frame f;
         int fd, r;
 
-        if (a->opt.max_periods && a->cnt.periods >= a->opt.max_periods) {
+        if (a->opt.node.max_periods && a->cnt.periods >= a->opt.node.max_periods) {
             break;
         }
         if (t >= next_housekeeping) {
@@ -496,7 +469,7 @@ static int lockstep(app_t *a)
             run_period(a, &cmd);
             in.have_pwm = 0;
             waiting_pwm = 1;
-            adc_sent_ns = now_ns();
+            adc_sent_ns = hil_now_ns();
             if (plant_next_period(a->plant) == a->run_until) {
                 send_progress(a, 0); /* grant used up */
             }
@@ -523,35 +496,13 @@ static int lockstep(app_t *a)
         if (in.have_pwm) {
             waiting_pwm = 0;
         }
-        t = now_ns();
+        t = hil_now_ns();
         if (waiting_pwm && !in.have_pwm && t - adc_sent_ns >= RESEND_NS) {
             resend_adc(a); /* the firmware answers a repeated ADC(k) with the same PWM(k+1) */
             adc_sent_ns = t;
         }
     }
     return 0;
-}
-
-static void setup_realtime(app_t *a)
-{
-    struct sched_param sp;
-    int ok_lock = mlockall(MCL_CURRENT | MCL_FUTURE) == 0;
-    int ok_sched = 0;
-    if (a->opt.rt_priority > 0) {
-        memset(&sp, 0, sizeof(sp));
-        sp.sched_priority = a->opt.rt_priority;
-        ok_sched = sched_setscheduler(0, SCHED_FIFO, &sp) == 0;
-    }
-    if (ok_sched && ok_lock) {
-        a->cnt.rt_note = "SCHED_FIFO+mlockall";
-    } else if (ok_sched) {
-        a->cnt.rt_note = "SCHED_FIFO; mlockall not permitted";
-    } else if (ok_lock) {
-        a->cnt.rt_note = a->opt.rt_priority > 0 ? "SCHED_OTHER (SCHED_FIFO not permitted)+mlockall"
-                                                : "SCHED_OTHER (--rt-priority 0)+mlockall";
-    } else {
-        a->cnt.rt_note = "SCHED_OTHER; SCHED_FIFO and mlockall not permitted";
-    }
 }
 
 static void note_wakeup(counters_t *c, int64_t late_ns)
@@ -604,10 +555,10 @@ static int realtime(app_t *a)
     int64_t start, next_housekeeping;
     plant_pwm_cmd_t current;
     inbox_t in;
-    setup_realtime(a);
+    a->cnt.rt_note = hil_node_realtime(&a->opt.node);
     memset(&in, 0, sizeof(in));
     plant_startup_command(&current);
-    start = now_ns() + 2 * ts_ns;
+    start = hil_now_ns() + 2 * ts_ns;
     next_housekeeping = start + HOUSEKEEPING_NS;
 
     while (!g_stop) {
@@ -619,16 +570,16 @@ static int realtime(app_t *a)
         int fd;
         int64_t t;
 
-        if (a->opt.max_periods && a->cnt.periods >= a->opt.max_periods) {
+        if (a->opt.node.max_periods && a->cnt.periods >= a->opt.node.max_periods) {
             break;
         }
         in.have_pwm = 0;
-        ts.tv_sec = (time_t)(wake / NS_PER_S);
-        ts.tv_nsec = (long)(wake % NS_PER_S);
+        ts.tv_sec = (time_t)(wake / HIL_NS_PER_S);
+        ts.tv_nsec = (long)(wake % HIL_NS_PER_S);
         while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR && !g_stop) {
         }
         /* --rt-spin-us: take frames as they come while spinning up to the deadline */
-        while (!g_stop && (t = now_ns()) < deadline) {
+        while (!g_stop && (t = hil_now_ns()) < deadline) {
             if (hilbus_recv(a->bus, &f, &fd, 0) == 1) {
                 handle_frame(a, &f, fd, &in, deadline);
             }
@@ -636,7 +587,7 @@ static int realtime(app_t *a)
         if (g_stop) {
             break;
         }
-        note_wakeup(&a->cnt, now_ns() - deadline);
+        note_wakeup(&a->cnt, hil_now_ns() - deadline);
         while (hilbus_recv(a->bus, &f, &fd, 0) == 1) {
             handle_frame(a, &f, fd, &in, deadline);
         }
@@ -649,7 +600,7 @@ static int realtime(app_t *a)
             a->cnt.late_cmds++; /* the old compare values stay loaded */
         }
         run_period(a, &current);
-        t = now_ns();
+        t = hil_now_ns();
         if (t > deadline + ts_ns) {
             /* the next period's start has passed: slip the grid by whole periods */
             const int64_t behind = t - (deadline + ts_ns);
@@ -674,41 +625,38 @@ static int realtime(app_t *a)
 
 static void usage(FILE *out)
 {
-    fprintf(out,
-            "usage: plant_rt [options]\n"
-            "Emulates the IPMSM bench (machine, inverter, sensors, ADC, shaft, load) on the bus.\n"
-            "\n"
-            "  --bus socketcan|unixcan|auto   transport (default $HIL_BUS, else unixcan)\n"
-            "  --channel NAME                 channel (default $HIL_CHANNEL, else vcan0)\n"
-            "  --lockstep | --realtime        pacing (default lockstep). Real time: a PWM frame\n"
-            "                                 not there when its period starts leaves the old\n"
-            "                                 command loaded (late_cmds); an overrun slips the\n"
-            "                                 period grid by whole periods (slipped_periods)\n"
-            "  --profile NAME|FILE            fidelity profile (default paper); a NAME is looked\n"
-            "                                 up as NAME.toml in the profiles folder\n"
-            "  --config FILE                  same as --profile FILE\n"
-            "  --profiles-dir DIR             profiles folder (default: ../_data/profiles next\n"
-            "                                 to the binary when installed, else the source tree)\n"
-            "  --set section.key=value        override a profile field (repeatable)\n"
-            "  --seed N                       noise seed (= --set sensors.seed=N)\n"
-            "  --theta0 RAD                   initial electrical angle\n"
-            "  --speed0 RPM                   initial speed\n"
-            "  --load-mode torque|speed|off   load machine default (or 0, 1, 2)\n"
-            "  --load-torque NM  --load-speed RPM  --load-k NMS   load machine defaults\n"
-            "  --trace FILE                   per-period binary trace (BENCH_TRUTH, _MAG)\n"
-            "  --trace-vio                    also trace VIO_PWM received and VIO_ADC sent\n"
-            "  --ready-file FILE              written once on the bus and ready\n"
-            "  --max-periods N                exit after N periods (0: until SIGTERM/SIGINT)\n"
-            "  --run-until N                  initial lockstep grant (periods < N)\n"
-            "  --truth-every N                BENCH_TRUTH on the bus every N periods (default 10;\n"
-            "                                 the trace has every period)\n"
-            "  --rt-priority N                SCHED_FIFO priority in real time (default 80; 0 off)\n"
-            "  --rt-spin-us N                 real time: wake N us before each period start and\n"
-            "                                 poll the bus until it (less timer jitter, one busy\n"
-            "                                 core; default 0)\n"
-            "  --help                         this text\n"
-            "\n"
-            "Profile keys:");
+    fputs("usage: plant_rt [options]\n"
+          "Emulates the IPMSM bench (machine, inverter, sensors, ADC, shaft, load) on the bus.\n"
+          "\n",
+          out);
+    hil_node_usage(out);
+    fputs("  --lockstep | --realtime        pacing (default lockstep). Real time: a PWM frame\n"
+          "                                 not there when its period starts leaves the old\n"
+          "                                 command loaded (late_cmds); an overrun slips the\n"
+          "                                 period grid by whole periods (slipped_periods)\n"
+          "  --trace FILE                   per-period binary trace (BENCH_TRUTH, _MAG)\n"
+          "  --trace-vio                    also trace VIO_PWM received and VIO_ADC sent\n"
+          "  --profile NAME|FILE            fidelity profile (default paper); a NAME is looked\n"
+          "                                 up as NAME.toml in the profiles folder\n"
+          "  --config FILE                  same as --profile FILE\n"
+          "  --profiles-dir DIR             profiles folder (default: ../_data/profiles next\n"
+          "                                 to the binary when installed, else the source tree)\n"
+          "  --set section.key=value        override a profile field (repeatable)\n"
+          "  --seed N                       noise seed (= --set sensors.seed=N)\n"
+          "  --theta0 RAD                   initial electrical angle\n"
+          "  --speed0 RPM                   initial speed\n"
+          "  --load-mode torque|speed|off   load machine default (or 0, 1, 2)\n"
+          "  --load-torque NM  --load-speed RPM  --load-k NMS   load machine defaults\n"
+          "  --run-until N                  initial lockstep grant (periods < N)\n"
+          "  --truth-every N                BENCH_TRUTH on the bus every N periods (default 10;\n"
+          "                                 the trace has every period)\n"
+          "  --rt-spin-us N                 real time: wake N us before each period start and\n"
+          "                                 poll the bus until it (less timer jitter, one busy\n"
+          "                                 core; default 0)\n"
+          "  --help                         this text\n"
+          "\n"
+          "Profile keys:",
+          out);
     {
         int k;
         for (k = 0; k < plant_config_key_count(); ++k) {
@@ -752,97 +700,106 @@ static int profile_file(const options_t *o, char *out, size_t outlen)
 
 static void print_counters(app_t *a)
 {
-    hilbus_stats_t bs;
+    static char buf[8192];
+    hil_json_t j;
     plant_stats_t ps;
-    int k;
-    memset(&bs, 0, sizeof(bs));
-    if (a->bus) {
-        hilbus_get_stats(a->bus, &bs);
-    }
+    char link[512];
     plant_get_stats(a->plant, &ps);
-    fprintf(stderr,
-            "{\"program\": \"plant_rt\", \"mode\": \"%s\", \"transport\": \"%s\", "
-            "\"periods\": %llu, \"next_period\": %u, \"late_cmds\": %llu, \"overruns\": %llu, "
-            "\"max_late_us\": %llu, \"rejected\": %llu, \"rejects\": {",
-            a->opt.realtime ? "realtime" : "lockstep", a->bus ? hilbus_transport(a->bus) : "none",
-            (unsigned long long)a->cnt.periods, (unsigned)plant_next_period(a->plant),
-            (unsigned long long)(a->cnt.late_cmds + a->link.st.held),
-            (unsigned long long)a->cnt.overruns,
-            (unsigned long long)a->cnt.max_late_us, (unsigned long long)total_rejects(&a->cnt));
-    for (k = 1; k < PLANT_REJ_COUNT; ++k) {
-        fprintf(stderr, "%s\"%s\": %llu", k > 1 ? ", " : "", plant_reject_name(k),
-                (unsigned long long)a->cnt.rejects[k]);
-    }
-    fprintf(stderr,
-            "}, \"adc_clipped\": %llu, \"resends\": %llu, \"tx_frames\": %llu, "
-            "\"tx_drops\": %llu, \"tx_errors\": %llu, \"rx_frames\": %llu, "
-            "\"rx_overflows\": %llu, \"rx_malformed\": %llu, \"non_data_frames\": %llu, "
-            "\"foreign_entries\": %llu, \"peers_beyond_limit\": %llu, "
-            "\"load_cmds\": %llu, \"steps\": %llu, "
-            "\"conduction_events\": %llu, \"newton_failures\": %llu, \"mode_loops_cut\": %llu, "
-            "\"rt\": \"%s\"",
-            (unsigned long long)a->cnt.adc_clipped, (unsigned long long)a->cnt.resends,
-            (unsigned long long)bs.tx_frames, (unsigned long long)bs.tx_drops,
-            (unsigned long long)bs.tx_errors, (unsigned long long)bs.rx_frames,
-            (unsigned long long)bs.rx_overflows, (unsigned long long)bs.rx_malformed,
-            (unsigned long long)a->cnt.non_data_frames, (unsigned long long)bs.foreign_entries,
-            (unsigned long long)bs.peers_beyond_limit, (unsigned long long)a->cnt.load_cmds,
-            (unsigned long long)a->cnt.steps, (unsigned long long)ps.conduction_events,
-            (unsigned long long)ps.newton_failures, (unsigned long long)ps.mode_loops_cut,
-            a->cnt.rt_note ? a->cnt.rt_note : "not requested (lockstep)");
-    {
-        char link[512];
-        plant_link_stats_json(&a->link, link, sizeof(link));
-        fprintf(stderr, ", %s, \"sync_acks\": %llu", link, (unsigned long long)a->cnt.sync_acks);
-    }
-    if (a->opt.realtime) {
+    hil_json_init(&j, buf, sizeof(buf));
+    hil_node_json_begin(&j, &a->opt.node, a->bus);
+    hil_json_u64(&j, "periods", a->cnt.periods);
+    hil_json_u64(&j, "next_period", plant_next_period(a->plant));
+    hil_json_u64(&j, "late_cmds", a->cnt.late_cmds + a->link.st.held);
+    hil_json_u64(&j, "overruns", a->cnt.overruns);
+    hil_json_u64(&j, "max_late_us", a->cnt.max_late_us);
+    hil_json_u64(&j, "rejected", total_rejects(&a->cnt));
+    hil_json_counts(&j, "rejects", plant_reject_name, a->cnt.rejects, 1, PLANT_REJ_COUNT);
+    hil_json_u64(&j, "adc_clipped", a->cnt.adc_clipped);
+    hil_json_u64(&j, "resends", a->cnt.resends);
+    hil_node_json_bus(&j, a->bus, a->cnt.non_data_frames);
+    hil_json_u64(&j, "load_cmds", a->cnt.load_cmds);
+    hil_json_u64(&j, "steps", a->cnt.steps);
+    hil_json_u64(&j, "conduction_events", ps.conduction_events);
+    hil_json_u64(&j, "newton_failures", ps.newton_failures);
+    hil_json_u64(&j, "mode_loops_cut", ps.mode_loops_cut);
+    hil_json_str(&j, "rt", a->cnt.rt_note ? a->cnt.rt_note : HIL_NODE_RT_NONE);
+    plant_link_stats_json(&a->link, link, sizeof(link));
+    hil_json_member(&j, link);
+    hil_json_u64(&j, "sync_acks", a->cnt.sync_acks);
+    if (a->opt.node.realtime) {
         const counters_t *c = &a->cnt;
-        fprintf(stderr,
-                ", \"slipped_periods\": %llu, \"wake_late_us\": {\"n\": %llu, \"mean\": %.2f, "
-                "\"p99\": %.0f, \"max\": %.1f}",
-                (unsigned long long)c->slipped_periods, (unsigned long long)c->wake_n,
-                c->wake_n ? (double)c->wake_sum_ns * 1e-3 / (double)c->wake_n : 0.0,
-                wake_quantile_us(c, 0.99), (double)c->wake_max_ns * 1e-3);
+        hil_json_u64(&j, "slipped_periods", c->slipped_periods);
+        hil_json_open(&j, "wake_late_us");
+        hil_json_u64(&j, "n", c->wake_n);
+        hil_json_fmt(&j, "mean", "%.2f",
+                     c->wake_n ? (double)c->wake_sum_ns * 1e-3 / (double)c->wake_n : 0.0);
+        hil_json_fmt(&j, "p99", "%.0f", wake_quantile_us(c, 0.99));
+        hil_json_fmt(&j, "max", "%.1f", (double)c->wake_max_ns * 1e-3);
+        hil_json_close(&j);
     }
-    fputs("}\n", stderr);
+    hil_json_end(&j);
+    fprintf(stderr, "%s\n", buf);
+    fflush(stderr);
 }
 
-static void free_sets(char **sets, int n)
+/* The profile's overrides in command-line order: --set and the flags that stand for one. */
+typedef struct {
+    char **items;
+    int n;
+} sets_t;
+
+static void free_sets(sets_t *sets)
 {
     int k;
-    for (k = 0; k < n; ++k) {
-        free(sets[k]);
+    for (k = 0; k < sets->n; ++k) {
+        free(sets->items[k]);
     }
-    free(sets);
+    free(sets->items);
 }
 
-static int parse_u64(const char *s, uint64_t *v)
+enum {
+    O_PROFILE = HIL_OPT_NODE_END, O_CONFIG, O_PROFILES_DIR, O_SET, O_SEED, O_THETA0, O_SPEED0,
+    O_LOAD_MODE, O_LOAD_TORQUE, O_LOAD_SPEED, O_LOAD_K, O_TRACE_VIO, O_RUN_UNTIL,
+    O_TRUTH_EVERY, O_RT_SPIN, O_HELP
+};
+
+/* A flag that stands for a profile override (--seed, --theta0, --load-mode, ...) as
+ * "section.key=value" in buf; 0, or -1 after a message. */
+static int flag_override(int c, const char *arg, char *buf, size_t len)
 {
-    char *end;
-    unsigned long long x;
-    errno = 0;
-    x = strtoull(s, &end, 10);
-    if (errno || end == s || *end || s[0] == '-') {
-        return -1;
+    static const char *const keys[] = {"sensors.seed", "initial.theta_e_deg", "initial.speed_rpm",
+                                       "load.torque_nm", "load.speed_rpm", "load.k_speed_nms"};
+    if (c == O_THETA0) {
+        char *end;
+        const double rad = strtod(arg, &end);
+        if (end == arg || *end) {
+            fprintf(stderr, "plant_rt: --theta0 %s: not a number\n", arg);
+            return -1;
+        }
+        snprintf(buf, len, "%s=%.17g", keys[1], rad * 180.0 / 3.14159265358979323846);
+    } else if (c == O_LOAD_MODE) {
+        const int mode = strcmp(arg, "torque") == 0 ? (int)HIL_BENCH_LOAD_CMD_MODE_TORQUE_CHOICE
+                       : strcmp(arg, "speed") == 0 ? (int)HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE
+                       : strcmp(arg, "off") == 0   ? (int)HIL_BENCH_LOAD_CMD_MODE_OFF_CHOICE
+                                                   : -1;
+        if (mode >= 0) {
+            snprintf(buf, len, "load.mode=%d", mode);
+        } else {
+            snprintf(buf, len, "load.mode=%s", arg);
+        }
+    } else {
+        const int idx = c == O_SEED ? 0 : c == O_SPEED0 ? 2 : c == O_LOAD_TORQUE ? 3
+                      : c == O_LOAD_SPEED ? 4 : 5;
+        snprintf(buf, len, "%s=%s", keys[idx], arg);
     }
-    *v = x;
     return 0;
 }
 
-int main(int argc, char **argv)
+/* 0, 1 after --help, 2 on a bad argument. */
+static int parse_options(int argc, char **argv, options_t *o, sets_t *sets)
 {
-    enum {
-        O_BUS = 256, O_CHANNEL, O_LOCKSTEP, O_REALTIME, O_PROFILE, O_CONFIG, O_PROFILES_DIR,
-        O_SET, O_SEED, O_THETA0, O_SPEED0, O_LOAD_MODE, O_LOAD_TORQUE, O_LOAD_SPEED, O_LOAD_K,
-        O_TRACE, O_TRACE_VIO, O_READY, O_MAX_PERIODS, O_RUN_UNTIL, O_TRUTH_EVERY, O_RT_PRIO,
-        O_RT_SPIN,
-        O_HELP
-    };
     static const struct option longopts[] = {
-        {"bus", required_argument, 0, O_BUS},
-        {"channel", required_argument, 0, O_CHANNEL},
-        {"lockstep", no_argument, 0, O_LOCKSTEP},
-        {"realtime", no_argument, 0, O_REALTIME},
+        HIL_NODE_LONGOPTS,
         {"profile", required_argument, 0, O_PROFILE},
         {"config", required_argument, 0, O_CONFIG},
         {"profiles-dir", required_argument, 0, O_PROFILES_DIR},
@@ -854,198 +811,152 @@ int main(int argc, char **argv)
         {"load-torque", required_argument, 0, O_LOAD_TORQUE},
         {"load-speed", required_argument, 0, O_LOAD_SPEED},
         {"load-k", required_argument, 0, O_LOAD_K},
-        {"trace", required_argument, 0, O_TRACE},
         {"trace-vio", no_argument, 0, O_TRACE_VIO},
-        {"ready-file", required_argument, 0, O_READY},
-        {"max-periods", required_argument, 0, O_MAX_PERIODS},
         {"run-until", required_argument, 0, O_RUN_UNTIL},
         {"truth-every", required_argument, 0, O_TRUTH_EVERY},
-        {"rt-priority", required_argument, 0, O_RT_PRIO},
         {"rt-spin-us", required_argument, 0, O_RT_SPIN},
         {"help", no_argument, 0, O_HELP},
         {0, 0, 0, 0},
     };
-    /* "section.key=value" assignments in command-line order, applied after the profile */
-    char **sets = (char **)calloc((size_t)argc + 1, sizeof(char *));
-    int n_sets = 0, c, rc = 0, k;
-    app_t a;
-    char path[PATH_MAX + 64], err[1024];
-    plant_config_t cfg;
-    struct sigaction sa;
-
-    memset(&a, 0, sizeof(a));
-    hil_log_limit_init(&a.log_limit, "plant_rt", 10, now_ns());
-    a.opt.bus = getenv("HIL_BUS") ? getenv("HIL_BUS") : "unixcan";
-    a.opt.channel = getenv("HIL_CHANNEL") ? getenv("HIL_CHANNEL") : "vcan0";
-    a.opt.truth_every = 10;
-    a.opt.rt_priority = 80;
-    if (!sets) {
-        return 1;
+    int c;
+    hil_node_opts_init(&o->node, "plant_rt");
+    o->truth_every = 10;
+    sets->items = (char **)calloc((size_t)argc + 1, sizeof(char *));
+    sets->n = 0;
+    if (!sets->items) {
+        return 2;
     }
     while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+        const int node = hil_node_option(&o->node, c, optarg);
         uint64_t v;
         char buf[256];
+        if (node != 0) {
+            if (node < 0) {
+                return 2;
+            }
+            continue;
+        }
         switch (c) {
-        case O_BUS: a.opt.bus = optarg; break;
-        case O_CHANNEL: a.opt.channel = optarg; break;
-        case O_LOCKSTEP: a.opt.realtime = 0; break;
-        case O_REALTIME: a.opt.realtime = 1; break;
         case O_PROFILE:
-        case O_CONFIG: a.opt.profile = optarg; break;
-        case O_PROFILES_DIR: a.opt.profiles_dir = optarg; break;
-        case O_SET: sets[n_sets++] = strdup(optarg); break;
+        case O_CONFIG: o->profile = optarg; break;
+        case O_PROFILES_DIR: o->profiles_dir = optarg; break;
+        case O_SET: sets->items[sets->n++] = strdup(optarg); break;
         case O_SEED:
         case O_THETA0:
         case O_SPEED0:
+        case O_LOAD_MODE:
         case O_LOAD_TORQUE:
         case O_LOAD_SPEED:
-        case O_LOAD_K: {
-            static const char *const keys[] = {"sensors.seed", "initial.theta_e_deg",
-                                               "initial.speed_rpm", "load.torque_nm",
-                                               "load.speed_rpm", "load.k_speed_nms"};
-            const int idx = c == O_SEED ? 0 : c == O_THETA0 ? 1 : c == O_SPEED0 ? 2
-                          : c == O_LOAD_TORQUE ? 3 : c == O_LOAD_SPEED ? 4 : 5;
-            if (c == O_THETA0) {
-                char *end;
-                const double rad = strtod(optarg, &end);
-                if (end == optarg || *end) {
-                    fprintf(stderr, "plant_rt: --theta0 %s: not a number\n", optarg);
-                    free_sets(sets, n_sets);
-                    return 2;
-                }
-                snprintf(buf, sizeof(buf), "%s=%.17g", keys[idx], rad * 180.0 / 3.14159265358979323846);
-            } else {
-                snprintf(buf, sizeof(buf), "%s=%s", keys[idx], optarg);
-            }
-            sets[n_sets++] = strdup(buf);
-            break;
-        }
-        case O_LOAD_MODE: {
-            const char *m = optarg;
-            const int mode = strcmp(m, "torque") == 0 ? (int)HIL_BENCH_LOAD_CMD_MODE_TORQUE_CHOICE
-                           : strcmp(m, "speed") == 0 ? (int)HIL_BENCH_LOAD_CMD_MODE_SPEED_HOLD_CHOICE
-                           : strcmp(m, "off") == 0   ? (int)HIL_BENCH_LOAD_CMD_MODE_OFF_CHOICE
-                                                     : -1;
-            if (mode >= 0) {
-                snprintf(buf, sizeof(buf), "load.mode=%d", mode);
-            } else {
-                snprintf(buf, sizeof(buf), "load.mode=%s", m);
-            }
-            sets[n_sets++] = strdup(buf);
-            break;
-        }
-        case O_TRACE: a.opt.trace = optarg; break;
-        case O_TRACE_VIO: a.opt.trace_vio = 1; break;
-        case O_READY: a.opt.ready_file = optarg; break;
-        case O_MAX_PERIODS:
-        case O_RUN_UNTIL:
-        case O_TRUTH_EVERY:
-        case O_RT_PRIO:
-        case O_RT_SPIN:
-            if (parse_u64(optarg, &v) != 0 || (c != O_MAX_PERIODS && v > UINT32_MAX)) {
-                const char *flag = c == O_MAX_PERIODS ? "--max-periods"
-                                 : c == O_RUN_UNTIL   ? "--run-until"
-                                 : c == O_TRUTH_EVERY ? "--truth-every"
-                                 : c == O_RT_PRIO     ? "--rt-priority"
-                                                      : "--rt-spin-us";
-                fprintf(stderr, "plant_rt: %s %s: not a non-negative integer\n", flag, optarg);
-                free_sets(sets, n_sets);
+        case O_LOAD_K:
+            if (flag_override(c, optarg, buf, sizeof(buf)) != 0) {
                 return 2;
             }
-            if (c == O_MAX_PERIODS) {
-                a.opt.max_periods = v;
-            } else if (c == O_RUN_UNTIL) {
-                a.opt.run_until = (uint32_t)v;
+            sets->items[sets->n++] = strdup(buf);
+            break;
+        case O_TRACE_VIO: o->trace_vio = 1; break;
+        case O_RUN_UNTIL:
+        case O_TRUTH_EVERY:
+        case O_RT_SPIN: {
+            const char *flag = c == O_RUN_UNTIL ? "--run-until" : c == O_TRUTH_EVERY
+                             ? "--truth-every" : "--rt-spin-us";
+            if (hil_node_u64_arg(&o->node, flag, optarg, UINT32_MAX, &v) != 0) {
+                return 2;
+            }
+            if (c == O_RUN_UNTIL) {
+                o->run_until = (uint32_t)v;
             } else if (c == O_TRUTH_EVERY) {
-                a.opt.truth_every = (uint32_t)v;
-            } else if (c == O_RT_SPIN) {
-                if (v >= (uint64_t)(HIL_PERIOD_NS / 1000)) {
-                    fprintf(stderr, "plant_rt: --rt-spin-us %s: must be below the period (%lld)\n",
-                            optarg, HIL_PERIOD_NS / 1000);
-                    free_sets(sets, n_sets);
-                    return 2;
-                }
-                a.opt.rt_spin_us = (uint32_t)v;
+                o->truth_every = (uint32_t)v;
+            } else if (v >= (uint64_t)(HIL_PERIOD_NS / 1000)) {
+                fprintf(stderr, "plant_rt: --rt-spin-us %s: must be below the period (%lld)\n",
+                        optarg, HIL_PERIOD_NS / 1000);
+                return 2;
             } else {
-                a.opt.rt_priority = v > 99 ? 99 : (int)v;
+                o->rt_spin_us = (uint32_t)v;
             }
             break;
+        }
         case O_HELP:
         case 'h':
             usage(stdout);
-            free_sets(sets, n_sets);
-            return 0;
+            return 1;
         default:
             usage(stderr);
-            free_sets(sets, n_sets);
             return 2;
         }
     }
     if (optind < argc) {
         fprintf(stderr, "plant_rt: unexpected argument '%s'\n", argv[optind]);
-        free_sets(sets, n_sets);
         return 2;
     }
+    return 0;
+}
 
-    /* configuration: defaults, profile file, overrides in order */
+/* The plant of the profile and the overrides in order: 0, or 2 after a message. */
+static int make_plant(app_t *a, const sets_t *sets)
+{
+    char path[PATH_MAX + 64], err[1024];
+    plant_config_t cfg;
+    int k;
     plant_config_defaults(&cfg);
-    profile_file(&a.opt, path, sizeof(path));
+    profile_file(&a->opt, path, sizeof(path));
     if (plant_config_load(&cfg, path, err, sizeof(err)) != 0) {
         fprintf(stderr, "plant_rt: bad configuration: %s\n", err);
-        free_sets(sets, n_sets);
         return 2;
     }
-    for (k = 0; k < n_sets; ++k) {
-        if (!sets[k] || plant_config_set(&cfg, sets[k], err, sizeof(err)) != 0) {
-            fprintf(stderr, "plant_rt: bad configuration: %s\n", sets[k] ? err : "out of memory");
-            free_sets(sets, n_sets);
+    for (k = 0; k < sets->n; ++k) {
+        if (!sets->items[k] || plant_config_set(&cfg, sets->items[k], err, sizeof(err)) != 0) {
+            fprintf(stderr, "plant_rt: bad configuration: %s\n",
+                    sets->items[k] ? err : "out of memory");
             return 2;
         }
     }
-    free_sets(sets, n_sets);
-    a.plant = plant_new(&cfg, err, sizeof(err));
-    if (!a.plant) {
+    a->plant = plant_new(&cfg, err, sizeof(err));
+    if (!a->plant) {
         fprintf(stderr, "plant_rt: bad configuration: %s (after --set)\n", err);
         return 2;
+    }
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    static app_t a; /* large (the link's held frames): static storage */
+    sets_t sets;
+    int rc, trace_failed;
+
+    hil_log_limit_init(&a.log_limit, "plant_rt", 10, hil_now_ns());
+    rc = parse_options(argc, argv, &a.opt, &sets);
+    if (rc == 0) {
+        rc = make_plant(&a, &sets);
+    }
+    free_sets(&sets);
+    if (rc != 0) {
+        plant_free(a.plant);
+        return rc == 1 ? 0 : rc; /* 1: --help */
     }
     a.cfg = plant_config(a.plant);
     a.run_until = a.opt.run_until;
     plant_link_init(&a.link);
     plant_startup_command(&a.current);
+    hil_node_signals(&g_stop, 0);
 
-    memset(&sa, 0, sizeof(sa));
-    sa.sa_handler = on_signal;
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
-    signal(SIGPIPE, SIG_IGN);
-
-    a.bus = hilbus_open(a.opt.bus, a.opt.channel, err, sizeof(err));
+    a.bus = hil_node_open_bus(&a.opt.node);
     if (!a.bus) {
-        fprintf(stderr, "plant_rt: cannot open bus %s/%s: %s\n", a.opt.bus, a.opt.channel, err);
         plant_free(a.plant);
         return 1;
     }
-    if (a.opt.trace) {
-        a.trace = hiltrace_open(a.opt.trace);
-        if (!a.trace) {
-            fprintf(stderr, "plant_rt: cannot create trace %s: %s\n", a.opt.trace, strerror(errno));
-            hilbus_close(a.bus);
-            plant_free(a.plant);
-            return 1;
-        }
+    a.trace = hil_node_open_trace(&a.opt.node, &trace_failed);
+    if (trace_failed) {
+        hilbus_close(a.bus);
+        plant_free(a.plant);
+        return 1;
     }
-    if (a.opt.ready_file && hil_write_ready_file(a.opt.ready_file) != 0) {
-        fprintf(stderr, "plant_rt: cannot write ready file %s: %s\n", a.opt.ready_file,
-                strerror(errno));
-        rc = 1;
-    }
+    rc = hil_node_ready(&a.opt.node) != 0 ? 1 : 0;
     if (rc == 0) {
-        rc = a.opt.realtime ? realtime(&a) : lockstep(&a);
+        rc = a.opt.node.realtime ? realtime(&a) : lockstep(&a);
     }
     send_housekeeping(&a, 2);
-    if (a.trace && hiltrace_close(a.trace) != 0) {
-        fprintf(stderr, "plant_rt: trace %s: write error\n", a.opt.trace);
+    if (hil_node_close_trace(&a.opt.node, a.trace) != 0) {
         rc = 1;
     }
     print_counters(&a);

@@ -24,29 +24,14 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
-#include <time.h>
-#include <unistd.h>
 
 #include "hil_vio.h"
 #include "hil_wire.h"
-#include "hilbus.h"
+#include "hilnode.h" /* clock, stop signals, ready file; the bus */
 
 #define MAX_DEFERRED 64
 
 static volatile sig_atomic_t g_stop = 0;
-
-static void on_signal(int sig)
-{
-    (void)sig;
-    g_stop = 1;
-}
-
-static int64_t now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec;
-}
 
 static uint32_t get_u32(const uint8_t *d)
 {
@@ -111,7 +96,6 @@ int main(int argc, char **argv)
     char err[256];
     hilbus_t *bus;
     struct can_filter filt[3];
-    struct sigaction sa;
     uint64_t answered = 0, repeats = 0, late_answers = 0, send_errors = 0;
     int64_t first_ns = 0, last_ns = 0;
     uint32_t first_period = 0, last_period = 0;
@@ -171,11 +155,7 @@ int main(int argc, char **argv)
         }
     }
 
-    memset(&sa, 0, sizeof(sa));
-    sa.sa_handler = on_signal;
-    sigemptyset(&sa.sa_mask);
-    sigaction(SIGTERM, &sa, NULL);
-    sigaction(SIGINT, &sa, NULL);
+    hil_node_signals(&g_stop, 0);
 
     if (rt_priority > 0) {
         struct sched_param sp;
@@ -201,13 +181,10 @@ int main(int argc, char **argv)
         hilbus_close(bus);
         return 1;
     }
-    if (ready_file) {
-        FILE *f = fopen(ready_file, "w");
-        if (!f || fprintf(f, "%ld\n", (long)getpid()) < 0 || fclose(f) != 0) {
-            fprintf(stderr, "pwm_responder: cannot write %s\n", ready_file);
-            hilbus_close(bus);
-            return 1;
-        }
+    if (ready_file && hil_write_ready_file(ready_file) != 0) {
+        fprintf(stderr, "pwm_responder: cannot write %s: %s\n", ready_file, strerror(errno));
+        hilbus_close(bus);
+        return 1;
     }
 
     while (!g_stop) {
@@ -216,7 +193,7 @@ int main(int argc, char **argv)
         uint32_t period, n_soc;
         int64_t t, wait_us = 50000;
         /* deferred (late) answers that are due */
-        t = now_ns();
+        t = hil_now_ns();
         for (k = 0; k < n_deferred;) {
             if (deferred_at[k] <= t) {
                 if (hilbus_send(bus, &deferred[k], 1) != 0) {
@@ -233,7 +210,7 @@ int main(int argc, char **argv)
             }
         }
         r = hilbus_recv(bus, &f, &fd, wait_us);
-        t = now_ns();
+        t = hil_now_ns();
         if (r < 0 && errno != EINTR) {
             fprintf(stderr, "pwm_responder: receive error: %s\n", strerror(errno));
             break;

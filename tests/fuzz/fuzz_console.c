@@ -12,7 +12,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     int64_t now;
     fuzz_host_reset();
     fwh_console_hangup(&fuzz_app); /* a fresh session: no partial line from the last input */
-    now = fwh_now_ns();
+    now = hil_now_ns();
     while (off < size) {
         size_t took = fwh_console_input(&fuzz_app, (const char *)data + off, size - off, now);
         if (took == 0) {

@@ -101,7 +101,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             continue;
         }
         if (fwh_bus_is_vio(f.can_id & CAN_SFF_MASK)) {
-            fwh_bus_vio_frame(&fuzz_app, &f, fd, fwh_now_ns());
+            fwh_bus_vio_frame(&fuzz_app, &f, fd, hil_now_ns());
         } else if (fwh_drive_is_drive(f.can_id & CAN_SFF_MASK)) {
             fwh_drive_frame(&fuzz_app, &f, fd);
         }

@@ -32,7 +32,7 @@ static void fuzz_host_reset(void)
     fuzz_app.pty.master = -1;
     fuzz_app.bus = fuzz_bus;
     fuzz_app.opt.tlm_div = 1;
-    fuzz_app.t0_ns = fwh_now_ns();
+    fuzz_app.t0_ns = hil_now_ns();
     /* no line on stderr: 0 lines a second */
     hil_log_limit_init(&fuzz_app.log_limit, "fw_host", 0, fuzz_app.t0_ns);
 }

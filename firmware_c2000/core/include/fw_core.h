@@ -61,35 +61,46 @@ typedef struct {
 /* What each mode and fault means: the comments of DRIVE_CMD.fw_mode and
  * DRIVE_STATUS.fault_code in protocols/drive.dbc. */
 
-/* Everything FW_TRACE and the TLM_* / DRIVE_STATUS frames carry. */
+/* Everything FW_TRACE and the TLM_* / DRIVE_STATUS frames carry: fw_status_t, one
+ * X(type, name) per field. The list is the one declaration: the struct below, the host HAL's
+ * FW_TRACE packer (generated from protocols/vio.dbc: each FW_TRACE signal is the field of its
+ * name) and the test API's field table (names, offsets, types for Python) are made from it. */
+#define FW_STATUS_FIELDS(X)                                                                  \
+    X(int16_t, state)             /* FW_STATE_* */                                          \
+    X(uint16_t, fault_code)       /* FW_FAULT_* */                                          \
+    X(int16_t, ctrl_mode)                                                                   \
+    X(int16_t, fw_mode)                                                                     \
+    X(int16_t, cmd_status)        /* FW_STATUS_* of the last fw_core_command() */           \
+    X(uint32_t, period)           /* period the estimates below belong to (ADC period k) */ \
+    X(int16_t, stamp)             /* ticks from the start of 'period': theta_hat valid */   \
+    X(real_t, theta_hat)          /* electrical rad, [0, 2pi) */                            \
+    X(real_t, omega_hat)          /* electrical rad/s */                                    \
+    X(real_t, speed_hat_rpm)      /* mechanical r/min */                                    \
+    X(real_t, id)                 /* A, measured, in the estimated frame */                 \
+    X(real_t, iq)                                                                           \
+    X(real_t, id_ref)             /* A */                                                   \
+    X(real_t, iq_ref)                                                                       \
+    X(real_t, vd)                 /* V, voltage references for the next period */           \
+    X(real_t, vq)                                                                           \
+    X(real_t, vd_mean)            /* V, vd, vq over the last complete block of */           \
+    X(real_t, vq_mean)            /* FW_SPEED_DIVIDER periods (the 1 kHz TLM_VOLT) */       \
+    X(real_t, ld_hat)             /* H, online estimates (incremental) */                   \
+    X(real_t, lq_hat)                                                                       \
+    X(real_t, lambda_hat)         /* Wb, online PM flux estimate */                         \
+    X(real_t, te_hat)             /* N*m, estimated torque */                               \
+    X(real_t, theta_raw)          /* rad, raw estimate of the period after branch choice */ \
+    X(real_t, residual)           /* 1/H, least-squares consistency residual */             \
+    X(int16_t, sector)            /* SVPWM sector 1..6 of the period (0 when off) */        \
+    X(int16_t, slopes_ok)         /* active vectors measured this period: 0, 1 or 2 */      \
+    X(int16_t, fw_active)         /* flux weakening active (voltage limit reached) */       \
+    X(real_t, speed_ref_ramped_rpm)                                                         \
+    X(int16_t, polarity_ok)                                                                 \
+    X(int16_t, est_valid)                                                                   \
+    X(uint16_t, isr_overruns)
+
+#define FW_STATUS_DECLARE(type, name) type name;
 typedef struct {
-    int16_t state;            /* FW_STATE_* */
-    uint16_t fault_code;      /* FW_FAULT_* */
-    int16_t ctrl_mode;
-    int16_t fw_mode;
-    int16_t cmd_status;       /* FW_STATUS_* of the last fw_core_command() */
-    uint32_t period;          /* period index the estimates below belong to (ADC period k) */
-    int16_t stamp;            /* ticks relative to the start of 'period' where theta_hat is valid */
-    real_t theta_hat;         /* electrical rad, [0, 2pi) */
-    real_t omega_hat;         /* electrical rad/s */
-    real_t speed_hat_rpm;     /* mechanical r/min */
-    real_t id, iq;            /* A, measured, in the estimated frame */
-    real_t id_ref, iq_ref;    /* A */
-    real_t vd, vq;            /* V, voltage references for the next period */
-    real_t vd_mean, vq_mean;  /* V, mean of vd, vq over the last complete block of
-                                 FW_SPEED_DIVIDER periods (what the 1 kHz TLM_VOLT carries) */
-    real_t ld_hat, lq_hat;    /* H, online estimates (incremental) */
-    real_t lambda_hat;        /* Wb, online PM flux estimate */
-    real_t te_hat;            /* N*m, estimated torque */
-    real_t theta_raw;         /* rad, raw estimate of this period after branch selection */
-    real_t residual;          /* 1/H, least-squares consistency residual */
-    int16_t sector;           /* SVPWM sector 1..6 of the period (0 when off) */
-    int16_t slopes_ok;        /* active vectors measured this period: 0, 1 or 2 */
-    int16_t fw_active;        /* flux weakening active (voltage limit reached) */
-    real_t speed_ref_ramped_rpm;
-    int16_t polarity_ok;
-    int16_t est_valid;
-    uint16_t isr_overruns;
+    FW_STATUS_FIELDS(FW_STATUS_DECLARE)
 } fw_status_t;
 
 /* Full definition of the core object: the HAL allocates it statically. */

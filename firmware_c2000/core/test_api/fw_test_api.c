@@ -252,40 +252,33 @@ void fwt_paramest_apparent(void *pe, double iq, double *out)
     out[0] = p->lq_app;
 }
 
-/* the whole core: status flattened in a fixed order (see tests/python/firmware/fwlib.py) */
-void fwt_status(const fw_core_t *c, double *out)
+/* The whole core's status, fw_status_t by names: its fields (FW_STATUS_FIELDS, fw_core.h) as
+ * rows of name, byte offset and C type, from which tests/python/firmware/fwlib.py builds its
+ * ctypes mirror of the struct; no order is agreed on across the boundary. */
+#define FWT_STATUS_ROW(type, name) {#name, (int32_t)offsetof(fw_status_t, name), #type},
+static const struct {
+    const char *name;
+    int32_t offset;
+    const char *type;
+} STATUS_ROWS[] = {FW_STATUS_FIELDS(FWT_STATUS_ROW)};
+
+int32_t fwt_status_size(void) { return (int32_t)sizeof(fw_status_t); }
+
+/* field i of fw_status_t: its name, *offset (bytes) and *type ("int16_t", "real_t", ...);
+ * NULL past the last */
+const char *fwt_status_field(int32_t i, int32_t *offset, const char **type)
 {
-    fw_status_t s;
-    fw_core_status(c, &s);
-    out[0] = s.state;
-    out[1] = s.fault_code;
-    out[2] = s.period;
-    out[3] = s.stamp;
-    out[4] = s.theta_hat;
-    out[5] = s.omega_hat;
-    out[6] = s.speed_hat_rpm;
-    out[7] = s.id;
-    out[8] = s.iq;
-    out[9] = s.id_ref;
-    out[10] = s.iq_ref;
-    out[11] = s.vd;
-    out[12] = s.vq;
-    out[13] = s.ld_hat;
-    out[14] = s.lq_hat;
-    out[15] = s.lambda_hat;
-    out[16] = s.te_hat;
-    out[17] = s.theta_raw;
-    out[18] = s.residual;
-    out[19] = s.sector;
-    out[20] = s.slopes_ok;
-    out[21] = s.fw_active;
-    out[22] = s.speed_ref_ramped_rpm;
-    out[23] = s.polarity_ok;
-    out[24] = s.est_valid;
-    out[25] = s.isr_overruns;
-    out[26] = s.cmd_status;
-    out[27] = s.ctrl_mode;
-    out[28] = s.fw_mode;
+    if (i < 0 || i >= (int32_t)(sizeof(STATUS_ROWS) / sizeof(STATUS_ROWS[0]))) {
+        return NULL;
+    }
+    *offset = STATUS_ROWS[i].offset;
+    *type = STATUS_ROWS[i].type;
+    return STATUS_ROWS[i].name;
+}
+
+void fwt_status(const fw_core_t *c, fw_status_t *out)
+{
+    fw_core_status(c, out);
 }
 
 /* command without struct layouts */

@@ -3,7 +3,7 @@
 
 #include "hil_vio.h"
 #include "plant_check.h"
-#include "plant_core.h"
+#include "plant_vio.h"
 
 static void good_cmd(plant_pwm_cmd_t *c, uint32_t period)
 {

@@ -2,7 +2,9 @@
 
 Only the thin ``fwt_*`` entry points (firmware_c2000/core/test_api/fw_test_api.c) and the public
 API are used; they take doubles and int32 so no struct layout is duplicated here except the
-parameter metadata of ``fw_param_info_t``.
+parameter metadata of ``fw_param_info_t``. The core's status (``fw_status_t``) is mirrored by
+names: ``FwStatus`` is built from the library's own field table (``fwt_status_field``: name,
+offset, C type of every field) and checked against its offsets and size.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import ctypes as C
 import math
 from dataclasses import dataclass
 from functools import cache
+from typing import Any
 
 import numpy as np
 
@@ -29,12 +32,6 @@ _FAULT = {n: v for v, n in protocols.names("drive", "DRIVE_STATUS", "fault_code"
 STATE_IDLE, STATE_POLARITY, STATE_RUN, STATE_FAULT = (
     _STATE["IDLE"], _STATE["POLARITY"], _STATE["RUN"], _STATE["FAULT"])
 FAULT_ADC_LOSS, FAULT_CMD_TIMEOUT = _FAULT["ADC_LOSS"], _FAULT["CMD_TIMEOUT"]
-
-STATUS_FIELDS = (
-    "state fault_code period stamp theta_hat omega_hat speed_hat_rpm id iq id_ref iq_ref vd vq "
-    "ld_hat lq_hat lambda_hat te_hat theta_raw residual sector slopes_ok fw_active "
-    "speed_ref_ramped_rpm polarity_ok est_valid isr_overruns cmd_status ctrl_mode fw_mode"
-).split()
 
 _D = C.c_double
 _I = C.c_int32
@@ -81,7 +78,9 @@ def lib() -> C.CDLL:
         "fwt_paramest_reset": (None, [C.c_void_p, _D, _D, _D]),
         "fwt_paramest_update": (None, [C.c_void_p, _D, _D, _D, _D, _D, _D, _PD]),
         "fwt_paramest_apparent": (None, [C.c_void_p, _D, _PD]),
-        "fwt_status": (None, [C.c_void_p, _PD]),
+        "fwt_status": (None, [C.c_void_p, C.c_void_p]),
+        "fwt_status_size": (_I, []),
+        "fwt_status_field": (C.c_char_p, [_I, _PI, C.POINTER(C.c_char_p)]),
         "fwt_command": (_I, [C.c_void_p, _I, _I, _I, _I, _D, _D]),
         "fwt_param_set": (_I, [C.c_void_p, _I, _D]),
         "fwt_param_get": (_I, [C.c_void_p, _I, _PD]),
@@ -95,6 +94,42 @@ def lib() -> C.CDLL:
         fn.restype = res
         fn.argtypes = args
     return so
+
+
+_CTYPES: dict[str, type[C._SimpleCData[Any]]] = {
+    "int16_t": C.c_int16, "uint16_t": C.c_uint16, "int32_t": C.c_int32, "uint32_t": C.c_uint32,
+}
+
+
+@cache
+def status_type() -> type[C.Structure]:
+    """The ctypes mirror of ``fw_status_t``, made from the library's field table (names, offsets,
+    C types) and checked against it: a field the core adds is mirrored without an edit here."""
+    so = lib()
+    real = C.c_float if so.fwt_real_size() == 4 else C.c_double
+    fields: list[tuple[str, type[C._SimpleCData[Any]]]] = []
+    offsets: list[int] = []
+    i = 0
+    while True:
+        off, ctype = C.c_int32(), C.c_char_p()
+        name = so.fwt_status_field(i, C.byref(off), C.byref(ctype))
+        if name is None:
+            break
+        assert ctype.value is not None
+        t = real if ctype.value == b"real_t" else _CTYPES[ctype.value.decode()]
+        fields.append((name.decode(), t))
+        offsets.append(off.value)
+        i += 1
+    mirror = type("FwStatus", (C.Structure,), {"_fields_": fields})
+    got = [getattr(mirror, n).offset for n, _ in fields]
+    assert got == offsets, f"fw_status_t offsets {offsets}, ctypes {got}"
+    assert C.sizeof(mirror) == so.fwt_status_size(), "fw_status_t size"
+    return mirror
+
+
+def status_fields() -> list[str]:
+    """The names of the fields of ``fw_status_t``, in their order."""
+    return [n for n, _ in status_type()._fields_]
 
 
 def dbuf(n: int) -> C.Array[C.c_double]:
@@ -296,9 +331,10 @@ class Core:
         return int(st), float(v.value)
 
     def status(self) -> dict[str, float]:
-        out = dbuf(len(STATUS_FIELDS))
-        lib().fwt_status(self.ptr, out)
-        return dict(zip(STATUS_FIELDS, list(out), strict=True))
+        """``fw_core_status()``: every field of ``fw_status_t`` by its name."""
+        st = status_type()()
+        lib().fwt_status(self.ptr, C.byref(st))
+        return {n: getattr(st, n) for n in status_fields()}
 
     def isr(
         self, period: int | None, ia: list[int], ib: list[int], vdc_code: int

@@ -1,8 +1,9 @@
-/* Checks of incoming PWM commands (docs/interfaces.md, "Bad input"). */
+/* VIO_PWM as the plant takes it: decoding and the checks of a PWM command (docs/interfaces.md,
+ * "Bad input"), and the names of the reasons a frame is refused. */
 #include <string.h>
 
 #include "hil_vio.h"
-#include "plant_core.h"
+#include "plant_vio.h"
 
 const char *plant_reject_name(int reason)
 {
