@@ -32,7 +32,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from rig import runner, scenario
+from rig import capture, runner, scenario
 
 MOTULATOR_0_5_SIM_S_PER_WALL_S = 0.03
 DEFAULT_SCENARIO = "table2_1000rpm_1nm"
@@ -53,14 +53,15 @@ def _run(sc: scenario.Scenario, out: Path, bus: str | None, channel: str) -> dic
                                                   progress=False, record=False))
     if r.status != "passed" and not r.criteria:
         raise RuntimeError(f"{sc.name} on {bus}: {r.explain()}")
-    t = r.data["timing"]
-    periods = round(t["sim_s"] / runner.TS)
-    out_: dict[str, Any] = {"bus": r.data["bus"], "status": r.status, "sim_s": t["sim_s"],
-                            "wall_s": round(t["wall_s"], 4),
-                            "sim_s_per_wall_s": round(t["sim_s"] / t["wall_s"], 3),
-                            "wall_us_per_period": round(1e6 * t["wall_s"] / periods, 3)}
-    if t.get("cpu_s"):
-        out_["sim_s_per_cpu_s"] = round(t["sim_s"] / t["cpu_s"], 3)
+    t = r.timing
+    assert t is not None and t.wall_s is not None
+    periods = round(t.sim_s / capture.TS)
+    out_: dict[str, Any] = {"bus": r.bus, "status": r.status, "sim_s": t.sim_s,
+                            "wall_s": round(t.wall_s, 4),
+                            "sim_s_per_wall_s": round(t.sim_s / t.wall_s, 3),
+                            "wall_us_per_period": round(1e6 * t.wall_s / periods, 3)}
+    if t.cpu_s:
+        out_["sim_s_per_cpu_s"] = round(t.sim_s / t.cpu_s, 3)
     return out_
 
 

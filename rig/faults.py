@@ -14,7 +14,7 @@ Each event starts at ``at`` (seconds, on a PWM period like every event) and last
 
 Kinds, channels, phases and gates are the names of FAULT_CMD's value tables (lower case);
 the messages and signals those of the DBC files. ``parse`` checks an event at load time and
-reports every problem with its field (``scenario.py`` adds the file and line).
+reports every problem with its field (``rig.scenario`` adds the file and line).
 """
 
 from __future__ import annotations
@@ -31,14 +31,14 @@ HEARTBEAT_LOSS = "heartbeat_loss"
 FRAME_KINDS = ("frame_loss", "frame_delay", "frame_corrupt")
 # the frames of the virtual I/O the plant's side of the wires handles (plant_link.h)
 PLANT_MESSAGES = ("VIO_PWM", "VIO_ADC_0", "VIO_ADC_1", "VIO_ADC_2")
-# the drive-protocol frames the rig sends in a run (rig.runner.Commander)
+# the drive-protocol frames the rig sends in a run (rig.link.drive.DriveMaster)
 RIG_MESSAGES = ("DRIVE_CMD", "DRIVE_LIMITS")
 
 Path_ = tuple[str | int, ...]
 
 
 class Checker(Protocol):
-    """What ``parse`` needs of the scenario loader's checker (rig.scenario._Checker)."""
+    """What ``parse`` needs of the scenario loader's checker (rig.scenario.checker.Checker)."""
 
     issues: list[Any]
 

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 if TYPE_CHECKING:
-    from rig.runner import RunResult
+    from rig.run.result import RunResult
     from rig.scenario import Scenario
 
 DEFAULT_SUITE = "paper"

@@ -7,7 +7,10 @@ import json
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from rig.run.result import RunResult
 
 EPILOG_RUN = """\
 exit status: 0 every criterion passed; 1 a criterion failed or was not evaluated (its
@@ -154,6 +157,7 @@ def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
 
 def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | None) -> int:
     from rig import output, runner, scenario
+    from rig.run.suite import run_suite
     from rig.supervisor import Terminated, terminate_as_exception
 
     opts = runner.RunOptions(
@@ -164,9 +168,9 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     try:
         with terminate_as_exception():
             if isinstance(target, scenario.Suite):
-                suite = runner.run_suite(target, opts)
+                suite = run_suite(target, opts)
                 for r in suite.results:
-                    _print_verdict(r.data)
+                    _print_verdict(r)
                 ok = suite.passed
                 print(f"suite {target.name}: {'PASS' if ok else 'FAIL'} "
                       f"({sum(r.passed for r in suite.results)}/{len(target.scenarios)} passed)"
@@ -181,22 +185,20 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     except output.OutputError as exc:
         print(f"rig run: {exc}", file=sys.stderr)
         return runner.EXIT_ENV
-    _print_verdict(result.data)
+    _print_verdict(result)
     print(f"  -> {out}/report.md", file=sys.stderr)
     return runner.exit_code(result.passed, result.status)
 
 
-def _print_verdict(data: dict[str, Any]) -> None:
-    verdict = "PASS" if data.get("passed") else "FAIL"
-    print(f"{data.get('scenario')}: {verdict} ({data.get('status')})", file=sys.stderr)
-    failure = data.get("failure")
-    if failure:
-        print(f"  {failure.get('kind')}: {failure.get('message')}", file=sys.stderr)
-        tail = failure.get("log_tail")
-        if tail:
-            for line in str(tail).splitlines()[-15:]:
-                print(f"    | {line}", file=sys.stderr)
-    for c in data.get("criteria", []):
+def _print_verdict(result: RunResult) -> None:
+    verdict = "PASS" if result.passed else "FAIL"
+    print(f"{result.scenario}: {verdict} ({result.status})", file=sys.stderr)
+    failure = result.failure
+    if failure is not None:
+        print(f"  {failure.kind}: {failure.message}", file=sys.stderr)
+        for line in failure.log_tail.splitlines()[-15:]:
+            print(f"    | {line}", file=sys.stderr)
+    for c in result.criteria:
         mark = {"pass": "ok   ", "fail": "FAIL ", "xfail": "XFAIL", "xpass": "XPASS",
                 "not_evaluated": "NOT EVALUATED"}.get(
             str(c.get("outcome")), "ok   " if c.get("passed") else "FAIL ")

@@ -94,7 +94,7 @@ class BusLink:
         try:
             bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
         except (can.CanError, OSError, ValueError) as exc:
-            raise LinkError(f"cannot open the {transport} bus {channel!r}: {exc}") from exc
+            raise LinkError(f"cannot open {transport} bus {channel!r}: {exc}") from exc
         return cls(bus, transport=transport, channel=channel, record=record,
                    frame_faults=frame_faults)
 

@@ -41,11 +41,16 @@ def quantize(signal: str, value: float) -> float:
     return protocols.quantize("drive", "DRIVE_CMD", signal, value)
 
 
-def step_accel() -> float:
-    """The largest acceleration DRIVE_LIMITS can carry (a speed 'step'), as it carries it."""
+def accel_max() -> float:
+    """The largest acceleration DRIVE_LIMITS can carry (a speed 'step'; the DBC maximum)."""
     sig = protocols.database("drive").get_message_by_name("DRIVE_LIMITS").get_signal_by_name(
         "accel_max")
-    return protocols.quantize("drive", "DRIVE_LIMITS", "accel_max", float(sig.maximum))
+    return float(sig.maximum)
+
+
+def accel_on_wire(accel: float) -> float:
+    """What DRIVE_LIMITS carries for an acceleration limit."""
+    return protocols.quantize("drive", "DRIVE_LIMITS", "accel_max", accel)
 
 
 class DriveMaster:

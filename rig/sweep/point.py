@@ -86,10 +86,10 @@ def _run(task: Task) -> dict[str, Any]:
                 v = result.metric(task.metric, window)
                 value = v if math.isfinite(v) else None
         row = {**base_row(task), "status": result.status, "passed": result.passed}
-        failure = result.data.get("failure") or {}
-        row["failure_kind"] = failure.get("kind")
-        row["failure"] = failure.get("message")
-        if not result.passed and not failure:
+        failure = result.failure
+        row["failure_kind"] = failure.kind if failure is not None else None
+        row["failure"] = failure.message if failure is not None else None
+        if not result.passed and failure is None:
             failed = result.failed_criteria()
             row["failure_kind"] = "criteria"
             row["failure"] = "; ".join(
@@ -101,9 +101,9 @@ def _run(task: Task) -> dict[str, Any]:
         for c in result.criteria:
             row[f"crit.{c['name']}"] = c["value"]
             row[f"outcome.{c['name']}"] = c["outcome"]
-        timing = result.data.get("timing") or {}
-        row["sim_s"] = timing.get("sim_s")
-        row["wall_s"] = timing.get("wall_s")
+        timing = result.timing
+        row["sim_s"] = timing.sim_s if timing is not None else None
+        row["wall_s"] = timing.wall_s if timing is not None else None
         result.capture = None  # close the memory maps before the folder goes
         return row
 

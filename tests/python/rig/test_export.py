@@ -13,7 +13,7 @@ import pytest
 from asammdf import MDF
 
 from rig import capture, cli, protocols
-from rig.runner import RunResult
+from rig.run.result import RunResult
 
 PREFIX = {"BENCH_TRUTH": "truth", "BENCH_TRUTH_MAG": "mag", "FW_TRACE": "fw"}
 

@@ -14,8 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import drive_link, faults, metrics, params, protocols, runner, sil
+from rig import drive_link, faults, metrics, params, profiles, protocols, sil
 from rig import scenario as sc
+from rig.link.bus import BusLink
+from rig.link.drive import DriveCommand, DriveLimits, DriveMaster
+from rig.run.plan import Plan
 
 BASE = """\
 description = "a fault scenario of the tests"
@@ -175,7 +178,7 @@ phase = "c"
 at = 0.2
 kind = "heartbeat_loss"
 """)
-    plan = runner.Plan.build(s)
+    plan = Plan.build(s)
     starts = {a for a, _ in plan.grants()}
     start, end = 1234, 1435  # 0.1234 s and 0.1435 s
     assert {start, end, 2000} <= starts
@@ -193,7 +196,7 @@ kind = "heartbeat_loss"
 def test_delayed_rig_frames_fall_due_on_grant_starts(tmp_path: Path) -> None:
     s = _parse(tmp_path, '[[faults]]\nat = 0.1\nduration = 0.05\nkind = "frame_delay"\n'
                          'message = "DRIVE_CMD"\ndelay = 7\n')
-    plan = runner.Plan.build(s)
+    plan = Plan.build(s)
     starts = [a for a, _ in plan.grants()]
     sends = [p for p in starts if 1000 <= p < 1500]
     assert sends and all(p + 7 in starts for p in sends)
@@ -222,11 +225,12 @@ def test_drive_link_drops_corrupts_and_delays() -> None:
         drive_link.Window("DRIVE_CMD", "frame_loss", 30, 40),
     ])
     port = _Port()
-    cmd = runner.Commander(port, link)  # type: ignore[arg-type]
-    state = runner.DriveState(enable=1, speed_ref=1000.0, accel=100.0)
+    bus_link = BusLink(port, frame_faults=link)  # type: ignore[arg-type]
+    master = DriveMaster(bus_link, DriveCommand(enable=1, fw_mode="realtime", speed_ref=1000.0))
     for p in (0, 10, 15, 30):
-        cmd.at(p)
-        cmd.drive(state)
+        bus_link.at(p)
+        master.send_limits(DriveLimits(accel=100.0))
+        master.send_command()
     ids = [i for i, _ in port.sent]
     # 0: both; 10: DRIVE_CMD only (the limits held to 15); 15: the held limits first, the
     # fresh ones held to 20; 30: those (due since 20) first, the fresh limits, DRIVE_CMD lost
@@ -276,7 +280,7 @@ def test_fault_metrics() -> None:
 
 @pytest.fixture
 def bench(hil_binaries) -> sil.SilBench:  # type: ignore[no-untyped-def]
-    path, _ = runner.profile_values(sc.load("smoke"))  # type: ignore[arg-type]
+    path = profiles.profile_file(sc.load("smoke").profile)  # type: ignore[union-attr]
     b = sil.SilBench(path, [], [])
     yield b
     b.close()
@@ -316,8 +320,8 @@ kind = "dc_link"
 value = 170.0
 """, duration=0.25)
     r = hil_run(s, bus="inproc", record=False)
-    assert r.capture is not None and r.data["capture"]["lost"] == 0, r.explain()
-    assert r.data["faults"] == [
+    assert r.capture is not None and r.capture_loss["lost"] == 0, r.explain()
+    assert r.faults == [
         {"kind": "open_phase", "at": 0.15, "duration": 0.01, "phase": "c"},
         {"kind": "dc_link", "at": 0.2, "value": 170.0}]
     assert "- open_phase at 0.15 s for 0.01 s (phase c)" in (r.out_dir / "report.md").read_text()
@@ -344,7 +348,7 @@ kind = "heartbeat_loss"
     state = np.asarray(r.capture["fw.state"], float)
     first_fault = int(np.flatnonzero(state == metrics.firmware_state("FAULT"))[0])
     assert first_fault == 2000 + round(timeout * 1e-3 / faults.TS)
-    assert r.data["counters"]["firmware.fault_code"] == metrics.fault_code("CMD_TIMEOUT")
+    assert r.counters["firmware.fault_code"] == metrics.fault_code("CMD_TIMEOUT")
 
 
 # --------------------------------------------------------------------------------------

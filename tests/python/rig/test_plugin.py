@@ -51,8 +51,8 @@ def test_run(hil_run, hil_bus, tiny, k):
     result = hil_run(tiny)
     result.assert_passed()
     assert result.metric("pos_err_max_deg", window=(0.02, 0.1)) == pytest.approx(0.5, abs=1e-3)
-    print("CHANNEL", result.data["channel"], hil_bus[1])
-    assert result.data["channel"] == hil_bus[1]
+    print("CHANNEL", result.channel, hil_bus[1])
+    assert result.channel == hil_bus[1]
 
 
 def test_suite_parametrization(hil_scenario_name):
@@ -62,7 +62,7 @@ def test_suite_parametrization(hil_scenario_name):
 @pytest.mark.hil_scenario("smoke")
 def test_marker(hil_result):
     hil_result.assert_passed()
-    assert hil_result.data["scenario"] == "smoke"
+    assert hil_result.scenario == "smoke"
 '''
 
 

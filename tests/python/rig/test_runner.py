@@ -21,6 +21,9 @@ import rerun as rr
 
 from rig import recording, runner, verdict
 from rig import scenario as sc
+from rig.run.plan import Plan
+from rig.run.result import RunResult
+from rig.run.suite import evaluate_comparison
 
 TINY = """\
 description = "tiny closed loop for the runner's tests"
@@ -85,7 +88,7 @@ def _ready_pid(path: Path, timeout: float = 10.0) -> int:
 
 def test_plan_grants_end_on_breakpoints() -> None:
     s = sc.parse_scenario(Path("plan.toml"), TINY.format(duration=0.35, mean_limit=0))
-    plan = runner.Plan.build(s)
+    plan = Plan.build(s)
     grants = plan.grants()
     assert grants[0][0] == 0 and grants[-1][1] == 3500
     assert all(b - a <= 1000 for a, b in grants)
@@ -110,7 +113,7 @@ def test_scenario_runs_and_writes_every_output(with_fakes: Path, channel: str,
     # TLM_POS at 1 kHz of simulated time, decimated to one sample per 100 periods
     assert 15 <= live_rows["live/position"] <= 21 and 15 <= live_rows["live/speed"] <= 21
     data = json.loads((out / "result.json").read_text())
-    assert data == json.loads(json.dumps(r.data))
+    assert data == json.loads(json.dumps(r.to_json()))
     for key in ("scenario", "profile", "bus", "channel", "mode", "status", "passed", "criteria",
                 "counters", "capture", "recording", "timing", "versions"):
         assert key in data, key
@@ -124,7 +127,7 @@ def test_scenario_runs_and_writes_every_output(with_fakes: Path, channel: str,
     assert data["capture"]["periods"] == 2000 and data["capture"]["lost"] == 0
     assert data["counters"]["plant.periods"] == 2000
     assert data["counters"]["firmware.isr"] >= 1999
-    assert data["timing"]["grants"] == len(runner.Plan.build(s).grants())
+    assert data["timing"]["grants"] == len(Plan.build(s).grants())
     # the load step reached the plant exactly at period 1200 (t = 0.12 s)
     assert r.capture is not None
     tl = np.asarray(r.capture["truth.tl"])
@@ -139,7 +142,7 @@ def test_scenario_runs_and_writes_every_output(with_fakes: Path, channel: str,
     assert data["recording"]["bytes"] == (out / "recording.rrd").stat().st_size
     assert "# tiny: PASS" in (out / "report.md").read_text()
     assert "fake plant" not in (out / "plant_rt.stderr.log").read_text()
-    again = runner.RunResult.load(out)
+    again = RunResult.load(out)
     assert again.metric("pos_err_max_deg", (0.05, 0.2)) == pytest.approx(0.5, abs=1e-3)
 
 
@@ -149,10 +152,10 @@ def test_capture_loss_fails_the_run(with_fakes: Path, channel: str, tmp_path: Pa
         out=tmp_path / "out", bus="unixcan", channel=channel, progress=False, record=False,
         env={"FAKE_PLANT_DROP": "500,501"}))
     assert not r.passed and r.status == "failed"
-    assert r.data["failure"]["kind"] == "capture_loss"
+    assert r.failure.kind == "capture_loss"
     # two periods, two plant messages each
-    assert "4 missing period records" in r.data["failure"]["message"]
-    assert r.data["counters"]["capture.lost"] == 4
+    assert "4 missing period records" in r.failure.message
+    assert r.counters["capture.lost"] == 4
     assert not r.criterion("no capture loss")["passed"]
     assert runner.exit_code(r.passed, r.status) == 1
 
@@ -162,7 +165,7 @@ def test_failing_criterion_reports_its_value(with_fakes: Path, channel: str,
     s = sc.load_scenario(_scenario(tmp_path, duration=0.15, mean_limit=0.6))
     r = runner.run_scenario(s, runner.RunOptions(out=tmp_path / "out", bus="unixcan",
                                                  channel=channel, progress=False, record=False))
-    assert r.status == "failed" and r.data["failure"] is None
+    assert r.status == "failed" and r.failure is None
     bad = r.failed_criteria()
     assert [c["name"] for c in bad] == ["error is the stand-in's offset"]
     assert bad[0]["value"] == pytest.approx(0.5, abs=1e-3)
@@ -175,8 +178,8 @@ def test_lost_grant_is_sent_again(with_fakes: Path, channel: str, tmp_path: Path
         out=tmp_path / "out", bus="unixcan", channel=channel, progress=False, record=False,
         env={"FAKE_PLANT_LOSE_STEP": "2"}))
     assert r.passed, r.explain()
-    assert r.data["counters"]["rig.grant_resends"] == 1
-    assert r.data["counters"]["plant.steps"] == r.data["timing"]["grants"] + 1
+    assert r.counters["rig.grant_resends"] == 1
+    assert r.counters["plant.steps"] == r.timing.grants + 1
 
 
 def test_stalled_lockstep_fails_with_the_period(with_fakes: Path, channel: str,
@@ -187,8 +190,8 @@ def test_stalled_lockstep_fails_with_the_period(with_fakes: Path, channel: str,
         out=tmp_path / "out", bus="unixcan", channel=channel, progress=False, record=False,
         stall_s=0.8, env={"FAKE_PLANT_FREEZE_AT": "700"}))
     assert time.monotonic() - t0 < 10
-    assert r.status == "failed" and r.data["failure"]["kind"] == "stall"
-    assert "plant at period 700, granted 1000" in r.data["failure"]["message"]
+    assert r.status == "failed" and r.failure.kind == "stall"
+    assert "plant at period 700, granted 1000" in r.failure.message
 
 
 def test_realtime_mode(with_fakes: Path, channel: str, tmp_path: Path) -> None:
@@ -205,17 +208,17 @@ def test_realtime_mode(with_fakes: Path, channel: str, tmp_path: Path) -> None:
                                                  channel=channel, realtime=True,
                                                  progress=False, record=False,
                                                  env={"FAKE_RT_SCALE": "0.2"}))
-    assert r.data["mode"] == "realtime"
-    assert r.data["counters"]["plant.periods"] >= 1500
-    cap = r.data["capture"]
+    assert r.mode == "realtime"
+    assert r.counters["plant.periods"] >= 1500
+    cap = r.capture_loss
     missing = sum(m["missing"] for m in cap["messages"])
     assert cap["lost"] == missing + cap["short_end"]
     if cap["lost"] == 0:
         assert cap["last_period"] >= 1499, r.explain()
         assert r.criterion("position error")["passed"], r.explain()
     else:
-        assert r.status == "failed" and r.data["failure"]["kind"] == "capture_loss"
-        assert f"{cap['lost']} missing" in r.data["failure"]["message"]
+        assert r.status == "failed" and r.failure.kind == "capture_loss"
+        assert f"{cap['lost']} missing" in r.failure.message
 
 
 def _rig(args: list[str], env_extra: dict[str, str]) -> subprocess.Popen[str]:
@@ -285,8 +288,8 @@ def test_missing_programs_are_an_environment_error(tmp_path: Path, channel: str,
     s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
     r = runner.run_scenario(s, runner.RunOptions(out=tmp_path / "out", bus="unixcan",
                                                  channel=channel, progress=False))
-    assert r.status == "error" and r.data["failure"]["kind"] == "environment"
-    assert "plant_rt not found" in r.data["failure"]["message"]
+    assert r.status == "error" and r.failure.kind == "environment"
+    assert "plant_rt not found" in r.failure.message
     assert runner.exit_code(r.passed, r.status) == 3
 
 
@@ -329,9 +332,9 @@ def test_scenario_over_socketcan(with_fakes: Path, tmp_path: Path) -> None:
     s = sc.load_scenario(_scenario(tmp_path, duration=0.15))
     r = runner.run_scenario(s, runner.RunOptions(out=tmp_path / "out", bus="socketcan",
                                                  channel=chan, progress=False, record=False))
-    assert r.data["bus"] == "socketcan"
+    assert r.bus == "socketcan"
     assert r.passed, r.explain()
-    assert r.data["capture"]["periods"] == 1500
+    assert r.capture_loss["periods"] == 1500
 
 
 def test_xfail_xpass_and_report_outcomes() -> None:
@@ -344,9 +347,9 @@ def test_xfail_xpass_and_report_outcomes() -> None:
     rep = sc.Criterion("d", "rig.x", (0.0, 1.0), float("nan"), "report")
     whole = verdict.Coverage.whole(10000)
     out = [verdict.evaluate_one(c, None, counters, whole) for c in (fail, xfail, xpass, rep)]
-    assert [runner.outcome(c) for c in out] == ["fail", "xfail", "xpass", "pass"]
+    assert [verdict.outcome(c) for c in out] == ["fail", "xfail", "xpass", "pass"]
     assert out[3]["limit"] is None and out[3]["value"] == 3.0
-    res = runner.RunResult(Path("."), {"criteria": out})
+    res = RunResult(Path("."), criteria=out)
     assert [c["name"] for c in res.failed_criteria()] == ["a"]
     assert [c["name"] for c in res.expected_failures()] == ["b", "c"]
     text = report.scenario_report({"scenario": "s", "criteria": out})
@@ -374,22 +377,22 @@ def test_suite_comparison_outcomes() -> None:
         return {"name": name, "criteria": [{"name": "drop", "value": value, "unit": "%"}]}
 
     cmp = sc.Comparison("a drops less", "drop", "a", "b", "<")
-    r = runner.evaluate_comparison(cmp, [entry("a", 18.0), entry("b", 21.8)])
+    r = evaluate_comparison(cmp, [entry("a", 18.0), entry("b", 21.8)])
     assert (r["outcome"], r["value_a"], r["value_b"], r["unit"]) == ("pass", 18.0, 21.8, "%")
-    assert runner.evaluate_comparison(cmp, [entry("a", 21.8), entry("b", 18.0)])["outcome"] \
+    assert evaluate_comparison(cmp, [entry("a", 21.8), entry("b", 18.0)])["outcome"] \
         == "fail"
     # a criterion without a value fails it; a run missing from an interrupted suite, or a
     # criterion that was not evaluated, leaves it not evaluated (never a pass)
-    assert runner.evaluate_comparison(cmp, [entry("a", None), entry("b", 1.0)])["outcome"] \
+    assert evaluate_comparison(cmp, [entry("a", None), entry("b", 1.0)])["outcome"] \
         == "fail"
-    assert runner.evaluate_comparison(cmp, [entry("b", 1.0)])["outcome"] == "not_evaluated"
+    assert evaluate_comparison(cmp, [entry("b", 1.0)])["outcome"] == "not_evaluated"
     unseen = {"name": "a", "criteria": [{"name": "drop", "value": None,
                                          "outcome": "not_evaluated"}]}
-    r = runner.evaluate_comparison(cmp, [unseen, entry("b", 1.0)])
+    r = evaluate_comparison(cmp, [unseen, entry("b", 1.0)])
     assert (r["outcome"], r["passed"]) == ("not_evaluated", False)
     assert "no value from a" in r["note"]
     known = sc.Comparison("a drops less", "drop", "a", "b", "<", xfail="measured 30 vs 20")
-    assert runner.evaluate_comparison(known, [entry("a", 30.0), entry("b", 20.0)])["outcome"] \
+    assert evaluate_comparison(known, [entry("a", 30.0), entry("b", 20.0)])["outcome"] \
         == "xfail"
-    assert runner.evaluate_comparison(known, [entry("a", 1.0), entry("b", 20.0)])["outcome"] \
+    assert evaluate_comparison(known, [entry("a", 1.0), entry("b", 20.0)])["outcome"] \
         == "xpass"

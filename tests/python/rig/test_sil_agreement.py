@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from rig import capture, scenario
-from rig.runner import RunResult
+from rig.run.result import RunResult
 
 SAMPLE = ("smoke", "fig09_load_step_realtime", "fig08_flux_600rpm@harsh")
 
@@ -32,7 +32,7 @@ def _first_period(result: RunResult, column: str, level: float) -> int:
 
 def _assert_agree(on_bus: RunResult, inproc: RunResult) -> None:
     """The same verdict, criterion outcomes and values, and byte-identical traces."""
-    assert on_bus.data["bus"] != "inproc" and inproc.data["bus"] == "inproc"
+    assert on_bus.bus != "inproc" and inproc.bus == "inproc"
     assert (inproc.status, inproc.passed) == (on_bus.status, on_bus.passed), (
         on_bus.explain() + "\n" + inproc.explain())
     by_name = {c["name"]: c for c in on_bus.criteria}
@@ -48,7 +48,7 @@ def _assert_agree(on_bus: RunResult, inproc: RunResult) -> None:
     for trace in ("plant.trace", "fw.trace"):
         a, b = Path(on_bus.out_dir, trace), Path(inproc.out_dir, trace)
         assert a.read_bytes() == b.read_bytes(), f"{trace} differs"
-    assert inproc.data["capture"]["lost"] == 0
+    assert inproc.capture_loss["lost"] == 0
 
 
 @pytest.mark.parametrize("name", SAMPLE)
@@ -58,8 +58,8 @@ def test_inproc_agrees_with_lockstep_bus(name: str, hil_run) -> None:  # type: i
     on_bus = hil_run(sc, record=False)
     inproc = hil_run(sc, record=False, bus="inproc")
     _assert_agree(on_bus, inproc)
-    assert inproc.data["counters"]["firmware.rx_rejected"] == 0
-    assert inproc.data["counters"]["plant.rejected"] == 0
+    assert inproc.counters["firmware.rx_rejected"] == 0
+    assert inproc.counters["plant.rejected"] == 0
     # a load step lands on the period the scenario names, on both paths
     for lc in sc.load_commands():
         if lc.torque > 0:
@@ -87,4 +87,4 @@ def test_faults_agree_between_inproc_and_lockstep_bus(name: str, hil_run) -> Non
     for key in ("firmware.fault_code", "plant.late_cmds", "plant.faults.frames_dropped",
                 "plant.faults.frames_corrupted", "plant.faults.frames_delayed",
                 "plant.faults.barriers", "rig.faults.frames_corrupted"):
-        assert inproc.data["counters"][key] == on_bus.data["counters"][key], key
+        assert inproc.counters[key] == on_bus.counters[key], key

@@ -79,7 +79,7 @@ def test_a_live_run_streams_to_the_web_viewer(hil_run, tmp_path: Path,  # type: 
                        log=tmp_path / "rerun.log", env=viewer_env) as viewer:
         run = hil_run("smoke", live=True, live_url=viewer.grpc_url, keep="failing")
         assert run.passed, run.explain()
-        assert run.data["bus"] != "inproc"  # the live view needs the bus's telemetry
+        assert run.bus != "inproc"  # the live view needs the bus's telemetry
         # the server keeps what was streamed: the live blueprint and its data open later
         png = tmp_path / "live.png"
         seen = browser.look(viewer.url(renderer="webgl"), png,

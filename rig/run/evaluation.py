@@ -1,0 +1,137 @@
+"""After a run: what went wrong besides the criteria (programs that did not stop cleanly,
+nodes beyond the bus's reach, a restarted ADC sequence), the merged capture and its loss
+report, and the verdicts on the data the run produced (``rig.verdict``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rig import capture, profiles
+from rig.link.drive import accel_max
+from rig.run.execution import TS, Execution
+from rig.run.plan import Plan
+from rig.run.result import Failure, RunResult
+from rig.scenario import Scenario
+from rig.verdict import AGAINST, Coverage, evaluate_one, outcome
+
+MAX_POST_FAILURE_PERIODS = 50_000  # after a crash, merge/record only short traces (fast)
+
+
+def program_failure(run: Execution, failure: Failure | None, on_bus: bool) -> Failure | None:
+    """The programs' exit counters into the run's counters; the first thing that went wrong
+    with the programs or the bus, when nothing went wrong before."""
+    if failure is None and not run.stops and on_bus:
+        failure = Failure("error", "run ended without stopping its programs")
+    # a program that did not stop cleanly is a failure too (after a good run)
+    for rep in run.stops.values():
+        if rep.counters:
+            run.add_counters("plant" if rep.name == "plant_rt" else "firmware", rep.counters)
+        if failure is None and not rep.clean:
+            what = ("did not stop within the grace period (killed)" if rep.killed
+                    else f"stopped with exit status {rep.returncode}")
+            failure = Failure("crash", f"{rep.name}: {what}", rep.log_tail, rep.name)
+    counters = run.counters
+    beyond = max(counters.get("plant.peers_beyond_limit", 0.0),
+                 counters.get("firmware.peers_beyond_limit", 0.0))
+    if failure is None and beyond > 0:
+        failure = Failure("environment", f"{beyond:g} node(s) on the channel beyond the "
+                          "HILBUS_MAX_PEERS (hilbus.h) a unixcan node reaches: frames were not "
+                          "delivered")
+    resyncs = counters.get("firmware.resyncs", 0.0)
+    if failure is None and resyncs > 0:
+        # the firmware followed an ADC sequence that restarted at period 0: another plant
+        # on the channel, or ours restarted; the data after it is not this run's
+        failure = Failure("lockstep", f"fw_host followed a restarted ADC sequence "
+                          f"{resyncs:g} time(s) (another plant on the channel?)")
+    if run.monitor is not None:
+        counters.update(run.monitor.counters())
+        counters["rig.grants"] = float(len(run.grants))
+        counters["rig.rx_frames"] = float(run.monitor.link.rx)
+        counters["rig.drive_faults"] = float(run.monitor.faults)
+        counters["rig.grant_resends"] = float(run.grant_resends)
+    return failure
+
+
+def merge_capture(sc: Scenario, plan: Plan, out: Path, run: Execution, realtime: bool,
+                  failure: Failure | None, interrupted: bool,
+                  ) -> tuple[capture.Capture | None, capture.LossReport | None, Failure | None]:
+    """The traces merged into the capture (``rig.capture``): the capture, its loss report
+    and what failed when the traces are missing, unreadable or have holes."""
+    plant_trace, fw_trace = out / "plant.trace", out / "fw.trace"
+    traces_exist = plant_trace.exists() and fw_trace.exists()
+    small = traces_exist and (
+        plant_trace.stat().st_size + fw_trace.stat().st_size
+        < MAX_POST_FAILURE_PERIODS * 3 * 72
+    )
+    cap: capture.Capture | None = None
+    loss: capture.LossReport | None = None
+    if traces_exist and (failure is None or small) and not interrupted:
+        try:
+            # lockstep: exactly the granted periods. Real time: the plant runs from its
+            # start, before the firmware is on the bus; the overlap counts, and it must reach
+            # the end of the scenario.
+            expected = (0, run.periods_done - 1) if failure is None and not realtime else None
+            cap, loss = capture.build(
+                out / "capture", capture.default_specs(plant_trace, fw_trace),
+                expected=expected,
+                pole_pairs=profiles.pole_pairs(profiles.profile_values(sc.profile,
+                                                                       sc.overrides)),
+                speed_reference=lambda t: sc.speed_reference(t, accel_max()),
+                # memory per period is bounded by what the run can have produced: the
+                # scenario's periods and a minute (real time starts before the firmware)
+                max_span=plan.n_periods + int(60.0 / TS),
+            )
+        except (ValueError, OSError) as exc:
+            if failure is None:
+                failure = Failure("capture", f"cannot read the traces: {exc}")
+    elif failure is None:
+        failure = Failure("capture", "trace files missing "
+                          f"({plant_trace.name}: {plant_trace.exists()}, "
+                          f"{fw_trace.name}: {fw_trace.exists()})")
+    if loss is not None:
+        run.counters["capture.lost"] = float(loss.lost)
+        run.counters["capture.duplicates"] = float(loss.duplicates)
+        if failure is None and not loss.ok:
+            failure = Failure("capture_loss", loss.summary())
+        elif failure is None and realtime and loss.last_period < run.periods_done - 2:
+            failure = Failure("capture_loss", f"the capture ends at period {loss.last_period}, "
+                              f"before the end of the scenario ({run.periods_done - 1})")
+    return cap, loss, failure
+
+
+def coverage(plan: Plan, cap: capture.Capture | None, loss: capture.LossReport | None,
+             periods_done: int, realtime: bool, interrupted: bool,
+             failure: Failure | None) -> Coverage:
+    """What data the run produced, for the verdicts (rig.verdict): the periods the capture
+    holds without a hole and whether the run reached its planned end."""
+    reached = not interrupted and periods_done >= plan.n_periods
+    why = "" if failure is None else f"{failure.kind}: {failure.message[:200]}"
+    # a hole (missing, duplicate, stray or short records) could be anywhere; a partial
+    # record at the end of a trace is where a killed writer stopped: the range holds before it
+    holes = loss is None or not all(m.ok for m in loss.messages)
+    if cap is None or loss is None or holes or cap.n == 0:
+        if loss is not None and holes:
+            why = why or loss.summary()
+        return Coverage(plan.n_periods, None, None, reached, why or "no capture")
+    first, last = cap.first_period, cap.first_period + cap.n - 1
+    if reached and loss.ok and not realtime:
+        last = plan.n_periods - 1  # complete by the loss report (the firmware's last ISR)
+    return Coverage(plan.n_periods, first, last, reached, why)
+
+
+def judge(result: RunResult, sc: Scenario, cap: capture.Capture | None, cov: Coverage,
+          failure: Failure | None) -> list[tuple[str, int, int]]:
+    """The criteria's verdicts and the run's status into ``result``; the capture rows the
+    criteria read (their evidence in the recording)."""
+    reads: list[tuple[str, int, int]] = []
+    result.criteria = [evaluate_one(cr, cap, result.counters, cov, reads) for cr in sc.criteria]
+    all_ok = all(outcome(c) not in AGAINST for c in result.criteria)
+    if failure is None:
+        result.status = "passed" if all_ok else "failed"
+        result.passed = all_ok
+    else:
+        result.status = "interrupted" if failure.kind == "interrupted" else (
+            "error" if failure.kind == "environment" else "failed")
+        result.passed = False
+    result.failure = failure
+    return reads

@@ -1,0 +1,142 @@
+"""A scenario run on the bus: plant_rt and fw_host started on a channel nobody else is on,
+the plan paced in lockstep or real time, the programs stopped, what the rig and the bus
+counted."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from collections.abc import Mapping
+
+from rig import bus as rigbus
+from rig import drive_link, recording
+from rig.link import bench
+from rig.link.bus import BusLink, ForeignNodes, LinkError
+from rig.link.clock import GrantClock, LockstepClock, PlantProgress, WallClock
+from rig.link.drive import DriveMaster
+from rig.progress import Progress
+from rig.run import pacing
+from rig.run.bench_commands import BenchCommands
+from rig.run.errors import EnvironmentProblem, RunError
+from rig.run.execution import TS, Execution
+from rig.run.live import LiveFeed
+from rig.run.monitor import Monitor
+from rig.run.options import RunOptions
+from rig.run.plan import Plan
+from rig.run.programs import bench_programs, versions
+from rig.run.result import RunResult
+from rig.scenario import Scenario
+
+# the bus reader thread (unixcan) must get the GIL within a sender's patience (2 ms)
+SWITCH_INTERVAL_S = 0.0005
+LOCKSTEP_DRAIN_S = 0.05  # the firmware finishes the last period before the stop signal
+
+
+def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
+               run: Execution) -> None:
+    """Runs the scenario on the bus, filling ``run``."""
+    try:
+        transport, channel = rigbus.select_transport(opts.bus, opts.channel)
+        programs = bench_programs(sc, opts)
+        argv = programs.argv(transport, channel, result.out_dir)
+    except FileNotFoundError as exc:
+        raise EnvironmentProblem(str(exc)) from exc
+    result.bus, result.channel = transport, channel
+    result.versions = versions(argv[bench.PLANT][0], argv[bench.FIRMWARE][0])
+    result.command_lines = {"plant": argv[bench.PLANT], "firmware": argv[bench.FIRMWARE]}
+    try:
+        link = BusLink.open(transport, channel,
+                            frame_faults=drive_link.DriveLink(plan.link_windows))
+    except LinkError as exc:
+        raise EnvironmentProblem(str(exc)) from exc
+    try:
+        link.refuse_foreign_nodes()
+    except ForeignNodes as exc:
+        link.close()
+        raise EnvironmentProblem(str(exc)) from exc
+    run.progress = PlantProgress(link)
+    run.monitor = Monitor(link)
+    live = _live_view(sc, opts, link, run.monitor, run.progress) if opts.live else None
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(min(switch, SWITCH_INTERVAL_S))
+    try:
+        _run_programs(sc, plan, opts, programs, link, run, live)
+    finally:
+        sys.setswitchinterval(switch)
+        link.close()
+        stats = getattr(link.bus, "stats", None)
+        if isinstance(stats, Mapping):
+            run.add_counters("rig.bus", stats)
+        if live is not None:
+            with contextlib.suppress(Exception):
+                live.close()
+
+
+def _live_view(sc: Scenario, opts: RunOptions, link: BusLink, monitor: Monitor,
+               progress: PlantProgress) -> LiveFeed | None:
+    try:
+        stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)", opts.live_url)
+        view = recording.LiveView(stream)
+    except Exception as exc:  # no display, no viewer binary: run without live view
+        print(f"rig: live view unavailable ({exc}); running without it", file=sys.stderr)
+        return None
+    return LiveFeed(view, link, monitor, progress)
+
+
+def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.BenchPrograms,
+                  link: BusLink, run: Execution, live: LiveFeed | None) -> None:
+    monitor, progress = run.monitor, run.progress
+    assert monitor is not None and progress is not None
+    prog = Progress(sc.name, sc.duration, enabled=opts.progress)
+    timeout = opts.timeout_s or sc.timeout_s or (
+        sc.duration + 30.0 if opts.realtime else 60.0 + 300.0 * sc.duration)
+    virtual = bench.VirtualBench(programs, opts.out, grace_s=opts.grace_s)
+    with virtual.sup:
+        virtual.start(link.transport, link.channel, ready_timeout_s=sc.ready_timeout_s,
+                      env=opts.env)
+        run.t0 = time.monotonic()
+        deadline = run.t0 + timeout
+        drive, bench_cmds = DriveMaster(link), BenchCommands(link)
+        clock: LockstepClock | WallClock
+        if opts.realtime:
+            clock = WallClock(link)
+        else:
+            clock = LockstepClock(link, grant_s=sc.grant_max_s, stall_s=opts.stall_s,
+                                  progress=progress)
+
+        def show_progress() -> None:
+            speed, err = monitor.snapshot()
+            prog.update((progress.period or 0) * TS, speed, err)
+            if live is not None:
+                live.flush()
+
+        def check_deadline() -> None:
+            if time.monotonic() <= deadline:
+                return
+            if isinstance(clock, GrantClock):
+                raise RunError("timeout", f"run time-out at period {progress.period} "
+                               f"(grant to {clock.granted})")
+            raise RunError("timeout", "real-time run time-out")
+
+        for hook in (virtual.check, check_deadline, show_progress):
+            clock.on_idle(hook)
+        grace = opts.grace_s
+        try:
+            if isinstance(clock, LockstepClock):
+                run.periods_done = pacing.lockstep(sc, plan, clock, drive, bench_cmds, run,
+                                                   lambda _until: show_progress())
+                virtual.sup.sleep(LOCKSTEP_DRAIN_S)
+            else:
+                run.periods_done = pacing.realtime(sc, plan, clock, drive, bench_cmds,
+                                                   progress, opts.stall_s)
+        except BaseException:
+            grace = min(grace, 1.0)  # failing: end quickly
+            raise
+        finally:
+            prog.finish()
+            run.stops = virtual.stop(grace_s=grace)
+            if isinstance(clock, LockstepClock):
+                run.grant_resends = clock.resends
+        run.counters["rig.tx_frames"] = float(link.tx)
+        run.counters.update(link.faults.counters())
