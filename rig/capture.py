@@ -39,7 +39,7 @@ from rig.trace import DEFAULT_CHUNK, MessageDecoder, TraceDecoder, TraceFile, fr
 TS = protocols.timebase().ts  # PWM period, 100 us: 2 * TBPRD ticks of TBCLK 100 MHz
 TICKS_PER_PERIOD = protocols.timebase().period_ticks
 TICK_S = TS / TICKS_PER_PERIOD
-DEFAULT_POLE_PAIRS = 2  # DESIGN.md §5: P = 4 poles
+DEFAULT_POLE_PAIRS = 2  # docs/design.md §5: P = 4 poles
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 

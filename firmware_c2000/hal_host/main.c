@@ -1,4 +1,4 @@
-/* fw_host: the portable control core as a Linux process on the bus (DESIGN.md section 6).
+/* fw_host: the portable control core as a Linux process on the bus (docs/design.md section 6).
  *
  * The firmware does not pace: in both modes it reacts to the plant's ADC frames (bus_io.c).
  * One thread polls the bus, the SCI console's pseudo-terminal (console.c, pty.c) and a 10 ms

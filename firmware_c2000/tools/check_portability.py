@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Portability checks of the control core (C28x rules, DESIGN.md section 6).
+"""Portability checks of the control core (C28x rules, docs/design.md section 6).
 
 ``scan CORE_DIR``
     Static scan of ``CORE_DIR/src`` and ``CORE_DIR/include`` (comments and literals removed):

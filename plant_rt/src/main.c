@@ -1,4 +1,4 @@
-/* plant_rt: the bench emulator on the bus (DESIGN.md section 4, docs/interfaces.md).
+/* plant_rt: the bench emulator on the bus (docs/design.md section 4, docs/interfaces.md).
  *
  * Receives VIO_PWM, LOAD_CMD, FAULT_CMD, BENCH_STEP and VIO_SYNC_ACK; sends VIO_ADC_x per
  * period (under frame faults through plant_link.h, then with the VIO_SYNC barrier in

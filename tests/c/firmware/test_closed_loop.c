@@ -183,7 +183,7 @@ static void modes(void)
     sim_close(s);
 }
 
-/* q-axis self-saturation (DESIGN.md section 5: apparent Lq 32 -> 28 mH, incremental about
+/* q-axis self-saturation (docs/design.md section 5: apparent Lq 32 -> 28 mH, incremental about
  * 21 mH at 3 A): the slopes give the incremental value, MTPA gets the apparent one from the
  * integrated incremental curve (docs/estimator.md §4.7). */
 static void q_saturation(void)

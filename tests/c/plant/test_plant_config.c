@@ -47,7 +47,7 @@ int main(void)
             fprintf(stderr, "%s\n", err);
         }
     }
-    /* spot values of the profiles against DESIGN.md section 5 */
+    /* spot values of the profiles against docs/design.md section 5 */
     plant_config_defaults(&cfg);
     CHECK(plant_config_load(&cfg, PROFILES_DIR "/harsh.toml", err, sizeof(err)) == 0);
     CHECK_NEAR(cfg.machine.rs_ohm, 1.93 * 1.3, 1e-12);

@@ -78,7 +78,7 @@ def test_dc_offset_does_not_drift_the_flux() -> None:
 
 
 def test_apparent_q_inductance_integrates_the_incremental_curve() -> None:
-    """psi_q = Lq0 iq / (1 + a iq^2) (DESIGN.md section 5: 32 mH, 28 mH apparent at 3 A):
+    """psi_q = Lq0 iq / (1 + a iq^2) (docs/design.md section 5: 32 mH, 28 mH apparent at 3 A):
     feeding the incremental inverse inductances the slopes would measure over a load ramp
     gives back the apparent Lq = psi_q / iq that MTPA (eq. 50) needs."""
     lib = fwlib.lib()

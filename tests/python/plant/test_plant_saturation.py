@@ -1,4 +1,4 @@
-"""Flux maps against the profile numbers (DESIGN.md section 5) and their consistency."""
+"""Flux maps against the profile numbers (docs/design.md section 5) and their consistency."""
 
 from __future__ import annotations
 
