@@ -40,6 +40,12 @@ def names(db: str, message: str, signal: str) -> dict[int, str]:
     return {int(value): str(name) for value, name in (sig.choices or {}).items()}
 
 
+def spelled(db: str, message: str, signal: str) -> dict[str, int]:
+    """A signal's value table keyed as the DBC spells the names (``IDLE``, as the generated C
+    constants are): the inverse of ``names``."""
+    return {name: value for value, name in names(db, message, signal).items()}
+
+
 def quantize(db: str, message: str, signal: str, value: float) -> float:
     """The physical value a signal actually carries for `value` (nearest raw step)."""
     sig = database(db).get_message_by_name(message).get_signal_by_name(signal)

@@ -27,8 +27,8 @@ TS = PERIOD_TICKS * TICK
 MAX_SOC = 16
 
 # the core's FW_STATE_* and FW_FAULT_*: DRIVE_STATUS's value tables (protocols/drive.dbc)
-_STATE = {n: v for v, n in protocols.names("drive", "DRIVE_STATUS", "state").items()}
-_FAULT = {n: v for v, n in protocols.names("drive", "DRIVE_STATUS", "fault_code").items()}
+_STATE = protocols.spelled("drive", "DRIVE_STATUS", "state")
+_FAULT = protocols.spelled("drive", "DRIVE_STATUS", "fault_code")
 STATE_IDLE, STATE_POLARITY, STATE_RUN, STATE_FAULT = (
     _STATE["IDLE"], _STATE["POLARITY"], _STATE["RUN"], _STATE["FAULT"])
 FAULT_ADC_LOSS, FAULT_CMD_TIMEOUT = _FAULT["ADC_LOSS"], _FAULT["CMD_TIMEOUT"]

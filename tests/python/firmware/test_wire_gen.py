@@ -39,7 +39,7 @@ def test_core_header_holds_the_dbc_facts(tmp_path: Path) -> None:
                                     ("FW_CTRL_", "DRIVE_CMD", "ctrl_mode"),
                                     ("FW_FWMODE_", "DRIVE_CMD", "fw_mode"),
                                     ("FW_STATUS_", "PARAM_RESP", "status")):
-        table = {n: v for v, n in protocols.names("drive", message, signal).items()}
+        table = protocols.spelled("drive", message, signal)
         got = {k[len(prefix):]: int(v) for k, v in d.items()
                if k.startswith(prefix) and not k.endswith("WIRE_MAX")}
         assert got == table, prefix

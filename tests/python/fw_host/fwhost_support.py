@@ -28,8 +28,8 @@ ZERO_A = 32768
 VDC_200V = 32768
 READY_TIMEOUT_S = 30.0  # sanitizer builds and the VM start slowly
 # the DRIVE_STATUS value tables of protocols/drive.dbc
-STATE = {n: v for v, n in protocols.names("drive", "DRIVE_STATUS", "state").items()}
-FAULT = {n: v for v, n in protocols.names("drive", "DRIVE_STATUS", "fault_code").items()}
+STATE = protocols.spelled("drive", "DRIVE_STATUS", "state")
+FAULT = protocols.spelled("drive", "DRIVE_STATUS", "fault_code")
 FAULT_CMD_TIMEOUT = FAULT["CMD_TIMEOUT"]
 FAULT_ADC_LOSS = FAULT["ADC_LOSS"]
 
