@@ -249,7 +249,8 @@ struct fw_core {
     int16_t vdq_sum_n;
     fw_cplx_t vdq_mean;
     real_t v_lim;                /* V, voltage available to the current controller */
-    real_t v_mag_f;              /* filtered |v| for the flux-weakening feedback */
+    real_t u_mag;                /* V, the current loop's demand before its voltage limit */
+    real_t v_mag_f;              /* filtered demand |u| for the flux-weakening feedback */
     fw_pi_t pi_d, pi_q, pi_spd;
     real_t speed_ref_ramped;
     real_t iq_demand;

@@ -149,7 +149,7 @@ int16_t fw_refs_select(int16_t mode, real_t iq_demand, real_t omega, real_t vmax
 /* dq current PI with decoupling, vector voltage limit and back-calculation anti-windup. */
 void fw_current_ctrl(fw_pi_t *pid, fw_pi_t *piq, real_t id_ref, real_t iq_ref, real_t id,
                      real_t iq, real_t omega, real_t ld, real_t lq, real_t lambda, real_t rs,
-                     real_t v_lim, real_t ts, real_t *vd, real_t *vq);
+                     real_t v_lim, real_t ts, real_t *vd, real_t *vq, real_t *u_mag);
 real_t fw_speed_ctrl_ramp(real_t y, real_t target, real_t step);
 real_t fw_speed_ctrl(fw_pi_t *pi, real_t ref_rpm, real_t speed_rpm, real_t iq_lim, real_t ts);
 

@@ -15,10 +15,6 @@
 #define FW_FLUX_NEG_PERIODS 50   /* 5 ms of negative lambda_d: polarity lost */
 #define FW_EST_VALID_MAX_RUN 50  /* est_valid drops after 5 ms without a good estimate */
 #define FW_FULL_LEARNT_UPDATES 150 /* Lq bin updates before FULL mode stops measuring there */
-/* current-loop voltage in FULL modulation, fraction of six-step: the last few per cent add
- * mostly 5th/7th harmonics (measured at 2600 r/min, i_max 4.5 A: 4.77 A peaks at 1.0, 4.57 A
- * at 0.97) */
-#define FW_FULL_VLIM ((real_t)0.97)
 /* the current loop's response (400 Hz design bandwidth) per period, for the torque model */
 #define FW_TE_MODEL_ALPHA ((real_t)0.222)
 /* cross-saturation identification: from this speed and q current on (once the Lq bin of the
@@ -67,6 +63,7 @@ static void reset_control(fw_core_t *c)
     c->iq_demand = FW_REAL(0.0);
     c->fluxweak_did = FW_REAL(0.0);
     c->fluxweak_active = 0;
+    c->u_mag = FW_REAL(0.0);
     c->v_mag_f = FW_REAL(0.0);
     c->mod.carry = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     c->mod.sector = 0;
@@ -485,14 +482,16 @@ static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data)
     real_t theta_apply;
     real_t vd = c->vd;
     real_t vq = c->vq;
+    real_t u_mag = c->u_mag;
     if (have_data) {
         fw_current_ctrl(&c->pi_d, &c->pi_q, c->id_ref, c->iq_ref, c->id, c->iq, c->trk.omega,
                         c->ld_use, c->lq_use, c->lambda_use, p[FW_IDX_RS_OHM], c->v_lim, FW_TS,
-                        &vd, &vq);
+                        &vd, &vq, &u_mag);
     }
+    c->u_mag = u_mag;
     c->vd = vd;
     c->vq = vq;
-    c->v_mag_f += FW_REAL(0.05) * (fw_sqrt(vd * vd + vq * vq) - c->v_mag_f);
+    c->v_mag_f += FW_REAL(0.05) * (u_mag - c->v_mag_f);
     /* the voltage acts during period k+1: rotate with the angle at its middle */
     theta_apply = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
     return fw_cmul(fw_c(vd, vq), fw_cexpj(theta_apply));
@@ -586,7 +585,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         enter_fault(c, FW_FAULT_CMD_TIMEOUT);
     }
     update_full_mod(c);
-    c->v_lim = (c->full_mod ? FW_FULL_VLIM * FW_SIX_STEP * c->vdc
+    c->v_lim = (c->full_mod ? p[FW_IDX_FULL_VLIM_FRACTION] * FW_SIX_STEP * c->vdc
                             : fw_svpwm_vmax(c->vdc, c->pwm_cfg.tmin)) *
                p[FW_IDX_VLIM_FRACTION];
 

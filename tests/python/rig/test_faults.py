@@ -327,9 +327,11 @@ value = 170.0
     assert "- open_phase at 0.15 s for 0.01 s (phase c)" in (r.out_dir / "report.md").read_text()
     cap = r.capture
     ic = -(np.asarray(cap["truth.ia"], float) + np.asarray(cap["truth.ib"], float))
-    assert np.abs(ic[1400:1500]).max() > 0.05  # phase c carries current until 0.15 s...
+    # (at the smoke scenario's light load phase c carries some tens of mA: the thresholds
+    # only tell a current from the float32 truth's exact zero)
+    assert np.abs(ic[1400:1500]).max() > 1e-3  # phase c carries current until 0.15 s...
     assert np.abs(ic[1500:1600]).max() < 1e-5  # ...none while it is open (float32 truth)
-    assert np.abs(ic[1700:2000]).max() > 0.05  # ...and again once reconnected
+    assert np.abs(ic[1700:2000]).max() > 1e-3  # ...and again once reconnected
     vdc = np.asarray(cap["truth.vdc"], float)
     assert (vdc[:2000] == 200.0).all() and (vdc[2000:] == 170.0).all()
 
