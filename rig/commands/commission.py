@@ -46,6 +46,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--out", type=Path, default=None,
                    help="run folder (default: ./out/commission-NAME-TIME)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--save-params", type=Path, default=None, metavar="FILE",
+                   help="after a passing run, write the drive parameters the steps identified "
+                   "and wrote to the drive (e.g. xsat_ldq_per_a) as a TOML [firmware] table; "
+                   "rig/commissioned/PROFILE.toml is what scenario runs on that virtual bench "
+                   "use")
     p.set_defaults(func=cmd_commission)
 
 
@@ -82,4 +87,30 @@ def cmd_commission(args: argparse.Namespace) -> int:
             print(f"rig commission: step {s.step} stopped: {s.error}", file=sys.stderr)
     verdict = "PASSED" if run.passed else "FAILED"
     print(f"commissioning {verdict}: {run.report_path}")
+    if args.save_params is not None:
+        if not _save_params(args.save_params, run.data, desc):
+            return EXIT_FAIL
     return EXIT_PASS if run.passed else EXIT_FAIL
+
+
+def _save_params(path: Path, data: dict, desc) -> bool:  # type: ignore[no-untyped-def,type-arg]
+    """Writes what the run wrote to the drive; False (with the reason) when it cannot."""
+    from rig import commissioned_drive
+
+    written = data.get("written") or {}
+    if not data.get("passed"):
+        print(f"rig commission: --save-params: the run did not pass; {path} not written",
+              file=sys.stderr)
+        return False
+    if not written:
+        print(f"rig commission: --save-params: no step wrote a drive parameter (xsat does); "
+              f"{path} not written", file=sys.stderr)
+        return False
+    profile = desc.virtual.profile if desc.virtual is not None else desc.name
+    try:
+        path.write_text(commissioned_drive.render(written, profile, ["rig", *sys.argv[1:]]))
+    except OSError as exc:
+        print(f"rig commission: --save-params: {exc}", file=sys.stderr)
+        return False
+    print(f"drive parameters -> {path}")
+    return True

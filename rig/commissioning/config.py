@@ -51,9 +51,9 @@ class CommissioningConfig:
     flux_ramp_rpm_s: float = 2000.0
     # cross-saturation: the load machine holds the speed, these q currents in turn (both
     # signs), each for the dwell time; the drive's estimate is then written
-    xsat_speed_rpm: float = 300.0
+    xsat_speed_rpm: float = 1000.0
     xsat_currents_a: tuple[float, ...] = (1.0, 2.0, 3.0, -1.0, -2.0, -3.0)
-    xsat_dwell_s: float = 1.0
+    xsat_dwell_s: float = 2.0
     # the fit's rms deviation of (Lq - Ld) tan(2 turn)/2 from the line, H*A
     xsat_fit_rms_ha: float = 5e-5
     # speed sweep with load steps (speed control, load machine in torque mode)

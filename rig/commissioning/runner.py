@@ -144,6 +144,7 @@ def commission(desc: BenchDescription, steps: Sequence[str], run_dir: Path,
                       and len(results) == len(names) and all(r.passed for r in results))
     data["steps"] = [r.to_json() for r in results]
     data["identified"] = {q.key: q.value for r in results for q in r.quantities}
+    data["written"] = dict(session.written)
     (run_dir / RESULTS).write_text(json.dumps(data, indent=1, default=str))
     (run_dir / REPORT).write_text(report.render(data, results))
     run = CommissioningRun(run_dir, data, results)

@@ -48,6 +48,8 @@ class BenchSession:
         self.console: ConsoleClient | None = None
         self.load: LoadBench | None = None
         self.identified: dict[str, float] = {}
+        # drive parameters a step wrote as its result (``rig commission --save-params``)
+        self.written: dict[str, float] = {}
         self.safety: list[str] = []
         self.truth: dict[str, float] | None = None
 

@@ -11,7 +11,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from rig import __version__, profiles, protocols
+from rig import __version__, commissioned_drive, profiles, protocols
 from rig.link import bench
 from rig.run.options import RunOptions
 from rig.scenario import Scenario
@@ -32,8 +32,10 @@ def plant_sets(sc: Scenario) -> list[str]:
 
 def firmware_sets(sc: Scenario, values: Mapping[str, Any]) -> list[str]:
     """The firmware's ``name=value`` parameters (fw_host ``--set``): the hardware from the
-    profile values, then the scenario's own."""
-    return bench.firmware_sets(values, sc.firmware)
+    profile values, then what commissioning identified on the profile's virtual bench
+    (``rig.commissioned_drive``), then the scenario's own."""
+    return bench.firmware_sets(values, {**commissioned_drive.parameters(sc.profile),
+                                        **sc.firmware})
 
 
 def bench_programs(sc: Scenario, opts: RunOptions) -> bench.BenchPrograms:

@@ -25,20 +25,11 @@ ONE_RPM = ("1 r/min holds within ~0.6 r/min, not 0.5: J = 0.0005 kg*m^2 turns a 
            "sooner; measured without ADC noise 0.45, without noise, dead time and device drop "
            "0.11 r/min: what remains are sub-mA errors of the period-mean current near the "
            "phase-current zero crossings and the ADC noise through the current loop")
-XSAT = ("cross-saturation (harsh: Ldq 0.5 mH at 3 A) turns the saliency axes by ~5 deg at 2 N*m; "
-        "the firmware removes it with xsat_ldq_per_a (with the plant's own Ldq: 3.5 deg at "
-        "1 r/min, 3.2 at 100 r/min), but identifying it at speed (rig commission xsat) is not "
-        "reliable yet (43-57 % of the plant's Ldq), so the grid runs without it")
 # Known failures: the reason per (r/min, N*m, profile, metric). The measured values come from
 # a run of the grid (table2_measured.json beside this file, refreshed with --measured).
 XFAIL: dict[tuple[int, float, str, str], str] = {
     (3000, 1.5, "ideal", "speed_track_err_max_rpm"): SIX_STEP.format(i=4.56, p="ideal"),
     (3000, 1.5, "paper", "speed_track_err_max_rpm"): SIX_STEP.format(i=4.59, p="paper"),
-    (1, 2, "harsh", "pos_err_max_deg"): XSAT,
-    (1, 2, "harsh", "polarity_loss_count"): XSAT + "; on the biased angle the loop creeps off by "
-    "up to 25 deg and is pulled back, on the edge of losing the rotor (episodes past 90 deg: "
-    "0 to 9 in builds with marginally different numerics)",
-    (100, 2, "harsh", "pos_err_max_deg"): XSAT,
 }
 for _tq in (0, 1, 2):
     XFAIL[(1, _tq, "paper", "speed_track_err_max_rpm")] = ONE_RPM

@@ -116,7 +116,7 @@ real_t fw_paramest_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min
  * of ldq_per_a * iq (H) and the learnt Lq curve */
 real_t fw_paramest_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a);
 /* one period's turn e (rad) of the saliency axes against the flux angle: into the mean */
-void fw_paramest_xsat_learn(fw_param_est_t *pe, real_t e, real_t alpha);
+void fw_paramest_xsat_learn(fw_param_est_t *pe, fw_cplx_t sample, real_t iq, real_t alpha);
 
 /* ---- flux_estimator.c -------------------------------------------------------------------- */
 void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);

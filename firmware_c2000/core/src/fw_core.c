@@ -21,7 +21,7 @@
  * current is learnt), the mean of the turn over ~0.2 s */
 #define FW_XSAT_MIN_RPM ((real_t)200.0)
 #define FW_XSAT_MIN_IQ_A ((real_t)0.5)
-#define FW_XSAT_ALPHA ((real_t)5e-4)
+#define FW_XSAT_ALPHA ((real_t)1e-4)
 #define FW_XSAT_LEARNT_UPDATES 300
 
 static const fw_core_t fw_core_zero;
@@ -384,8 +384,8 @@ static void xsat_learn(fw_core_t *c)
     th_f = fw_atan2(act.im, act.re);
     th_s = c->theta_raw_axes + c->trk.omega * ((real_t)FW_P_TICKS - c->est.t_ref / FW_TICK_S) *
                                    FW_TICK_S;
-    fw_paramest_xsat_learn(&c->pe, FW_REAL(0.5) * fw_wrap_pi(FW_REAL(2.0) * (th_f - th_s)),
-                     FW_XSAT_ALPHA);
+    fw_paramest_xsat_learn(&c->pe, fw_cscale(fw_cexpj(FW_REAL(2.0) * (th_f - th_s)), c->est.gamma1),
+                           c->iq, FW_XSAT_ALPHA);
 }
 
 /* FULL modulation above full_mod_min_rpm (10 % hysteresis), where the flux estimator carries

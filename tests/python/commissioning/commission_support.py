@@ -18,3 +18,11 @@ def paper_truth() -> dict[str, float]:
     return {"rs_ohm": data["machine"]["rs_ohm"], "ld_h": data["magnetics"]["ld_h"],
             "lq_h": data["magnetics"]["lq_h"], "lambda_m_wb": data["machine"]["lambda_m_wb"],
             "pole_pairs": data["machine"]["pole_pairs"]}
+
+
+def cross_saturation_per_ampere(profile: str) -> float:
+    """The plant's incremental Ldq per ampere of q current, read from the profile file: the
+    profile gives d psi_d / d iq at (id = 0, iq = cross_ref_a)."""
+    data = tomllib.loads((_paths.data_dir("profiles") / f"{profile}.toml").read_text())
+    m = data["magnetics"]
+    return float(m["ldq_ref_h"]) / float(m["cross_ref_a"])

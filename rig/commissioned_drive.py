@@ -1,0 +1,68 @@
+"""The drive as commissioning left it on the virtual bench of each plant profile.
+
+A real drive runs with the parameters its commissioning identified on its own machine; the
+virtual bench of a profile is such a machine. ``rig/commissioned/<profile>.toml`` holds what
+``rig commission ... --save-params`` wrote for it (today: the cross-saturation of the harsh
+machine, which the slope estimator cannot tell from a rotor angle at low speed), and every
+scenario run on that profile sets these parameters on the drive after the hardware ones from
+the profile (``rig.firmware_from_profile``) and before the scenario's own ``[firmware]``.
+A profile without a file runs the drive as shipped (``protocols/parameters.csv``).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+FOLDER = Path(__file__).resolve().with_name("commissioned")
+
+
+class CommissionedError(ValueError):
+    pass
+
+
+def file_of(profile: str) -> Path | None:
+    """The commissioned-drive file of a profile given by name (None for a profile file path or
+    a profile without one)."""
+    if not profile or "/" in profile or profile.endswith(".toml"):
+        return None
+    path = FOLDER / f"{profile}.toml"
+    return path if path.is_file() else None
+
+
+def parameters(profile: str) -> dict[str, float]:
+    """The commissioned parameters of a profile's virtual bench ({} when there are none)."""
+    path = file_of(profile)
+    if path is None:
+        return {}
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise CommissionedError(f"{path}: {exc}") from exc
+    table = data.get("firmware", {})
+    if set(data) - {"firmware"} or not isinstance(table, dict):
+        raise CommissionedError(f"{path}: only a [firmware] table of parameter = number")
+    out: dict[str, float] = {}
+    for name, value in table.items():
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise CommissionedError(f"{path}: firmware.{name}: not a number")
+        out[name] = float(value)
+    return out
+
+
+def render(values: Mapping[str, float], profile: str, command: Sequence[str]) -> str:
+    """The file ``--save-params`` writes: where the values come from, then the table."""
+    when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d")
+    lines = [
+        f"# The drive as commissioning left it on the virtual bench of the {profile} profile",
+        f"# ({when}), written by:",
+        f"#   {' '.join(command)}",
+        "# Scenario runs on this profile set these parameters on the drive after the hardware",
+        "# ones from the profile and before a scenario's own [firmware]",
+        "# (rig/commissioned_drive.py).",
+        "[firmware]",
+    ]
+    lines += [f"{k} = {format(float(v), '.6g')}" for k, v in sorted(values.items())]
+    return "\n".join(lines) + "\n"

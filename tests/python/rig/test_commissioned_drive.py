@@ -1,0 +1,66 @@
+"""rig/commissioned/<profile>.toml: the drive as commissioning left it on a virtual bench,
+applied to every scenario run on that profile (after the hardware from the profile, before
+the scenario's own [firmware])."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from rig import _paths, commissioned_drive
+from rig.run import programs
+from rig.scenario import load as load_scenario
+
+
+def _parameter_table() -> dict[str, tuple[float, float]]:
+    with open(_paths.data_dir("protocols") / "parameters.csv", newline="") as fh:
+        return {r["name"]: (float(r["min"]), float(r["max"])) for r in csv.DictReader(fh)
+                if r["access"] == "rw"}
+
+
+def test_every_shipped_file_names_writable_parameters_in_range() -> None:
+    table = _parameter_table()
+    files = sorted(commissioned_drive.FOLDER.glob("*.toml"))
+    assert files, "no commissioned drive shipped"
+    for f in files:
+        assert (_paths.data_dir("profiles") / f.name).is_file(), f"{f.name}: no such profile"
+        values = commissioned_drive.parameters(f.stem)
+        assert values, f
+        for name, v in values.items():
+            lo, hi = table[name]
+            assert lo <= v <= hi, (f.name, name, v)
+
+
+def test_harsh_scenarios_run_the_commissioned_drive_and_the_scenario_wins() -> None:
+    sc = load_scenario("table2_0001rpm_2nm")
+    assert sc.profile == "paper"
+    k = commissioned_drive.parameters("harsh")["xsat_ldq_per_a"]
+    sets = programs.firmware_sets(sc.with_profile("harsh"), {})
+    assert [float(s.split("=")[1]) for s in sets if s.startswith("xsat_ldq_per_a=")] == [k]
+    assert not any(s.startswith("xsat_ldq_per_a=") for s in programs.firmware_sets(sc, {}))
+    own = dataclasses.replace(sc.with_profile("harsh"), firmware={"xsat_ldq_per_a": 0.0})
+    assert [s for s in programs.firmware_sets(own, {}) if s.startswith("xsat")] == \
+        ["xsat_ldq_per_a=0"]
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[firmware]\nxsat_ldq_per_a = 'x'\n", "not a number"),
+    ("[firmware]\nxsat_ldq_per_a = true\n", "not a number"),
+    ("[plant]\nrs = 1\n", "only a [firmware] table"),
+    ("[firmware\n", "Expected"),
+])
+def test_a_bad_file_is_an_error_naming_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                          text: str, message: str) -> None:
+    (tmp_path / "bench.toml").write_text(text)
+    monkeypatch.setattr(commissioned_drive, "FOLDER", tmp_path)
+    with pytest.raises(commissioned_drive.CommissionedError) as info:
+        commissioned_drive.parameters("bench")
+    assert "bench.toml" in str(info.value) and message in str(info.value)
+
+
+def test_a_profile_path_or_an_unknown_profile_has_none() -> None:
+    assert commissioned_drive.parameters("no_such_profile") == {}
+    assert commissioned_drive.parameters("plant_rt/profiles/harsh.toml") == {}
