@@ -19,12 +19,16 @@ GRID = [(1, 0), (1, 1), (1, 2), (100, 0), (100, 1), (100, 2), (600, 0), (600, 1)
 I_MAX = 4.5
 SIX_STEP = ("1.5 N*m at 3000 r/min (2.44 N*m with friction B*w) needs >= {i} A even at the "
             "six-step voltage 2*Vdc/pi = 127 V (computed on the {p} magnetics), above i_max 4.5 A")
-ONE_RPM = ("1 r/min holds within ~0.6 r/min, not 0.5: J = 0.0005 kg*m^2 turns a torque error of "
-           "1e-4 N*m (0.15 mA of q current) held for 0.2 s into 0.4 r/min, and the position "
-           "tracker, which must stay near 2 Hz for the noise of the raw estimate, cannot see it "
-           "sooner; measured without ADC noise 0.45, without noise, dead time and device drop "
-           "0.11 r/min: what remains are sub-mA errors of the period-mean current near the "
-           "phase-current zero crossings and the ADC noise through the current loop")
+ONE_RPM = ("1 r/min holds within ~0.55-0.75 r/min, not 0.5: with J = 0.0005 kg*m^2 a torque error "
+           "of 0.2 mN*m (0.3 mA of q current), which the position tracker (2 Hz near standstill, "
+           "set by the raw estimate's noise) sees only after ~0.16 s, moves the shaft by ~0.6 r/min. "
+           "The period-mean current the loop controls comes from the samples of the measured "
+           "states and a model of the others; with dead time its bias differs by 0.1-0.3 mA "
+           "between SVPWM sectors, and at 1 r/min the near-zero voltage reference chatters "
+           "between sectors near their boundaries, where the largest excursions lie (in-process "
+           "probe: 0.36 r/min without dead time, 0.34 without dead time and device drop). Tried: "
+           "a least-squares current fit over the window means (rms 0.20 -> 0.13 r/min, peaks "
+           "unchanged), sector hysteresis 0-12 us (better at 0 N*m, worse at 1 and 2 N*m)")
 # Known failures: the reason per (r/min, N*m, profile, metric). The measured values come from
 # a run of the grid (table2_measured.json beside this file, refreshed with --measured).
 XFAIL: dict[tuple[int, float, str, str], str] = {
