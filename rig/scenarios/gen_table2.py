@@ -19,9 +19,10 @@ GRID = [(1, 0), (1, 1), (1, 2), (100, 0), (100, 1), (100, 2), (600, 0), (600, 1)
 I_MAX = 4.5
 SIX_STEP = ("1.5 N*m at 3000 r/min (2.44 N*m with friction B*w) needs >= {i} A even at the "
             "six-step voltage 2*Vdc/pi = 127 V (computed on the {p} magnetics), above i_max 4.5 A")
-ONE_RPM = ("1 r/min holds within ~0.55-0.75 r/min, not 0.5: with J = 0.0005 kg*m^2 a torque error "
-           "of 0.2 mN*m (0.3 mA of q current), which the position tracker (2 Hz near standstill, "
-           "set by the raw estimate's noise) sees only after ~0.16 s, moves the shaft by ~0.6 r/min. "
+ONE_RPM = ("1 r/min holds within ~0.55-0.75 r/min, not 0.5: with J = 0.0005 kg*m^2 a torque "
+           "error of 0.2 mN*m (0.3 mA of q current), which the position tracker (2 Hz near "
+           "standstill, set by the raw estimate's noise) sees only after ~0.16 s, moves the shaft "
+           "by ~0.6 r/min. "
            "The period-mean current the loop controls comes from the samples of the measured "
            "states and a model of the others; with dead time its bias differs by 0.1-0.3 mA "
            "between SVPWM sectors, and at 1 r/min the near-zero voltage reference chatters "

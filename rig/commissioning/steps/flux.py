@@ -36,10 +36,13 @@ def run(s: BenchSession, r: StepResult) -> None:
     s.drive.require_idle("flux identification")
     pp = pole_pairs(s)
     ld = s.identified.get("ld_h", s.params.get("ld_h"))
-    lb.speed_hold(0.0)
     s.drive.set_limits(cfg.i_max_a, cfg.speed_max_rpm, cfg.accel_rpm_s)
+    # start on the free shaft, then hold it: when the saturation test cannot decide the
+    # polarity (harsh: 9 of 72 start angles and noise seeds with the default sampling), the
+    # drive's motion check needs the rotor to turn
     s.drive.enable(ctrl_mode="current", fw_mode="id_zero", iq_ref=0.0,
                    timeout_s=cfg.start_timeout_s)
+    lb.speed_hold(0.0)
     rows, lams, lq_apps, lam_hats = [], [], [], []
     speed = 0.0
     current = cfg.flux_current_a

@@ -44,10 +44,13 @@ def run(s: BenchSession, r: StepResult) -> None:
     if rs is not None:
         s.params.set("rs_ohm", rs)
     r.facts["rs_ohm_used"] = rs if rs is not None else s.params.get("rs_ohm")
-    lb.speed_hold(0.0)
     s.drive.set_limits(cfg.i_max_a, cfg.speed_max_rpm, cfg.accel_rpm_s)
+    # start on the free shaft, then hold it: when the saturation test cannot decide the
+    # polarity (harsh: 9 of 72 start angles and noise seeds with the default sampling), the
+    # drive's motion check needs the rotor to turn
     s.drive.enable(ctrl_mode="current", fw_mode="id_zero", iq_ref=0.0,
                    timeout_s=cfg.start_timeout_s)
+    lb.speed_hold(0.0)
     ramp_load_speed(s, 0.0, cfg.xsat_speed_rpm, cfg.flux_ramp_rpm_s)
     s.clock.advance(cfg.xsat_dwell_s)  # the flux estimator settles
     rows, xs, ys = [], [], []
@@ -81,8 +84,9 @@ def run(s: BenchSession, r: StepResult) -> None:
                         "written to xsat_ldq_per_a",
                         0.0, truth(s, "xsat_ldq_per_a")))
     resid = float(np.sqrt(np.mean((np.asarray(ys) - (k * np.asarray(xs) + c)) ** 2)))
-    r.check("the turns lie on a line in iq", resid <= cfg.xsat_fit_rms_ha,
-            f"rms deviation {resid * 1e3:.4f} mH*A (bound {cfg.xsat_fit_rms_ha * 1e3:g}); turns "
+    bound = max(cfg.xsat_fit_rms_ha, cfg.xsat_fit_rms_rel * abs(k) * max(abs(x) for x in xs))
+    r.check("the turns lie on a line in iq", resid <= bound,
+            f"rms deviation {resid * 1e3:.4f} mH*A (bound {bound * 1e3:.3g}); turns "
             + ", ".join(f"{row[3]} deg at {row[1]} A" for row in rows))
     r.tables.append(Table("Currents held", [
         "iq ref (A)", "iq (A)", "speed (r/min)", "turn (deg)", "Ld (mH)", "Lq (mH)"], rows))
