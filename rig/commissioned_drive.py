@@ -16,6 +16,8 @@ import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from rig import params
+
 FOLDER = Path(__file__).resolve().with_name("commissioned")
 
 
@@ -44,10 +46,19 @@ def parameters(profile: str) -> dict[str, float]:
     table = data.get("firmware", {})
     if set(data) - {"firmware"} or not isinstance(table, dict):
         raise CommissionedError(f"{path}: only a [firmware] table of parameter = number")
+    known = params.table()
     out: dict[str, float] = {}
     for name, value in table.items():
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise CommissionedError(f"{path}: firmware.{name}: not a number")
+        # the scenario checks' rule (names and ranges of protocols/parameters.csv): a bad
+        # value is refused here, not by fw_host halfway into a run
+        try:
+            problem = known.lookup(name).problem(float(value))
+        except params.ParamError as exc:
+            problem = str(exc)
+        if problem is not None:
+            raise CommissionedError(f"{path}: firmware.{name}: {problem}")
         out[name] = float(value)
     return out
 

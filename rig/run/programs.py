@@ -13,6 +13,7 @@ from typing import Any
 
 from rig import __version__, commissioned_drive, profiles, protocols
 from rig.link import bench
+from rig.run.errors import EnvironmentProblem
 from rig.run.options import RunOptions
 from rig.scenario import Scenario
 
@@ -34,8 +35,11 @@ def firmware_sets(sc: Scenario, values: Mapping[str, Any]) -> list[str]:
     """The firmware's ``name=value`` parameters (fw_host ``--set``): the hardware from the
     profile values, then what commissioning identified on the profile's virtual bench
     (``rig.commissioned_drive``), then the scenario's own."""
-    return bench.firmware_sets(values, {**commissioned_drive.parameters(sc.profile),
-                                        **sc.firmware})
+    try:
+        commissioned = commissioned_drive.parameters(sc.profile)
+    except commissioned_drive.CommissionedError as exc:
+        raise EnvironmentProblem(str(exc)) from exc  # a broken installation: exit 3
+    return bench.firmware_sets(values, {**commissioned, **sc.firmware})
 
 
 def bench_programs(sc: Scenario, opts: RunOptions) -> bench.BenchPrograms:

@@ -131,9 +131,9 @@ typedef struct {
     int32_t n_updates;
     /* cross-saturation identification: the turn of the saliency axes against the flux
      * angle, mean over ~0.2 s at the present current (param_estimator.c) */
-    fw_cplx_t xs_g;              /* mean of |g| exp(j2 (flux angle - slope angle)) */
+    fw_cplx_t xs_g;              /* mean of |g| exp(j2 (flux angle - slope angle)): the turn is
+                                    half its argument (xsat_turn_deg, params.c) */
     real_t xs_iq;                /* A, the q current the mean belongs to */
-    real_t xs_turn;
     int32_t xs_n;
 } fw_param_est_t;
 

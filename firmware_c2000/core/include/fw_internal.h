@@ -115,7 +115,8 @@ real_t fw_paramest_saliency_iq_limit(const fw_param_est_t *pe, real_t gamma1_min
 /* Turn of the saliency axes by cross-saturation at q current iq, rad, for an incremental Ldq
  * of ldq_per_a * iq (H) and the learnt Lq curve */
 real_t fw_paramest_xsat_angle(const fw_param_est_t *pe, real_t iq, real_t ldq_per_a);
-/* one period's turn e (rad) of the saliency axes against the flux angle: into the mean */
+/* one period's |g| exp(j2 turn) (turn: the saliency axes against the flux angle) at q current
+ * iq: into the mean, started anew at another current */
 void fw_paramest_xsat_learn(fw_param_est_t *pe, fw_cplx_t sample, real_t iq, real_t alpha);
 
 /* ---- flux_estimator.c -------------------------------------------------------------------- */
@@ -146,7 +147,8 @@ int16_t fw_refs_select(int16_t mode, real_t iq_demand, real_t omega, real_t vmax
                         real_t *iq_ref);
 
 /* ---- current_ctrl.c / speed_ctrl.c --------------------------------------------------------- */
-/* dq current PI with decoupling, vector voltage limit and back-calculation anti-windup. */
+/* dq current PI with decoupling, vector voltage limit and anti-windup (the integral held where
+ * it alone reaches the limit); u_mag: the demand's magnitude before the limit. */
 void fw_current_ctrl(fw_pi_t *pid, fw_pi_t *piq, real_t id_ref, real_t iq_ref, real_t id,
                      real_t iq, real_t omega, real_t ld, real_t lq, real_t lambda, real_t rs,
                      real_t v_lim, real_t ts, real_t *vd, real_t *vq, real_t *u_mag);

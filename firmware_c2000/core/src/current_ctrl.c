@@ -1,5 +1,5 @@
 /* current_ctrl.c - dq current PI at 10 kHz with decoupling, voltage-vector limit and
- * back-calculation anti-windup. */
+ * anti-windup by holding each integral where it alone reaches the limit. */
 #include "fw_internal.h"
 
 void fw_current_ctrl(fw_pi_t *pid, fw_pi_t *piq, real_t id_ref, real_t iq_ref, real_t id,

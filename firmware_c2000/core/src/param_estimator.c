@@ -38,7 +38,6 @@ void fw_paramest_reset(fw_param_est_t *pe, real_t ld, real_t lq, real_t i_max)
     pe->ld_app = ld;
     pe->n_updates = 0;
     pe->xs_g = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    pe->xs_turn = FW_REAL(0.0);
     pe->xs_iq = FW_REAL(0.0);
     pe->xs_n = 0;
 }
@@ -309,7 +308,6 @@ void fw_paramest_xsat_learn(fw_param_est_t *pe, fw_cplx_t sample, real_t iq, rea
     }
     a = fw_max(alpha, FW_REAL(1.0) / (real_t)(pe->xs_n + 1));
     pe->xs_g = fw_cadd(pe->xs_g, fw_cscale(fw_csub(sample, pe->xs_g), a));
-    pe->xs_turn = FW_REAL(0.5) * fw_atan2(pe->xs_g.im, pe->xs_g.re);
     if (pe->xs_n < 1000000) {
         pe->xs_n++;
     }

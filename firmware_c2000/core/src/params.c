@@ -144,7 +144,9 @@ static real_t live_value(const fw_core_t *c, uint16_t id, real_t stored)
     case FW_PID_EST_REJECT_COUNT:
         return (real_t)c->est_reject_count;
     case FW_PID_XSAT_TURN_DEG:
-        return c->pe.xs_turn * (FW_REAL(180.0) / FW_M_PI);
+        /* (the turn is derived here, where it is read, not in every ISR that learns it) */
+        return FW_REAL(0.5) * fw_atan2(c->pe.xs_g.im, c->pe.xs_g.re) *
+               (FW_REAL(180.0) / FW_M_PI);
     default:
         return stored;
     }

@@ -43,7 +43,7 @@ def run(s: BenchSession, r: StepResult) -> None:
     rs_before = s.params.get("rs_ohm")
     if rs is not None:
         s.params.set("rs_ohm", rs)
-    r.facts["rs_ohm_used"] = rs if rs is not None else s.params.get("rs_ohm")
+    r.facts["rs_ohm_used"] = rs if rs is not None else rs_before
     s.drive.set_limits(cfg.i_max_a, cfg.speed_max_rpm, cfg.accel_rpm_s)
     # start on the free shaft, then hold it: when the saturation test cannot decide the
     # polarity (harsh: 9 of 72 start angles and noise seeds with the default sampling), the

@@ -4,25 +4,19 @@ the scenario's own [firmware])."""
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 from pathlib import Path
 
 import pytest
 
-from rig import _paths, commissioned_drive
+from rig import _paths, commissioned_drive, params
 from rig.run import programs
+from rig.run.errors import EnvironmentProblem
 from rig.scenario import load as load_scenario
 
 
-def _parameter_table() -> dict[str, tuple[float, float]]:
-    with open(_paths.data_dir("protocols") / "parameters.csv", newline="") as fh:
-        return {r["name"]: (float(r["min"]), float(r["max"])) for r in csv.DictReader(fh)
-                if r["access"] == "rw"}
-
-
 def test_every_shipped_file_names_writable_parameters_in_range() -> None:
-    table = _parameter_table()
+    table = params.table()
     files = sorted(commissioned_drive.FOLDER.glob("*.toml"))
     assert files, "no commissioned drive shipped"
     for f in files:
@@ -30,8 +24,8 @@ def test_every_shipped_file_names_writable_parameters_in_range() -> None:
         values = commissioned_drive.parameters(f.stem)
         assert values, f
         for name, v in values.items():
-            lo, hi = table[name]
-            assert lo <= v <= hi, (f.name, name, v)
+            info = table.lookup(name)
+            assert info.writable and info.minimum <= v <= info.maximum, (f.name, name, v)
 
 
 def test_harsh_scenarios_run_the_commissioned_drive_and_the_scenario_wins() -> None:
@@ -51,6 +45,9 @@ def test_harsh_scenarios_run_the_commissioned_drive_and_the_scenario_wins() -> N
     ("[firmware]\nxsat_ldq_per_a = true\n", "not a number"),
     ("[plant]\nrs = 1\n", "only a [firmware] table"),
     ("[firmware\n", "Expected"),
+    ("[firmware]\nno_such_parameter = 1\n", "no parameter named"),
+    ("[firmware]\nxsat_ldq_per_a = 1.0\n", "outside"),
+    ("[firmware]\nfw_version = 2\n", "read-only"),
 ])
 def test_a_bad_file_is_an_error_naming_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                           text: str, message: str) -> None:
@@ -64,3 +61,12 @@ def test_a_bad_file_is_an_error_naming_it(tmp_path: Path, monkeypatch: pytest.Mo
 def test_a_profile_path_or_an_unknown_profile_has_none() -> None:
     assert commissioned_drive.parameters("no_such_profile") == {}
     assert commissioned_drive.parameters("plant_rt/profiles/harsh.toml") == {}
+
+
+def test_a_broken_commissioned_drive_stops_the_run_before_it_starts(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "harsh.toml").write_text("[firmware]\nxsat_ldq_per_a = 1.0\n")
+    monkeypatch.setattr(commissioned_drive, "FOLDER", tmp_path)
+    sc = load_scenario("table2_0001rpm_2nm").with_profile("harsh")
+    with pytest.raises(EnvironmentProblem, match="outside"):
+        programs.firmware_sets(sc, {})
