@@ -123,11 +123,13 @@ void fw_paramest_xsat_learn(fw_param_est_t *pe, fw_cplx_t sample, real_t iq, rea
 void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);
 /* One period: u = (v - rs*i)*Ts integral of the period (V*s). Returns 1 when lambda updated. */
 /* omega: PLL speed (filter corner, compensation); omega_gate: filtered speed that decides
- * whether the voltage model is usable (|omega_gate| >= omega_min); lambda_nom bounds the
+ * whether the voltage model is usable (|omega_gate| >= omega_min) and whether lambda_m is
+ * learnt (|omega_gate| >= omega_learn_min: the voltage errors weigh 1/omega in the flux, so
+ * the sign of lambda_d is trusted at lower speeds than its size); lambda_nom bounds the
  * plausible lambda (0.5..1.5 x). */
 int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gate, real_t ratio,
-                       real_t omega_min, real_t theta_end, fw_cplx_t i_end, real_t ld_app,
-                       real_t lambda_nom, real_t alpha);
+                       real_t omega_min, real_t omega_learn_min, real_t theta_end,
+                       fw_cplx_t i_end, real_t ld_app, real_t lambda_nom, real_t alpha);
 int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc); /* active, start forgotten */
 
 /* ---- current_refs.c (paper eqs. 10, 50, 53) ----------------------------------------------------- */

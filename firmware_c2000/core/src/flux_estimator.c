@@ -39,8 +39,8 @@ int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc)
 }
 
 int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gate, real_t ratio,
-                       real_t omega_min, real_t theta_end, fw_cplx_t i_end, real_t ld_app,
-                       real_t lambda_nom, real_t alpha)
+                       real_t omega_min, real_t omega_learn_min, real_t theta_end,
+                       fw_cplx_t i_end, real_t ld_app, real_t lambda_nom, real_t alpha)
 {
     real_t w_abs = fw_max(fw_fabs(omega), omega_min);
     real_t wc_half = FW_REAL(0.5) * ratio * w_abs * FW_TS;
@@ -49,13 +49,18 @@ int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gat
     fw_cplx_t z, num, den, comp, rot, psi_dq, i_dq;
     real_t den2, lam;
 
-    f->psi_f = fw_cadd(fw_cscale(f->psi_f, a), fw_cscale(u, b));
     if (fw_fabs(omega_gate) < omega_min || fw_fabs(omega) < FW_REAL(0.5) * omega_min) {
+        /* below the gate the filter does not integrate: near standstill it would only hold
+         * the voltage errors over its corner (0.1 Wb from 0.4 V on harsh, half the magnet),
+         * and started from zero the estimate's error is the rotating flux's own transient,
+         * at most |psi| exp(-settle_tc) */
+        f->psi_f = fw_c(FW_REAL(0.0), FW_REAL(0.0));
         f->active = 0;
         f->neg_count = 0;
         f->settle_tc = FW_REAL(0.0);
         return 0;
     }
+    f->psi_f = fw_cadd(fw_cscale(f->psi_f, a), fw_cscale(u, b));
     f->settle_tc = fw_min(f->settle_tc + FW_REAL(2.0) * wc_half, FW_REAL(1000.0));
     z = fw_cexpj(omega * FW_TS);
     num = fw_c(z.re - a, z.im);
@@ -78,14 +83,15 @@ int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gat
         }
     } else {
         f->neg_count = 0;
-        if (lam > FW_REAL(0.5) * lambda_nom && lam < FW_REAL(1.5) * lambda_nom) {
+        if (fw_fabs(omega_gate) >= omega_learn_min && lam > FW_REAL(0.5) * lambda_nom &&
+            lam < FW_REAL(1.5) * lambda_nom) {
             f->lambda_f += alpha * (lam - f->lambda_f); /* range-checked before filtering */
             if (f->n_valid < 1000000) {
                 f->n_valid++;
             }
         }
     }
-    if (fw_fabs(i_dq.im) > FW_REAL(0.3)) {
+    if (fw_fabs(omega_gate) >= omega_learn_min && fw_fabs(i_dq.im) > FW_REAL(0.3)) {
         f->lq_app_flux = psi_dq.im / i_dq.im;
     }
     return 1;

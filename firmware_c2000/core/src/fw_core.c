@@ -352,12 +352,15 @@ static void update_parameters_and_flux(fw_core_t *c, int16_t run_flux)
     c->v_meas = fw_cadd(c->plan_cur.v_applied, fw_inverter_error(c));
     if (run_flux && c->trk.init) {
         fw_cplx_t u = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_IDX_RS_OHM])), FW_TS);
-        real_t omega_min = p[FW_IDX_FLUX_MIN_RPM] / FW_RPM_PER_RADS * p[FW_IDX_POLE_PAIRS];
+        real_t rpm_to_we = p[FW_IDX_POLE_PAIRS] / FW_RPM_PER_RADS;
+        real_t omega_learn = p[FW_IDX_FLUX_MIN_RPM] * rpm_to_we;
+        /* the model runs from the polarity-loss check's speed when that is lower */
+        real_t omega_min = fw_min(omega_learn, p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM] * rpm_to_we);
         real_t theta_end = fw_tracker_predict(&c->trk, FW_P_TICKS);
-        real_t omega_gate = c->speed_f_rpm / FW_RPM_PER_RADS * p[FW_IDX_POLE_PAIRS];
+        real_t omega_gate = c->speed_f_rpm * rpm_to_we;
         (void)fw_flux_update(&c->flux, u, c->trk.omega, omega_gate, p[FW_IDX_FLUX_LPF_RATIO],
-                             omega_min, theta_end, c->i_end, c->pe.ld_app, p[FW_IDX_LAMBDA_M_WB],
-                             alpha);
+                             omega_min, omega_learn, theta_end, c->i_end, c->pe.ld_app,
+                             p[FW_IDX_LAMBDA_M_WB], alpha);
     }
 }
 
@@ -410,13 +413,22 @@ static void update_full_mod(fw_core_t *c)
 static void polarity_lost_check(fw_core_t *c)
 {
     const real_t *p = c->p;
+    real_t spd = fw_fabs(c->speed_f_rpm);
+    int16_t trusted;
     c->flip_window_ticks++;
     if ((real_t)c->flip_window_ticks >= p[FW_IDX_POL_LOSS_WINDOW_MS] * FW_REAL(10.0)) {
         c->flip_window_ticks = 0;
         c->flips_in_window = 0;
     }
-    if (c->flux.active && fw_fabs(c->speed_f_rpm) > p[FW_IDX_POL_LOSS_MIN_RPM] &&
-        c->flux.neg_count >= FW_FLUX_NEG_PERIODS) {
+    /* two regimes: from pol_loss_settled_min_rpm the estimator's verdict is taken once its
+     * zero start has decayed (a loss while running slowly: caught in 50 periods, before the
+     * shaft has turned round); from pol_loss_min_rpm at once, which is what a runaway after a
+     * loss near standstill needs (it reaches 300 r/min within ~10 ms, before a settled
+     * filter, and there the back-EMF is ~14 V against volt-level model errors) */
+    trusted = (int16_t)((spd > p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM] &&
+                         fw_flux_settled(&c->flux, p[FW_IDX_POL_LOSS_SETTLE_TC])) ||
+                        (spd > p[FW_IDX_POL_LOSS_MIN_RPM] && c->flux.active));
+    if (trusted && c->flux.neg_count >= FW_FLUX_NEG_PERIODS) {
         /* the tracked frame points to the south pole: turn it round; the PI integrators hold
          * dq voltages of the old frame, which are the negatives in the new one */
         fw_tracker_flip(&c->trk);

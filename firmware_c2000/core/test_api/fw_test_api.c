@@ -210,7 +210,7 @@ int32_t fwt_flux_update(void *f, double u_re, double u_im, double omega, double 
 {
     fw_flux_t *fl = (fw_flux_t *)f;
     int16_t r = fw_flux_update(fl, fw_c((real_t)u_re, (real_t)u_im), (real_t)omega, (real_t)omega,
-                               (real_t)ratio, (real_t)omega_min, (real_t)theta_end,
+                               (real_t)ratio, (real_t)omega_min, (real_t)omega_min, (real_t)theta_end,
                                fw_c((real_t)i_re, (real_t)i_im), (real_t)ld, (real_t)lambda_nom,
                                (real_t)alpha);
     out[0] = fl->lambda_inst;
