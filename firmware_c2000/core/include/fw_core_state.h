@@ -222,6 +222,7 @@ struct fw_core {
     fw_flux_t flux;
     int16_t est_valid;
     int16_t est_fail_run;
+    int16_t sensor_bad;          /* leaky count of implausible two-vector periods */
     uint32_t est_reject_count;
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
     int16_t flux_pos_active;     /* the flux estimator carried the PLL in the last period */

@@ -327,6 +327,67 @@ static void standstill_flip(void)
     sim_close(s);
 }
 
+/* Current plausibility (fw_core.c current_sensor_check): a current channel that no longer
+ * measures what flows bends the inverse inductance matrix the slopes measure out of what any
+ * machine has. Independent expectation: ia read k times scales the a-row of the measured
+ * matrix, so its mean Gamma0 is ~(k+1)/2 of the true one (3 for k = 5, beyond the 2 allowed);
+ * ia stuck at mid-scale zeroes that row (Gamma0 halved, Gamma1 >= Gamma0). Either way every
+ * two-vector period counts, and at 1000 r/min at least a third of the periods are such: the
+ * 20 of sensor_fail_max within 100 periods. Before the fault, a run with load must not count
+ * to it. */
+typedef struct {
+    int kind; /* 0 off, 1 ia x5, 2 ia stuck at mid-scale */
+    int32_t mid;
+    int32_t top;
+} plaus_fault_t;
+
+static void plaus_hook(void *ctx, fw_adc_t *adc)
+{
+    const plaus_fault_t *f = (const plaus_fault_t *)ctx;
+    int16_t k;
+    for (k = 0; k < adc->n_soc && f->kind != 0; k++) {
+        int64_t v = (f->kind == 1) ? f->mid + 5 * ((int64_t)adc->ia[k] - f->mid) : f->mid;
+        adc->ia[k] = (int32_t)(v < 0 ? 0 : (v > f->top ? f->top : v));
+    }
+}
+
+static void current_plausibility(int kind, const char *name)
+{
+    sim_t *s = &S;
+    plaus_fault_t f;
+    long k, caught = -1;
+    fw_status_t st;
+    sim_open(s, "paper", 0.7, NULL);
+    f.kind = 0;
+    f.mid = sim_current_code(s, 0.0);
+    f.top = 2 * f.mid - 1;
+    sil_bench_set_adc_hook(s->b, plaus_hook, &f);
+    s->cmd.enable = 1;
+    CHECK(run_until_state(s, FW_STATE_RUN, 20000), "%s: no RUN", name);
+    s->cmd.speed_ref_rpm = 1000.0f;
+    CHECK(sil_bench_load_cmd(s->b, 0, 1.0, 0.0, 0.0) == 0, "load");
+    for (k = 0; k < 6000; k++) {
+        sim_step(s);
+    }
+    fw_core_status(s->core, &st);
+    CHECK(st.state == FW_STATE_RUN && s->core->sensor_bad < 5,
+          "%s: before the fault state %d, count %d", name, st.state, s->core->sensor_bad);
+    f.kind = kind;
+    for (k = 0; k < 300 && caught < 0; k++) {
+        sim_step(s);
+        if (s->core->state == FW_STATE_FAULT) {
+            caught = k + 1;
+        }
+    }
+    fw_core_status(s->core, &st);
+    printf("current plausibility, %s at 1000 r/min, 1 N*m: fault %u after %ld periods\n", name,
+           st.fault_code, caught);
+    CHECK(caught > 0 && caught <= 100, "%s: caught after %ld periods", name, caught);
+    CHECK(st.fault_code == FW_FAULT_CURRENT_IMPLAUSIBLE, "%s: fault %u", name, st.fault_code);
+    sil_bench_set_adc_hook(s->b, NULL, NULL);
+    sim_close(s);
+}
+
 int main(void)
 {
     startup(2.0, "ideal", 2, "linear");
@@ -336,6 +397,8 @@ int main(void)
     speed_run();
     low_speed_flip();
     standstill_flip();
+    current_plausibility(1, "ia read 5x");
+    current_plausibility(2, "ia stuck at mid-scale");
     flux_weakening();
     modes();
     q_saturation();

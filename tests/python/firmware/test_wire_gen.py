@@ -60,7 +60,7 @@ def test_host_header_time_base(tmp_path: Path) -> None:
     (("drive.dbc", 'BA_ "HilSpeedLoopDivider" 10;', 'BA_ "HilSpeedLoopDivider" 20;'),
      "TLM_POS GenMsgCycleTime 1 ms is not HilSpeedLoopDivider (20) PWM periods"),
     (("vio.dbc", 'BA_ "HilTbclkHz" 100000000;\n', ""), "HilTbclkHz missing"),
-    (("drive.dbc", ' 9 "OVERSPEED" ;', ' 9 "OVER SPEED" ;'), "is not an upper-case C identifier"),
+    (("drive.dbc", ' 9 "OVERSPEED" ', ' 9 "OVER SPEED" '), "is not an upper-case C identifier"),
 ])
 def test_disagreeing_facts_stop_the_build(tmp_path: Path, edit: tuple[str, str, str],
                                           needle: str) -> None:
