@@ -228,6 +228,29 @@ static void q_saturation(void)
     sim_close(s);
 }
 
+/* Brings the paper bench to rpm, applies a torque load after before_load periods, runs
+ * after_load more, checks the position is held, then turns the tracked frame round. */
+static void settle_then_flip(sim_t *s, float rpm, long before_load, double load, long after_load,
+                             const char *name)
+{
+    long k;
+    sim_open(s, "paper", 0.7, NULL);
+    CHECK(sil_bench_drive_limits(s->b, 4.5, 3500.0, 3000.0) == 0, "limits");
+    s->cmd.enable = 1;
+    CHECK(run_until_state(s, FW_STATE_RUN, 20000), "%s: no RUN", name);
+    s->cmd.speed_ref_rpm = rpm;
+    for (k = 0; k < before_load; k++) {
+        sim_step(s);
+    }
+    CHECK(sil_bench_load_cmd(s->b, 0, load, 0.0, 0.0) == 0, "load");
+    for (k = 0; k < after_load; k++) {
+        sim_step(s);
+    }
+    CHECK(fabs(sim_theta_error(s)) < 5.0 * M_PI / 180 && s->core->polarity_flips == 0,
+          "%s: not settled before the flip", name);
+    fw_tracker_flip(&s->core->trk);
+}
+
 /* Polarity flip at low speed under load (100 r/min, 1 N*m, paper). The flux estimator runs
  * from pol_loss_settled_min_rpm, and once settled its lambda_d turns negative with the frame:
  * the loss is caught after FW_FLUX_NEG_PERIODS (50) periods, before the shaft has turned far.
@@ -244,21 +267,7 @@ static void low_speed_flip(void)
     double min_rpm = 1e9, max_e, rms;
     long k, caught = -1;
     fw_status_t st;
-    sim_open(s, "paper", 0.7, NULL);
-    CHECK(sil_bench_drive_limits(s->b, 4.5, 3500.0, 3000.0) == 0, "limits");
-    s->cmd.enable = 1;
-    CHECK(run_until_state(s, FW_STATE_RUN, 20000), "low-speed flip: no RUN");
-    s->cmd.speed_ref_rpm = 100.0f;
-    for (k = 0; k < 10000; k++) {
-        sim_step(s);
-    }
-    CHECK(sil_bench_load_cmd(s->b, 0, t_load, 0.0, 0.0) == 0, "load");
-    for (k = 0; k < 10000; k++) {
-        sim_step(s);
-    }
-    CHECK(fabs(sim_theta_error(s)) < 5.0 * M_PI / 180 && s->core->polarity_flips == 0,
-          "low-speed flip: not settled before the flip");
-    fw_tracker_flip(&s->core->trk);
+    settle_then_flip(s, 100.0f, 10000, t_load, 10000, "low-speed flip");
     for (k = 0; k < 10000; k++) {
         sim_step(s);
         min_rpm = fmin(min_rpm, sim_speed_rpm(s));
@@ -296,18 +305,7 @@ static void standstill_flip(void)
     double min_rpm = 1e9, max_e, rms;
     long k;
     fw_status_t st;
-    sim_open(s, "paper", 0.7, NULL);
-    CHECK(sil_bench_drive_limits(s->b, 4.5, 3500.0, 3000.0) == 0, "limits");
-    s->cmd.enable = 1;
-    CHECK(run_until_state(s, FW_STATE_RUN, 20000), "standstill flip: no RUN");
-    s->cmd.speed_ref_rpm = 1.0f;
-    CHECK(sil_bench_load_cmd(s->b, 0, 1.0, 0.0, 0.0) == 0, "load");
-    for (k = 0; k < 20000; k++) {
-        sim_step(s);
-    }
-    CHECK(fabs(sim_theta_error(s)) < 5.0 * M_PI / 180 && s->core->polarity_flips == 0,
-          "standstill flip: not settled before the flip");
-    fw_tracker_flip(&s->core->trk);
+    settle_then_flip(s, 1.0f, 0, 1.0, 20000, "standstill flip");
     for (k = 0; k < 10000; k++) {
         sim_step(s);
         min_rpm = fmin(min_rpm, sim_speed_rpm(s));
