@@ -251,6 +251,16 @@ static void settle_then_flip(sim_t *s, float rpm, long before_load, double load,
     fw_tracker_flip(&s->core->trk);
 }
 
+/* After a flip: running, back at the reference within tol, the position within 5 deg */
+static void check_recovered(sim_t *s, const fw_status_t *st, double ref_rpm, double tol_rpm,
+                            double max_e, const char *name)
+{
+    CHECK(st->state == FW_STATE_RUN, "%s: state %d fault %u", name, st->state, st->fault_code);
+    CHECK(fabs(sim_speed_rpm(s) - ref_rpm) < tol_rpm, "%s: speed %.1f r/min", name,
+          sim_speed_rpm(s));
+    CHECK(max_e < 5.0 * M_PI / 180, "%s: theta max %.2f deg", name, max_e * 180 / M_PI);
+}
+
 /* Polarity flip at low speed under load (100 r/min, 1 N*m, paper). The flux estimator runs
  * from pol_loss_settled_min_rpm, and once settled its lambda_d turns negative with the frame:
  * the loss is caught after FW_FLUX_NEG_PERIODS (50) periods, before the shaft has turned far.
@@ -286,11 +296,7 @@ static void low_speed_flip(void)
           caught);
     CHECK(s->core->polarity_flips == 1, "low-speed flip: %u corrections", s->core->polarity_flips);
     CHECK(min_rpm > floor_rpm, "low-speed flip: shaft fell to %.0f r/min", min_rpm);
-    CHECK(st.state == FW_STATE_RUN, "low-speed flip: state %d fault %u", st.state,
-          st.fault_code);
-    CHECK(fabs(sim_speed_rpm(s) - 100.0) < 10.0, "low-speed flip: speed %.1f r/min",
-          sim_speed_rpm(s));
-    CHECK(max_e < 5.0 * M_PI / 180, "low-speed flip: theta max %.2f deg", max_e * 180 / M_PI);
+    check_recovered(s, &st, 100.0, 10.0, max_e, "low-speed flip");
     sim_close(s);
 }
 
@@ -317,11 +323,7 @@ static void standstill_flip(void)
            s->core->polarity_flips, st.state, st.fault_code, min_rpm, sim_speed_rpm(s),
            rms * 180 / M_PI, max_e * 180 / M_PI);
     CHECK(s->core->polarity_flips >= 1, "standstill flip not corrected");
-    CHECK(st.state == FW_STATE_RUN, "standstill flip: state %d fault %u", st.state,
-          st.fault_code);
-    CHECK(fabs(sim_speed_rpm(s) - 1.0) < 5.0, "standstill flip: speed %.1f r/min",
-          sim_speed_rpm(s));
-    CHECK(max_e < 5.0 * M_PI / 180, "standstill flip: theta max %.2f deg", max_e * 180 / M_PI);
+    check_recovered(s, &st, 1.0, 5.0, max_e, "standstill flip");
     sim_close(s);
 }
 
