@@ -8,6 +8,7 @@ import sys
 from collections.abc import Sequence
 
 from rig import __version__
+from rig.supervisor import interruptible
 
 COMMAND_MODULES = (
     "rig.commands.run",
@@ -36,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    interruptible()
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

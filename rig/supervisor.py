@@ -307,10 +307,26 @@ class Terminated(BaseException):
     """Raised in the main thread when the rig receives SIGTERM or SIGHUP (like Ctrl-C)."""
 
 
+def interruptible() -> None:
+    """Makes SIGINT raise KeyboardInterrupt even when it was ignored at start-up.
+
+    A non-interactive shell starts its background commands with SIGINT ignored, and Python
+    then installs no KeyboardInterrupt handler: an explicit SIGINT (or Ctrl-C to the script's
+    process group) would be lost and the children left running. The rig stops cleanly on it
+    instead, as in the foreground."""
+    try:
+        if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+    except ValueError:  # not the main thread
+        pass
+
+
 @contextlib.contextmanager
 def terminate_as_exception() -> Iterator[None]:
-    """Turns SIGTERM/SIGHUP into :class:`Terminated` so ``finally`` blocks stop the children."""
+    """Turns SIGTERM/SIGHUP into :class:`Terminated` so ``finally`` blocks stop the children
+    (and SIGINT into KeyboardInterrupt, even when inherited as ignored: :func:`interruptible`)."""
     previous: dict[int, Any] = {}
+    interruptible()
 
     def handler(signum: int, frame: FrameType | None) -> None:
         raise Terminated(signal.Signals(signum).name)

@@ -21,9 +21,12 @@ def test_interface_is_registered() -> None:
 def test_can_logger_records_unixcan(tmp_path: Path) -> None:
     env = dict(os.environ, UNIXCAN_DIR=str(tmp_path / "uc"))
     log = tmp_path / "capture.log"
+    # can.logger stops on KeyboardInterrupt: give it SIGINT's default disposition even when
+    # the tests run as a background job (which starts with SIGINT ignored)
     proc = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "unixcan", "-c", "logch",
                              "--fd", "-f", str(log)], env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         chan_dir = tmp_path / "uc" / "logch"
         deadline = time.monotonic() + 20
