@@ -46,6 +46,14 @@ def spelled(db: str, message: str, signal: str) -> dict[str, int]:
     return {name: value for value, name in names(db, message, signal).items()}
 
 
+def cycle_s(db: str, message: str) -> float:
+    """A cyclic message's period (the DBC's ``GenMsgCycleTime``), s."""
+    ms = database(db).get_message_by_name(message).cycle_time
+    if not ms:
+        raise ValueError(f"protocols/{db}.dbc: {message} has no GenMsgCycleTime")
+    return ms / 1000.0
+
+
 def quantize(db: str, message: str, signal: str, value: float) -> float:
     """The physical value a signal actually carries for `value` (nearest raw step)."""
     sig = database(db).get_message_by_name(message).get_signal_by_name(signal)

@@ -22,6 +22,10 @@ from rig.link.drive import CTRL_MODES, FW_MODES, DriveLimits, DriveMaster, quant
 from rig.params import ParamClient
 
 READBACK_WALL_S = 1.0
+# A state change is sent at once and again every DRIVE_STATUS cycle (100 ms); the frame on
+# change can be lost on a full receiver, so a wait for a new state spans three cycles (one
+# cycle was the limit: a disable after the xsat step failed once in ~10 loaded test runs)
+STATE_WAIT_S = 3 * protocols.cycle_s("drive", "DRIVE_STATUS")
 CMD_STATUS = protocols.names("drive", "PARAM_RESP", "status")
 
 
@@ -140,7 +144,7 @@ class CheckedDrive:
         finally:
             self.check_no_fault("start-up")
 
-    def reset_fault(self, timeout_s: float = 0.1) -> None:
+    def reset_fault(self, timeout_s: float = STATE_WAIT_S) -> None:
         """fault_reset edge with enable 0; the drive goes back to IDLE."""
         self.command(enable=0, fault_reset=1, speed_ref=0.0, iq_ref=0.0)
         try:
@@ -148,7 +152,7 @@ class CheckedDrive:
         finally:
             self.command(fault_reset=0)
 
-    def disable(self, timeout_s: float = 0.1) -> None:
+    def disable(self, timeout_s: float = STATE_WAIT_S) -> None:
         self.command(enable=0, speed_ref=0.0, iq_ref=0.0)
         try:
             self.clock.wait(lambda: self.state in ("IDLE", "FAULT"), timeout_s, "drive disable")
