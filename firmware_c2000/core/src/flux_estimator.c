@@ -48,6 +48,7 @@ int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gat
     real_t b = FW_REAL(1.0) / (FW_REAL(1.0) + wc_half);
     fw_cplx_t z, num, den, comp, rot, psi_dq, i_dq;
     real_t den2, lam;
+    int16_t learn = (int16_t)(fw_fabs(omega_gate) >= omega_learn_min);
 
     if (fw_fabs(omega_gate) < omega_min || fw_fabs(omega) < FW_REAL(0.5) * omega_min) {
         /* below the gate the filter does not integrate: near standstill it would only hold
@@ -83,15 +84,14 @@ int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gat
         }
     } else {
         f->neg_count = 0;
-        if (fw_fabs(omega_gate) >= omega_learn_min && lam > FW_REAL(0.5) * lambda_nom &&
-            lam < FW_REAL(1.5) * lambda_nom) {
+        if (learn && lam > FW_REAL(0.5) * lambda_nom && lam < FW_REAL(1.5) * lambda_nom) {
             f->lambda_f += alpha * (lam - f->lambda_f); /* range-checked before filtering */
             if (f->n_valid < 1000000) {
                 f->n_valid++;
             }
         }
     }
-    if (fw_fabs(omega_gate) >= omega_learn_min && fw_fabs(i_dq.im) > FW_REAL(0.3)) {
+    if (learn && fw_fabs(i_dq.im) > FW_REAL(0.3)) {
         f->lq_app_flux = psi_dq.im / i_dq.im;
     }
     return 1;

@@ -460,11 +460,11 @@ static void polarity_lost_check(fw_core_t *c)
 static void current_sensor_check(fw_core_t *c)
 {
     const real_t *p = c->p;
-    real_t g0_nom = FW_REAL(0.5) * (FW_REAL(1.0) / p[FW_IDX_LD_H] + FW_REAL(1.0) / p[FW_IDX_LQ_H]);
-    real_t ratio;
+    real_t g0_nom, ratio;
     if (c->slopes_ok != 2 || c->est.n_active != 2) {
         return; /* this period's slopes did not give the whole matrix */
     }
+    g0_nom = FW_REAL(0.5) * (FW_REAL(1.0) / p[FW_IDX_LD_H] + FW_REAL(1.0) / p[FW_IDX_LQ_H]);
     ratio = c->est.gamma0 / g0_nom;
     if (!(ratio >= p[FW_IDX_SENSOR_G0_MIN_RATIO] && ratio <= p[FW_IDX_SENSOR_G0_MAX_RATIO]) ||
         !(c->est.gamma1 < c->est.gamma0)) {
