@@ -76,6 +76,20 @@ def ramp_load_speed(s: BenchSession, start: float, stop: float, rate_rpm_s: floa
         s.clock.advance(RAMP_DT_S)
 
 
+def start_at_speed_zero_held(s: BenchSession) -> None:
+    """Enables the drive in current control (id = 0, iq = 0) on the free shaft, then has the
+    load machine hold it at 0 r/min: when the saturation test cannot decide the polarity
+    (harsh: 9 of 72 start angles and noise seeds with the default sampling), the drive's
+    motion check needs the rotor to turn."""
+    cfg = s.config
+    lb = s.load
+    assert lb is not None
+    s.drive.set_limits(cfg.i_max_a, cfg.speed_max_rpm, cfg.accel_rpm_s)
+    s.drive.enable(ctrl_mode="current", fw_mode="id_zero", iq_ref=0.0,
+                   timeout_s=cfg.start_timeout_s)
+    lb.speed_hold(0.0)
+
+
 def pole_pairs(s: BenchSession) -> int:
     return round(s.params.get("pole_pairs"))
 

@@ -24,6 +24,7 @@ from rig.commissioning.steps.common import (
     nominal,
     pole_pairs,
     ramp_load_speed,
+    start_at_speed_zero_held,
     truth,
 )
 
@@ -36,13 +37,7 @@ def run(s: BenchSession, r: StepResult) -> None:
     s.drive.require_idle("flux identification")
     pp = pole_pairs(s)
     ld = s.identified.get("ld_h", s.params.get("ld_h"))
-    s.drive.set_limits(cfg.i_max_a, cfg.speed_max_rpm, cfg.accel_rpm_s)
-    # start on the free shaft, then hold it: when the saturation test cannot decide the
-    # polarity (harsh: 9 of 72 start angles and noise seeds with the default sampling), the
-    # drive's motion check needs the rotor to turn
-    s.drive.enable(ctrl_mode="current", fw_mode="id_zero", iq_ref=0.0,
-                   timeout_s=cfg.start_timeout_s)
-    lb.speed_hold(0.0)
+    start_at_speed_zero_held(s)
     rows, lams, lq_apps, lam_hats = [], [], [], []
     speed = 0.0
     current = cfg.flux_current_a

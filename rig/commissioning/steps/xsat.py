@@ -24,7 +24,12 @@ import numpy as np
 
 from rig.commissioning.results import Quantity, StepResult, Table
 from rig.commissioning.session import BenchSession
-from rig.commissioning.steps.common import measure, ramp_load_speed, truth
+from rig.commissioning.steps.common import (
+    measure,
+    ramp_load_speed,
+    start_at_speed_zero_held,
+    truth,
+)
 
 TITLE = "cross-saturation at speed (load machine holds the speed, iq of both signs)"
 
@@ -44,13 +49,7 @@ def run(s: BenchSession, r: StepResult) -> None:
     if rs is not None:
         s.params.set("rs_ohm", rs)
     r.facts["rs_ohm_used"] = rs if rs is not None else rs_before
-    s.drive.set_limits(cfg.i_max_a, cfg.speed_max_rpm, cfg.accel_rpm_s)
-    # start on the free shaft, then hold it: when the saturation test cannot decide the
-    # polarity (harsh: 9 of 72 start angles and noise seeds with the default sampling), the
-    # drive's motion check needs the rotor to turn
-    s.drive.enable(ctrl_mode="current", fw_mode="id_zero", iq_ref=0.0,
-                   timeout_s=cfg.start_timeout_s)
-    lb.speed_hold(0.0)
+    start_at_speed_zero_held(s)
     ramp_load_speed(s, 0.0, cfg.xsat_speed_rpm, cfg.flux_ramp_rpm_s)
     s.clock.advance(cfg.xsat_dwell_s)  # the flux estimator settles
     rows, xs, ys = [], [], []
