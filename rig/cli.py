@@ -12,6 +12,9 @@ from rig.supervisor import interruptible
 
 COMMAND_MODULES = (
     "rig.commands.run",
+    "rig.commands.baseline",
+    "rig.commands.compare",
+    "rig.commands.mutate",
     "rig.commands.sweep",
     "rig.commands.bus",
     "rig.commands.bench",

@@ -85,6 +85,7 @@ def scenario_report(result: Mapping[str, Any]) -> str:
                 lines.append(f"| | | | expected failure: {c['xfail']} | | |")
     else:
         lines.append("(none)")
+    lines += _baseline_section(result.get("baseline"), crits)
     cap = result.get("capture") or {}
     if cap:
         lines += [
@@ -134,6 +135,42 @@ def scenario_report(result: Mapping[str, Any]) -> str:
         for k in sorted(versions):
             lines.append(f"- {k}: {_fmt(versions[k])}")
     return "\n".join(lines) + "\n"
+
+
+def _baseline_section(base: Mapping[str, Any] | None,
+                      crits: list[Mapping[str, Any]]) -> list[str]:
+    """How the run's criteria stand against the committed baseline (rig.baseline)."""
+    if not base:
+        return []
+    lines = ["", "## Against the baseline", ""]
+    if base.get("skipped") or base.get("error") or base.get("missing"):
+        verdict = "" if base.get("passed", True) else " (**fails the run**)"
+        return [*lines, f"{base.get('skipped') or base.get('error') or base.get('note')}"
+                f"{verdict}"]
+    counts = ", ".join(f"{n} {k}" for k, n in (base.get("counts") or {}).items())
+    lines += [f"`{base.get('file')}` (seeds {_seed_span(base.get('seeds'))}, recorded "
+              f"{base.get('recorded')}): {counts or 'nothing compared'}"
+              + ("" if base.get("passed") else " — **the run fails on it**"), ""]
+    moved = [c for c in crits if (c.get("baseline") or {}).get("class") not in
+             (None, "unchanged")]
+    if moved:
+        lines += ["| criterion | value | baseline | band | against it |", "|---|---|---|---|---|"]
+        for c in moved:
+            b = c["baseline"]
+            unit = c.get("unit") or ""
+            band = (f"{_fmt(b.get('lo'))} .. {_fmt(b.get('hi'))} {unit}" if "lo" in b
+                    else b.get("note", ""))
+            mark = b["class"].upper() if b["class"] in ("regressed", "changed", "stale") \
+                else b["class"]
+            lines.append(f"| {c['name']} | {_fmt(c.get('value'))} {unit} | "
+                         f"{_fmt(b.get('value'))} {unit} | {band} | {mark} |")
+    return lines
+
+
+def _seed_span(seeds: Any) -> str:
+    s = sorted(seeds or [])
+    return f"{s[0]}-{s[-1]}" if len(s) > 2 and s == list(range(s[0], s[-1] + 1)) else \
+        ", ".join(map(str, s))
 
 
 _OUTCOME = {"pass": "pass", "fail": "**FAIL**", "xfail": "XFAIL", "xpass": "**XPASS**",
@@ -258,6 +295,31 @@ def _comparisons(comps: list[Mapping[str, Any]]) -> list[str]:
     return [*lines, ""]
 
 
+def _suite_baseline(base: Mapping[str, Any] | None) -> list[str]:
+    """The suite's criteria against their baselines: counts and what moved."""
+    if not base:
+        return []
+    counts = ", ".join(f"{n} {k}" for k, n in (base.get("counts") or {}).items())
+    lines = ["## Against the baseline", "",
+             f"{counts or 'nothing compared'}"
+             + ("" if base.get("passed") else " — **the suite fails on it**"), ""]
+    moved = base.get("moved") or []
+    if moved:
+        lines += ["| scenario | criterion | value | baseline | band | against it |",
+                  "|---|---|---|---|---|---|"]
+        for m in moved:
+            unit = m.get("unit") or ""
+            band = (f"{_fmt(m.get('lo'))} .. {_fmt(m.get('hi'))} {unit}"
+                    if m.get("lo") is not None else m.get("note", ""))
+            mark = m["class"].upper() if m["class"] in ("regressed", "changed", "stale") \
+                else m["class"]
+            lines.append(f"| [{m['scenario']}]({m['scenario']}/report.md) | {m['criterion']} | "
+                         f"{_fmt(m.get('value'))} {unit} | {_fmt(m.get('baseline'))} {unit} | "
+                         f"{band} | {mark} |")
+        lines.append("")
+    return lines
+
+
 def suite_report(summary: Mapping[str, Any]) -> str:
     verdict = "PASS" if summary.get("passed") else "FAIL"
     entries = list(summary.get("scenarios", []))
@@ -278,6 +340,7 @@ def suite_report(summary: Mapping[str, Any]) -> str:
         f"{counts['xpass']} xpass, {counts['not_evaluated']} not evaluated.",
         "",
     ]
+    lines += _suite_baseline(summary.get("baseline"))
     lines += _table2(entries)
     lines += _figures(entries)
     lines += _comparisons(list(summary.get("comparisons") or []))

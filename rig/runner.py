@@ -44,6 +44,10 @@ def _now() -> str:
 
 def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs one scenario into ``opts.out``; always writes result.json and report.md."""
+    if sc.seeds:
+        from rig.run.multi_seed import run_over_own_seeds
+
+        return run_over_own_seeds(sc, opts)
     out = Path(opts.out)
     outputs.prepare(out, sc)
     result = RunResult(
@@ -86,6 +90,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     coverage = evaluation.coverage(plan, cap, loss, run.periods_done, opts.realtime,
                                    interrupted is not None, failure)
     reads = evaluation.judge(result, sc, cap, coverage, failure)
+    evaluation.judge_baseline(result, sc, opts.baseline, opts.realtime)
     result.timing = run.timing(wall)
     result.finished = _now()
     if cap is not None and cap.n and opts.record:

@@ -65,6 +65,18 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
                    "passing scenarios too (default: only of scenarios that did not pass; "
                    "`rig export` needs them)")
+    p.add_argument("--seed", type=_seed, default=None, metavar="N",
+                   help="the plant's noise seed for every scenario (default: the profile's, "
+                   "1); the baselines hold seeds 1-8")
+    p.add_argument("--jobs", "-j", type=_jobs, default=1, metavar="N",
+                   help="a suite in process (--bus inproc): run N scenarios at once, one "
+                   "worker process each (default 1)")
+    p.add_argument("--baseline", choices=("auto", "require", "off"), default="auto",
+                   help="compare every criterion with the committed baseline "
+                   "(rig/baselines/): auto where one exists (default), require: a scenario "
+                   "without one fails, off: the limits only")
+    p.add_argument("--fail-fast", action="store_true",
+                   help="a suite: start no further scenario once one did not pass")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=cmd_run)
 
@@ -100,6 +112,43 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     v.set_defaults(func=cmd_view)
 
 
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if not 0 <= value < 2**31:
+        raise argparse.ArgumentTypeError(f"{value} is not in 0 .. 2^31 - 1")
+    return value
+
+
+def _jobs(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if not 1 <= value <= 64:
+        raise argparse.ArgumentTypeError(f"{value} is not in 1 .. 64")
+    return value
+
+
+def _bus_of(args: argparse.Namespace) -> str:
+    import os
+
+    return str(args.bus or os.environ.get("HIL_BUS") or "auto")
+
+
+def with_seed(target: Any, seed: int) -> Any:
+    """A scenario or suite with the plant's noise drawn from ``seed`` in every run."""
+    from dataclasses import replace
+
+    from rig import scenario
+
+    if isinstance(target, scenario.Suite):
+        return replace(target, scenarios=tuple(s.with_seed(seed) for s in target.scenarios))
+    return target.with_seed(seed)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from rig import runner, scenario
 
@@ -111,7 +160,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     except scenario.ScenarioError as exc:
         print(f"rig run: invalid scenario:\n{exc}", file=sys.stderr)
         return runner.EXIT_USAGE
+    if args.seed is not None:
+        target = with_seed(target, args.seed)
     scenarios = target.scenarios if isinstance(target, scenario.Suite) else (target,)
+    if args.jobs > 1 and _bus_of(args) != "inproc":
+        print("rig run: --jobs runs a suite on the in-process bench (--bus inproc); on a bus "
+              "the scenarios share its channel one at a time", file=sys.stderr)
+        return runner.EXIT_USAGE
     if args.realtime and args.bus == "inproc":
         print("rig run: --realtime needs a bus (the in-process bench runs in lockstep only)",
               file=sys.stderr)
@@ -164,6 +219,7 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
         live_url=live_url, progress=not args.quiet, timeout_s=args.timeout,
         record=not args.no_record, keep="all" if args.keep_all else "failing",
+        jobs=args.jobs, fail_fast=args.fail_fast, baseline=args.baseline,
     )
     try:
         with terminate_as_exception():
@@ -198,6 +254,12 @@ def _print_verdict(result: RunResult) -> None:
         print(f"  {failure.kind}: {failure.message}", file=sys.stderr)
         for line in failure.log_tail.splitlines()[-15:]:
             print(f"    | {line}", file=sys.stderr)
+    base = result.baseline or {}
+    if base.get("error") or (base.get("missing") and not base.get("passed")):
+        print(f"  BASELINE: {base.get('error') or base.get('note')}", file=sys.stderr)
+    elif base.get("counts") and not base.get("passed"):
+        print(f"  BASELINE: {_counts(base['counts'])} against {base.get('file')}",
+              file=sys.stderr)
     for c in result.criteria:
         mark = {"pass": "ok   ", "fail": "FAIL ", "xfail": "XFAIL", "xpass": "XPASS",
                 "not_evaluated": "NOT EVALUATED"}.get(
@@ -207,11 +269,27 @@ def _print_verdict(result: RunResult) -> None:
         limit = c.get("limit")
         bound = "reported" if limit is None else f"{c['comparison']} {limit:g}"
         print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
-              f"({bound}) over {c['window']}", file=sys.stderr)
+              f"({bound}) over {c['window']}{_baseline_mark(c)}", file=sys.stderr)
         if c.get("outcome") == "not_evaluated" or (value is None and c.get("note")):
             print(f"        {c.get('note')}", file=sys.stderr)
         if c.get("xfail") and c.get("outcome") != "not_evaluated":
             print(f"        expected failure: {c['xfail']}", file=sys.stderr)
+
+
+def _counts(counts: dict[str, int]) -> str:
+    return ", ".join(f"{n} {k}" for k, n in counts.items())
+
+
+def _baseline_mark(c: dict[str, Any]) -> str:
+    """The criterion against its baseline, when it is not simply unchanged."""
+    b = c.get("baseline")
+    if not b or b.get("class") in (None, "unchanged"):
+        return ""
+    if "lo" not in b:
+        return f"  [{b['class'].upper()}: {b.get('note', '')}]"
+    return (f"  [{b['class'].upper()}: baseline {b['value']:.4g} within {b['lo']:.4g} .. "
+            f"{b['hi']:.4g} over {b['seeds']} seeds]" if b.get("value") is not None
+            else f"  [{b['class'].upper()}: baseline has no value]")
 
 
 def cmd_list(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rig import capture, profiles
+from rig import baseline, capture, profiles
 from rig.link.drive import accel_max
 from rig.run.execution import TS, Execution
 from rig.run.plan import Plan
@@ -135,3 +135,32 @@ def judge(result: RunResult, sc: Scenario, cap: capture.Capture | None, cov: Cov
         result.passed = False
     result.failure = failure
     return reads
+
+
+def judge_baseline(result: RunResult, sc: Scenario, mode: str, realtime: bool) -> None:
+    """Each criterion's value against the committed baseline (``rig.baseline``), into
+    ``result``: a regressed, changed or stale one fails the run; with ``mode`` "require" a
+    run without a baseline fails too. Real-time runs are not compared (their timing is the
+    wall clock's, not the seed's)."""
+    if mode == "off":
+        return
+    key = baseline.entry_key(sc.name, sc.profile)
+    if realtime:
+        result.baseline = {"skipped": "real-time runs are not compared with the baseline"}
+        return
+    try:
+        found = baseline.index().for_key(key)
+    except baseline.BaselineError as exc:
+        result.baseline = {"passed": False, "error": str(exc)}
+        result.passed = False
+        result.status = "failed" if result.status == "passed" else result.status
+        return
+    if found is None:
+        result.baseline = {"passed": mode != "require", "missing": key,
+                           "note": f"no baseline holds {key}"}
+    else:
+        result.baseline = found.judge(key, baseline.setup_digest(sc), sc.seed, result.criteria)
+    if not result.baseline["passed"]:
+        result.passed = False
+        if result.status == "passed":
+            result.status = "failed"

@@ -31,3 +31,10 @@ class RunOptions:
     extra_plant_args: Sequence[str] = ()
     extra_fw_args: Sequence[str] = ()
     env: Mapping[str, str] = field(default_factory=dict)
+    # compare with the committed baselines (rig.baseline): "off" (the API's default), "auto"
+    # (rig run's: where a baseline exists), "require" (a run without one fails)
+    baseline: str = "off"
+    # suites in process: scenarios run on this many worker processes at once
+    jobs: int = 1
+    # suites: no scenario starts after one did not pass (the others' verdicts are not needed)
+    fail_fast: bool = False

@@ -118,6 +118,8 @@ class RunResult:
     command_lines: dict[str, Any] | None = None  # the programs' (or the bench's) settings
     finished: str = ""
     kept: Kept | None = None
+    baseline: dict[str, Any] | None = None  # the comparison with the baseline (rig.baseline)
+    seeds: list[dict[str, Any]] | None = None  # a run over the scenario's own seeds: each one
     capture: capture.Capture | None = field(default=None, compare=False, repr=False)
 
     # -- result.json ---------------------------------------------------------------------
@@ -141,6 +143,10 @@ class RunResult:
         out["finished"] = self.finished
         if self.kept is not None:
             out["kept"] = self.kept.to_json()
+        if self.baseline is not None:
+            out["baseline"] = self.baseline
+        if self.seeds is not None:
+            out["seeds"] = self.seeds
         return out
 
     @classmethod
@@ -162,7 +168,7 @@ class RunResult:
             recording=data.get("recording"), timing=_from_json(Timing, data.get("timing")),
             versions=dict(data.get("versions") or {}), command_lines=data.get("command_lines"),
             finished=str(data.get("finished", "")), kept=_from_json(Kept, data.get("kept")),
-            capture=cap,
+            baseline=data.get("baseline"), seeds=data.get("seeds"), capture=cap,
         )
 
     @classmethod

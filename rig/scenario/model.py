@@ -23,6 +23,8 @@ from rig.scenario.checker import Checker, ScenarioError, read_text
 from rig.scenario.checks import check_overrides, check_stuck_codes
 
 PROFILES = ("ideal", "paper", "harsh")
+# the plant profile field that seeds its noise (plant_rt/profiles/*.toml, [sensors] seed)
+SEED_KEY = "sensors.seed"
 
 
 @dataclass(frozen=True)
@@ -113,6 +115,8 @@ class Scenario:
     timeout_s: float = 0.0  # 0: derived from the duration
     ready_timeout_s: float = 10.0
     realtime_ok: bool = True
+    # decide the criteria over these plant noise seeds (worst case; rig.run.multi_seed)
+    seeds: tuple[int, ...] = ()
 
     def with_profile(self, profile: str) -> Scenario:
         """The same scenario on another fidelity profile, named ``<name>@<profile>``; only
@@ -140,6 +144,21 @@ class Scenario:
             return read_text(self.file)
         except OSError:
             return ""
+
+    def with_seed(self, seed: int) -> Scenario:
+        """The same scenario with the plant's noise drawn from another seed (the profile
+        field ``SEED_KEY``); the name is unchanged: the seed is a dimension of a run, not
+        another scenario. A scenario decided over its own seeds (``seeds``) keeps them:
+        its verdict does not depend on one seed."""
+        if self.seeds:
+            return self
+        return replace(self, overrides={**self.overrides, SEED_KEY: int(seed)})
+
+    @property
+    def seed(self) -> int | None:
+        """The noise seed the scenario sets (None: the profile's own)."""
+        value = self.overrides.get(SEED_KEY)
+        return int(value) if isinstance(value, int | float) else None
 
     def on_own_profile(self) -> Scenario:
         """Only the criteria that apply on the scenario's own profile."""

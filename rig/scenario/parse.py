@@ -27,6 +27,9 @@ LOAD_KINDS = ("step", "ramp", "off", "speed_hold")
 MAX_DURATION_S = 3600.0
 MAX_TIMEOUT_S = 86400.0
 MAX_READY_TIMEOUT_S = 600.0
+# [run] seeds: a verdict over seeds needs a few to have a spread, and stays affordable
+MIN_SEEDS = 3
+MAX_SEEDS = 32
 
 
 TOP_KEYS = (
@@ -273,7 +276,7 @@ def parse_scenario(file: Path, text: str) -> Scenario:
                 break
 
     run = c.table(data.get("run", {}), ("run",),
-                  ("grant_max_s", "timeout_s", "ready_timeout_s", "realtime_ok"))
+                  ("grant_max_s", "timeout_s", "ready_timeout_s", "realtime_ok", "seeds"))
     grant = c.number(run, ("run",), "grant_max_s", 0.1, positive=True, maximum=0.1)
     timeout = c.number(run, ("run",), "timeout_s", 0.0, minimum=0.0, maximum=MAX_TIMEOUT_S)
     ready_timeout = c.number(run, ("run",), "ready_timeout_s", 10.0, positive=True,
@@ -282,6 +285,8 @@ def parse_scenario(file: Path, text: str) -> Scenario:
     if not isinstance(realtime_ok, bool):
         c.err(("run", "realtime_ok"), "must be true or false")
         realtime_ok = True
+
+    seeds = _seeds(c, run.get("seeds"))
 
     if c.issues:
         raise ScenarioError(c.issues)
@@ -293,7 +298,29 @@ def parse_scenario(file: Path, text: str) -> Scenario:
         speed=tuple(segments), load=tuple(events), faults=tuple(events_f),
         criteria=tuple(crits), grant_max_s=grant,
         timeout_s=timeout, ready_timeout_s=ready_timeout, realtime_ok=realtime_ok,
+        seeds=seeds,
     )
+
+
+def _seeds(c: Checker, raw: Any) -> tuple[int, ...]:
+    """``[run] seeds``: a count N (seeds 1..N) or a list of distinct seeds; the scenario's
+    criteria are then decided over all of them (rig.run.multi_seed)."""
+    if raw is None:
+        return ()
+    where = ("run", "seeds")
+    if isinstance(raw, int) and not isinstance(raw, bool):
+        seeds = list(range(1, raw + 1)) if 0 < raw <= MAX_SEEDS else []
+    elif isinstance(raw, list) and all(isinstance(x, int) and not isinstance(x, bool)
+                                       for x in raw):
+        seeds = list(raw)
+    else:
+        c.err(where, "must be a number of seeds or a list of seeds (whole numbers)")
+        return ()
+    if not MIN_SEEDS <= len(seeds) <= MAX_SEEDS or len(set(seeds)) != len(seeds) or \
+            any(not 0 <= x < 2**31 for x in seeds):
+        c.err(where, f"must give {MIN_SEEDS} to {MAX_SEEDS} distinct seeds in 0 .. 2^31 - 1")
+        return ()
+    return tuple(seeds)
 
 
 def parse_file(path: Path) -> Scenario:
