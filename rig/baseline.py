@@ -41,6 +41,7 @@ from typing import Any
 
 from rig import stats
 from rig.scenario import SEED_KEY, Scenario
+from rig.scenario.model import side_of
 
 BASELINE_DIR = Path(__file__).resolve().parent / "baselines"
 SCHEMA = "hil-baseline/1"
@@ -66,13 +67,10 @@ class BaselineError(ValueError):
     """A baseline file that cannot be read, or a record that cannot be made."""
 
 
-def better_side(comparison: str) -> str:
-    """Which way a criterion's value improves: from its comparison."""
-    if comparison in ("<", "<="):
-        return LOWER
-    if comparison in (">", ">="):
-        return HIGHER
-    return EITHER
+def better_side(c: Mapping[str, Any]) -> str:
+    """Which way a criterion's value (a result.json entry) improves: as the criterion says,
+    else from its comparison."""
+    return str(c.get("better") or side_of(str(c.get("comparison", "<="))))
 
 
 def entry_key(name: str, profile: str) -> str:
@@ -177,8 +175,8 @@ class Record:
             return f"window {list(w)} (recorded: {list(self.window)})"
         if dict(c.get("params") or {}) != dict(self.params):
             return f"params {dict(c.get('params') or {})} (recorded: {dict(self.params)})"
-        if better_side(str(c.get("comparison", "<="))) != self.better:
-            return f"comparison {c.get('comparison')} (recorded: better {self.better})"
+        if better_side(c) != self.better:
+            return f"better side {better_side(c)} (recorded: {self.better})"
         return ""
 
 
@@ -423,7 +421,7 @@ def build(suite: str, seeds: Sequence[int], scenarios: Sequence[Scenario],
             values = [c.get("value") if c is not None else None for c in got]
             entry.records[cr.name] = Record(
                 cr.name, cr.metric, (cr.window[0], cr.window[1]), dict(cr.params), unit,
-                better_side(cr.comparison), outcomes[0], Band.of(values, unit))
+                cr.side(), outcomes[0], Band.of(values, unit))
         entries[key] = entry
     return Baseline(suite, tuple(seeds), now(), dict(source), entries), problems
 

@@ -65,7 +65,7 @@ def _from_criteria(name: str, profile: str, criteria: Any, out: dict[Key, Value]
         v = c.get("value")
         out[(key0, str(c.get("name")))] = Value(
             None if v is None else float(v), str(c.get("unit") or ""), str(c.get("metric")),
-            baseline.better_side(str(c.get("comparison", "<="))), str(c.get("outcome", "")))
+            baseline.better_side(c), str(c.get("outcome", "")))
 
 
 def _run_folder(d: Path) -> dict[Key, Value] | None:

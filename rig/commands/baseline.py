@@ -117,6 +117,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         r.criteria, f"{r.failure.kind}: {r.failure.message}" if r.failure else "")
         for r in rs] for seed, rs in runs.items()}
     new, problems = baseline.build(suite.name, seeds, suite.scenarios, per_seed, source())
+    problems += comparison_problems(suite, runs)
     if problems:
         print(f"rig baseline record: not written: {len(problems)} criteria cannot be a "
               "baseline:", file=sys.stderr)
@@ -146,6 +147,28 @@ def cmd_record(args: argparse.Namespace) -> int:
         for line in compare.markdown(table, only_changed=True).splitlines():
             print(line)
     return 0
+
+
+def comparison_problems(suite: Any, runs: dict[int, list[Any]]) -> list[str]:
+    """The suite's comparisons at every seed: an outcome that depends on the seed, or that
+    fails at every seed, cannot be accepted either."""
+    from rig.run.suite import entry, evaluate_comparison
+
+    outcomes: dict[str, dict[str, list[int]]] = {}
+    for seed, rs in runs.items():
+        entries = [entry(sc, r) for sc, r in zip(suite.scenarios, rs, strict=True)
+                   if r is not None]
+        for cmp in suite.comparisons:
+            got = evaluate_comparison(cmp, entries)
+            outcomes.setdefault(cmp.name, {}).setdefault(str(got["outcome"]), []).append(seed)
+    problems = []
+    for name, by in outcomes.items():
+        if len(by) > 1:
+            problems.append(f"comparison {name!r} depends on the seed: " + "; ".join(
+                f"{o.upper()} at seeds {ss}" for o, ss in by.items()))
+        elif set(by) & {"fail", "not_evaluated"}:
+            problems.append(f"comparison {name!r} is {next(iter(by)).upper()} at every seed")
+    return problems
 
 
 def read_seed_runs(suite: Any, seeds: tuple[int, ...], root: Path) -> dict[int, list[Any]]:

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rig import _paths, bench_plant, bench_sil
+from rig import _paths, bench_gate, bench_plant, bench_sil
 from rig import bus as rigbus
 
 
@@ -62,9 +62,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     bench_sil.add_arguments(si)
     si.set_defaults(func=_bench_sil)
 
+    ga = bsub.add_parser(
+        "gate", help="the regression gate's wall and CPU time (target: 3 min on 2 cores)",
+        description=bench_gate.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    bench_gate.add_arguments(ga)
+    ga.set_defaults(func=_bench_gate)
+
 
 def _bench_plant(args: argparse.Namespace) -> int:
     bench_plant.bench_plant(args)  # prints its JSON object
+    return 0
+
+
+def _bench_gate(args: argparse.Namespace) -> int:
+    print(json.dumps(bench_gate.bench_gate(args)))
     return 0
 
 

@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
+import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from rig.mutation.campaign import Gate
+    from rig.mutation.catalogue import Mutant
+    from rig.mutation.worktree import MutationTree
 
 EPILOG = """\
 Each mutant of tests/mutants/catalogue.toml is applied alone to a copy of this checkout
@@ -42,7 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--jobs", "-j", type=int, default=2, metavar="N",
                    help="build and gate parallelism (default 2)")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="results and the work copy (default: $HIL_OUT or ./out, mutate-time)")
+                   help="results (default: $HIL_OUT or ./out, mutate-time)")
+    p.add_argument("--keep-work", action="store_true",
+                   help="keep the work copy (source and build) afterwards")
     p.add_argument("--list", action="store_true", help="list the catalogue and exit")
     p.set_defaults(func=cmd_mutate)
 
@@ -50,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def cmd_mutate(args: argparse.Namespace) -> int:
     from rig import outdirs
     from rig.mutation import campaign, catalogue
-    from rig.mutation.worktree import BuildError, MutationTree
+    from rig.mutation.worktree import MutationTree
 
     try:
         mutants = catalogue.load(args.catalogue)
@@ -78,7 +88,21 @@ def cmd_mutate(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     gate = campaign.Gate(tuple(s.strip() for s in args.suite.split(",") if s.strip()),
                          args.baseline, args.jobs, args.seed)
-    tree = MutationTree(out / "work", jobs=args.jobs)
+    # the copy lives in a short temporary path: the C bus tests put Unix sockets under their
+    # build folder, and a socket address holds at most 107 bytes
+    work = Path(tempfile.mkdtemp(prefix="rig-mutate-"))
+    try:
+        return _campaign(args, mutants, gate, MutationTree(work, jobs=args.jobs), out,
+                         detectors)
+    finally:
+        if not args.keep_work:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def _campaign(args: argparse.Namespace, mutants: list[Mutant], gate: Gate, tree: MutationTree,
+              out: Path, detectors: list[str]) -> int:
+    from rig.mutation import campaign
+    from rig.mutation.worktree import BuildError
 
     def say(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)

@@ -12,6 +12,7 @@ such scenarios are decided on the paired per-seed values (rig.run.suite)."""
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import replace
 from typing import Any
 
@@ -60,7 +61,7 @@ def combine(criteria_per_seed: list[list[dict[str, Any]]], seeds: tuple[int, ...
             out.append(merged)
             continue
         passed = [bool(e.get("passed")) for e in entries]
-        better = better_side(str(first.get("comparison", "<=")))
+        better = better_side(first)
         value = _worst([e.get("value") for e in entries], passed, better)
         all_ok = all(passed)
         failing = [s for s, ok in zip(seeds, passed, strict=True) if not ok]
@@ -85,9 +86,12 @@ def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
     interrupted: BaseException | None = None
     try:
         for seed in sc.seeds:
-            results.append(run_scenario(
-                one.with_seed(seed),
-                replace(opts, out=out / seed_folder(seed), baseline="off", live=False)))
+            r = run_scenario(one.with_seed(seed),
+                             replace(opts, out=out / seed_folder(seed), baseline="off",
+                                     live=False, progress=False))
+            results.append(r)
+            if opts.progress:
+                print(f"{sc.name}: seed {seed}: {r.status}", file=sys.stderr)
     except BaseException as exc:  # interrupted: combine what finished
         interrupted = exc
     first = results[0] if results else None

@@ -22,7 +22,7 @@ from rig.verdict import NOT_EVALUATED, outcome, outcome_of
 
 SUITE_SCHEMA = "hil-suite/1"
 ENTRY_CRITERION_KEYS = ("name", "metric", "window", "value", "limit", "comparison", "unit",
-                        "outcome", "xfail", "note", "baseline")
+                        "outcome", "xfail", "note", "baseline", "seeds", "better")
 
 
 @dataclass
@@ -43,6 +43,7 @@ def entry(sc: Scenario, r: RunResult) -> dict[str, Any]:
         "failed_criteria": [c["name"] for c in r.failed_criteria()],
         "failure": r.failure.message if r.failure is not None else None,
         "wall_s": r.timing.wall_s if r.timing is not None else None,
+        "sim_s": r.timing.sim_s if r.timing is not None else None,
         "profile": sc.profile, "figure": sc.figure, "tags": list(sc.tags),
         "description": sc.description,
         "criteria": [{k: c.get(k) for k in ENTRY_CRITERION_KEYS} for c in r.criteria],

@@ -23,6 +23,16 @@ from rig.scenario.checker import Checker, ScenarioError, read_text
 from rig.scenario.checks import check_overrides, check_stuck_codes
 
 PROFILES = ("ideal", "paper", "harsh")
+def side_of(comparison: str) -> str:
+    """Which way a criterion's value improves, from its comparison: lower for < and <=,
+    higher for > and >=, either (any move counts) for == and reported values."""
+    if comparison in ("<", "<="):
+        return "lower"
+    if comparison in (">", ">="):
+        return "higher"
+    return "either"
+
+
 # the plant profile field that seeds its noise (plant_rt/profiles/*.toml, [sensors] seed)
 SEED_KEY = "sensors.seed"
 
@@ -82,6 +92,12 @@ class Criterion:
     profiles: tuple[str, ...] = ()
     # known failure: the reason with the measured value; reported XFAIL (XPASS if it passes)
     xfail: str = ""
+    # which way the value improves (lower, higher, either) for the baseline; "" derives it
+    # from the comparison (side_of)
+    better: str = ""
+
+    def side(self) -> str:
+        return self.better or side_of(self.comparison)
 
     def applies_to(self, profile: str) -> bool:
         return not self.profiles or profile in self.profiles

@@ -17,6 +17,7 @@ from rig.scenario.model import (
     LoadEvent,
     Scenario,
     SpeedSegment,
+    side_of,
 )
 from rig.scenario.positions import Path_, locate
 
@@ -27,6 +28,8 @@ LOAD_KINDS = ("step", "ramp", "off", "speed_hold")
 MAX_DURATION_S = 3600.0
 MAX_TIMEOUT_S = 86400.0
 MAX_READY_TIMEOUT_S = 600.0
+# criteria: which way a value improves (the baseline's better side)
+BETTER_SIDES = ("lower", "higher", "either")
 # [run] seeds: a verdict over seeds needs a few to have a spread, and stays affordable
 MIN_SEEDS = 3
 MAX_SEEDS = 32
@@ -92,7 +95,7 @@ def _load_event(c: Checker, raw: Any, path: Path_, duration: float) -> LoadEvent
 
 def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion | None:
     d = c.table(raw, path, ("name", "metric", "window", "limit", "comparison", "params",
-                            "profiles", "xfail"))
+                            "profiles", "xfail", "better"))
     if not d:
         return None
     metric = c.string(d, path, "metric")
@@ -142,7 +145,15 @@ def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion 
         for k in pd:
             if k in metrics.params_of(metric):
                 params[k] = c.number(pd, (*path, "params"), k)
-    return Criterion(name, metric, window, limit, comparison, params, profiles, xfail)
+    # which way the value improves, for the baseline (rig.baseline): from the comparison
+    # ("<=": lower), or given for a reported value ("either": any move beyond the seed
+    # spread counts)
+    default_better = side_of(comparison)
+    better = c.string(d, path, "better", "", choices=BETTER_SIDES)
+    if better and comparison in ("<", "<=", ">", ">=") and better != default_better:
+        c.err((*path, "better"), f"a {comparison!r} criterion improves towards the "
+              f"{default_better} side, not {better!r}")
+    return Criterion(name, metric, window, limit, comparison, params, profiles, xfail, better)
 
 
 def _scalars(c: Checker, raw: Any, path: Path_) -> dict[str, float | int | str | bool]:
