@@ -24,8 +24,8 @@ PLANT_INITIAL = {"theta_e_deg": "initial.theta_e_deg", "speed_rpm": "initial.spe
 def plant_sets(sc: Scenario) -> list[str]:
     """The plant's ``section.key=value`` settings over its profile (plant_rt ``--set``)."""
     sets = bench.settings(sc.overrides)
-    if sc.initial_theta_deg:
-        sets.append(f"{PLANT_INITIAL['theta_e_deg']}={sc.initial_theta_deg!r}")
+    if sc.start_theta_deg:
+        sets.append(f"{PLANT_INITIAL['theta_e_deg']}={sc.start_theta_deg!r}")
     if sc.initial_speed_rpm:
         sets.append(f"{PLANT_INITIAL['speed_rpm']}={sc.initial_speed_rpm!r}")
     return sets

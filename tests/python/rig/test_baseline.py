@@ -46,9 +46,12 @@ def test_band_holds_every_seed_and_the_prediction_interval(seed: int) -> None:
 
 
 def test_band_floor_for_values_the_noise_does_not_move() -> None:
-    """Eight identical values (the ideal profile) get 5 % of the value, never zero width."""
-    b = Band.of([0.4] * 8, "deg")
-    assert b.lo == pytest.approx(0.38, rel=1e-4) and b.hi == pytest.approx(0.42, rel=1e-4)
+    """Eight identical values get 1 % of the value or the unit's resolution, never zero
+    width (except for counts that must stay exact)."""
+    b = Band.of([4.0] * 8, "deg")  # (6 significant digits, rounded outwards)
+    assert b.lo == pytest.approx(3.96, abs=2e-5) and b.hi == pytest.approx(4.04, abs=2e-5)
+    small = Band.of([0.4] * 8, "deg")  # 1 % is below the 0.01 deg resolution
+    assert small.lo == pytest.approx(0.39, abs=2e-6) and small.hi == pytest.approx(0.41, abs=2e-6)
     zero = Band.of([0.0] * 8, "periods")  # a count: its unit's resolution
     assert (zero.lo, zero.hi) == (-1.0, 1.0)
     exact = Band.of([0.0] * 8, "")

@@ -166,3 +166,17 @@ def test_jobs_need_the_in_process_bench(tmp_path: Path, capsys: pytest.CaptureFi
     assert cli.main(["run", str(path), "--bus", "unixcan", "--jobs", "2",
                      "--out", str(tmp_path / "o")]) == 2
     assert "--jobs runs a suite on the in-process bench" in capsys.readouterr().err
+
+
+def test_the_seed_dithers_the_start_angle(tmp_path: Path) -> None:
+    """Seed 1 is the scenario as written; another seed moves the start by (seed - 1)
+    thousandths of a degree on top of the scenario's own start angle, and the set-up a
+    baseline is keyed on does not change with it."""
+    from rig import baseline
+    from rig.run.programs import plant_sets
+
+    sc = scenario.load_scenario(write(tmp_path, "dither"))
+    assert sc.with_seed(1).start_theta_deg == sc.initial_theta_deg
+    assert sc.with_seed(4).start_theta_deg == pytest.approx(sc.initial_theta_deg + 0.003)
+    assert "initial.theta_e_deg=0.003" in " ".join(plant_sets(sc.with_seed(4)))
+    assert baseline.setup_digest(sc.with_seed(4)) == baseline.setup_digest(sc)
