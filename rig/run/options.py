@@ -31,3 +31,8 @@ class RunOptions:
     extra_plant_args: Sequence[str] = ()
     extra_fw_args: Sequence[str] = ()
     env: Mapping[str, str] = field(default_factory=dict)
+    # in process only: journal every call into the control core to this file (rig.target_m4
+    # replays it on the Cortex-M4F build), in these ISR index windows (start, length; none:
+    # the whole run)
+    core_journal: Path | None = None
+    core_journal_windows: Sequence[tuple[int, int]] = ()
