@@ -99,3 +99,28 @@ class M4Core:
     def read_words(self, name: str, n: int) -> list[int]:
         raw = self.read(name, 4 * n)
         return [int.from_bytes(raw[4 * i:4 * i + 4], "little") for i in range(n)]
+
+
+class Profile:
+    """Instructions per function of the image (a block is counted to the function whose
+    symbol covers its first address), for finding where an ISR spends them."""
+
+    def __init__(self, m4: M4Core) -> None:
+        funcs = sorted((s.value & ~1, s.size, name) for name, s in m4.sym.items()
+                       if s.size > 0 and s.value < FLASH[0] + FLASH[1])
+        self._starts = [f[0] for f in funcs]
+        self._funcs = funcs
+        self.by_function: dict[str, int] = {}
+        m4.uc.hook_add(UC_HOOK_BLOCK, self._on_block)
+        self._m4 = m4
+
+    def _on_block(self, uc: Uc, address: int, size: int, _user: object) -> None:
+        import bisect
+
+        i = bisect.bisect_right(self._starts, address) - 1
+        name = self._funcs[i][2] if i >= 0 and address < self._starts[i] + self._funcs[i][1] \
+            else f"{address:#x}"
+        cost = self._m4._block_cost.get((address, size))
+        if cost is None:
+            cost = thumb_instructions(bytes(uc.mem_read(address, size)))
+        self.by_function[name] = self.by_function.get(name, 0) + cost

@@ -3,6 +3,7 @@ with every call into the control core journalled (``RunOptions.core_journal``)."
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -17,11 +18,16 @@ def windows_from_seconds(spans: Sequence[tuple[float, float]]) -> list[tuple[int
     return [(round(t0 / TS), max(1, round(dt / TS))) for t0, dt in spans]
 
 
-def record(name: str, out: Path, windows: Sequence[tuple[int, int]] = ()) -> RunResult:
-    """Runs scenario ``name`` in process into ``out`` (run outputs and ``core.journal``)."""
+def record(name: str, out: Path, windows: Sequence[tuple[int, int]] = (),
+           duration: float | None = None) -> RunResult:
+    """Runs scenario ``name`` in process into ``out`` (run outputs and ``core.journal``),
+    only its first ``duration`` seconds when given (its criteria past that are not
+    evaluated)."""
     sc = scenario.load(name)
     if not isinstance(sc, scenario.Scenario):
         raise ValueError(f"{name} is a suite, not a scenario")
+    if duration is not None and duration < sc.duration:
+        sc = dataclasses.replace(sc, duration=duration)
     out.mkdir(parents=True, exist_ok=True)
     opts = runner.RunOptions(out=out, bus="inproc", progress=False, record=False, keep="failing",
                              core_journal=out / "core.journal", core_journal_windows=windows)
