@@ -25,14 +25,25 @@ typedef struct {
 } fw_cplx_t;
 
 static inline real_t fw_sqrt(real_t x) { return (x > FW_REAL(0.0)) ? sqrtf(x) : FW_REAL(0.0); }
+static inline real_t fw_fabs(real_t x) { return (x < FW_REAL(0.0)) ? -x : x; }
 /* sine, cosine (both of one angle: one reduction) and atan2 are the core's own (fw_trig.c):
  * the same bits on every target whatever its C library */
 void fw_sincos(real_t x, real_t *s, real_t *c);
 real_t fw_sin(real_t x);
 real_t fw_cos(real_t x);
 real_t fw_atan2(real_t y, real_t x);
-static inline real_t fw_fabs(real_t x) { return (x < FW_REAL(0.0)) ? -x : x; }
-static inline real_t fw_floor(real_t x) { return floorf(x); }
+/* floor, exact as floorf for every float (signed zeros, infinities and NaN included), without
+ * the library call: the Cortex-M4F has no rounding instruction and newlib's floorf takes
+ * ~20 instructions of bit handling; a conversion toward zero is one (VCVT) */
+static inline real_t fw_floor(real_t x)
+{
+    real_t t;
+    if (!(fw_fabs(x) < FW_REAL(8388608.0)) || x == FW_REAL(0.0)) {
+        return x; /* |x| >= 2^23 is integral already; NaN, infinities and zeros as they are */
+    }
+    t = (real_t)(int32_t)x;
+    return (t > x) ? t - FW_REAL(1.0) : t;
+}
 static inline real_t fw_min(real_t a, real_t b) { return (a < b) ? a : b; }
 static inline real_t fw_max(real_t a, real_t b) { return (a > b) ? a : b; }
 static inline real_t fw_clamp(real_t x, real_t lo, real_t hi)
