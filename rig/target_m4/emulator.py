@@ -34,12 +34,29 @@ def image_path() -> Path:
 
 def thumb_instructions(code: bytes) -> int:
     """Instructions in a run of Thumb-2 code (16- and 32-bit encodings)."""
-    n = i = 0
+    return thumb_mix(code)[0]
+
+
+def thumb_mix(code: bytes) -> tuple[int, int, int]:
+    """(instructions, floating-point instructions, divisions and square roots) in a run of
+    Thumb-2 code. Floating point: the coprocessor 10/11 encodings (VFP: 0xEC../0xED../0xEE..
+    with bits 11:9 of the second halfword 0b101); VDIV.F32 and VSQRT.F32 take 14 cycles on
+    the Cortex-M4F, the rest one or two."""
+    n = fp = slow = i = 0
     while i + 1 < len(code):
-        first = code[i + 1] >> 3  # top five bits of the little-endian halfword
-        i += 4 if first in (0b11101, 0b11110, 0b11111) else 2
+        hw1 = code[i] | code[i + 1] << 8
+        if hw1 >> 11 in (0b11101, 0b11110, 0b11111) and i + 3 < len(code):
+            hw2 = code[i + 2] | code[i + 3] << 8
+            if hw1 & 0xEC00 == 0xEC00 and hw1 >> 13 == 0b111 and (hw2 >> 9) & 0x7 == 0b101:
+                fp += 1
+                is_div = hw1 & 0xFFB0 == 0xEE80 and hw2 & 0x0F50 == 0x0A00
+                is_sqrt = hw1 & 0xFFBF == 0xEEB1 and hw2 & 0x0FD0 == 0x0AC0
+                slow += is_div or is_sqrt
+            i += 4
+        else:
+            i += 2
         n += 1
-    return n
+    return n, fp, slow
 
 
 class M4Core:
@@ -56,9 +73,12 @@ class M4Core:
             uc.mem_write(seg.paddr, seg.data)
         self.uc = uc
         self.stack_top = self.sym["_estack"].value
-        self.instructions = 0  # over every call since the last reset_count()
+        self.instructions = 0  # over every call
         self.last_instructions = 0
+        self.last_fp = 0  # floating-point instructions of the last call
+        self.last_div_sqrt = 0  # of them VDIV.F32 and VSQRT.F32
         self._block_cost: dict[tuple[int, int], int] = {}
+        self._block_mix: dict[tuple[int, int], tuple[int, int]] = {}
         if count:
             uc.hook_add(UC_HOOK_BLOCK, self._on_block)
         self.call("m4_reset_handler")
@@ -69,16 +89,20 @@ class M4Core:
         key = (address, size)
         cost = self._block_cost.get(key)
         if cost is None:
-            cost = thumb_instructions(bytes(uc.mem_read(address, size)))
+            cost, fp, slow = thumb_mix(bytes(uc.mem_read(address, size)))
             self._block_cost[key] = cost
+            self._block_mix[key] = (fp, slow)
         self.last_instructions += cost
+        fp, slow = self._block_mix[key]
+        self.last_fp += fp
+        self.last_div_sqrt += slow
 
     def call(self, function: str) -> None:
         """Runs one entry point (``void f(void)``) to its return."""
         uc = self.uc
         uc.reg_write(A.UC_ARM_REG_SP, self.stack_top)
         uc.reg_write(A.UC_ARM_REG_LR, STOP | 1)
-        self.last_instructions = 0
+        self.last_instructions = self.last_fp = self.last_div_sqrt = 0
         uc.emu_start(self.sym[function].value | 1, STOP, count=CALL_LIMIT)
         pc = uc.reg_read(A.UC_ARM_REG_PC)
         if pc != STOP:

@@ -28,6 +28,8 @@ class IsrCost:
     state: str  # the core's state when the ISR began (DRIVE_STATUS.state's name)
     slow: bool  # the 1 kHz tasks ran in it
     instructions: int
+    fp: int = 0  # floating-point instructions among them
+    div_sqrt: int = 0  # VDIV.F32 and VSQRT.F32 among those (14 cycles each on the M4F)
 
 
 @dataclass
@@ -147,7 +149,8 @@ def replay(journal: Journal, m4: M4Core, name: str = "", max_examples: int = 5) 
             out.periods += 1
             count = m4.read_words("m4_isr_count", 1)[0]
             out.costs.append(IsrCost(rec.isr, STATE_NAMES.get(state, str(state)),
-                                     count % divider == 0, m4.last_instructions))
+                                     count % divider == 0, m4.last_instructions, m4.last_fp,
+                                     m4.last_div_sqrt))
             state = isr.state
             host_pwm, target_pwm = Pwm.unpack(isr.pwm), Pwm.unpack(m4.read("m4_pwm"))
             if host_pwm != target_pwm:

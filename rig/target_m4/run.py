@@ -55,6 +55,14 @@ def budget(comparisons: Sequence[replay.Comparison]) -> dict[str, Any]:
                 worst[p] = f"{comp.name} ISR {cost.isr}"
             paths.setdefault(p, []).append(cost.instructions)
         per_case[comp.name] = {p: stats(v) for p, v in sorted(mine.items())}
-    out: dict[str, Any] = {p: {**stats(v), "worst_at": worst[p]}
+    fp: dict[str, list[int]] = {}
+    div_sqrt: dict[str, list[int]] = {}
+    for comp in comparisons:
+        for cost in comp.costs:
+            fp.setdefault(path_of(cost), []).append(cost.fp)
+            div_sqrt.setdefault(path_of(cost), []).append(cost.div_sqrt)
+    out: dict[str, Any] = {p: {**stats(v), "worst_at": worst[p],
+                               "fp_median": statistics.median(fp[p]),
+                               "div_sqrt_median": statistics.median(div_sqrt[p])}
                            for p, v in sorted(paths.items())}
     return {"paths": out, "per_scenario": per_case}

@@ -34,6 +34,9 @@ def test_thumb_instruction_count_follows_the_encoding() -> None:
     assert emulator.thumb_instructions(movs_r0_1) == 1
     assert emulator.thumb_instructions(bl + vadd) == 2
     assert emulator.thumb_instructions(movs_r0_1 + bl + bx_lr + vadd) == 4
+    vdiv = bytes([0x80, 0xEE, 0x81, 0x0A])  # VDIV.F32 s0, s1, s2 (as arm-none-eabi-as encodes it)
+    vsqrt = bytes([0xB1, 0xEE, 0xC0, 0x0A])  # VSQRT.F32 s0, s0
+    assert emulator.thumb_mix(movs_r0_1 + vadd + vdiv + vsqrt + bl) == (5, 3, 2)
 
 
 @needs_image
