@@ -18,6 +18,7 @@ COMMAND_MODULES = (
     "rig.commands.sweep",
     "rig.commands.bus",
     "rig.commands.bench",
+    "rig.commands.target",
     "rig.commands.vm",
     "rig.commands.clean",
     "rig.commands.export",

@@ -48,6 +48,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     i.add_argument("--callgrind-periods", type=int, default=400,
                    help="RUN-state periods under callgrind (0: skip callgrind)")
     i.add_argument("--profile", default="paper", help="plant fidelity profile")
+    i.add_argument("--target", choices=("host", "cortex-m4f"), default="host",
+                   help="cortex-m4f: instructions per call on the emulated Cortex-M4F by path "
+                   "(rig.target_m4.bench), beside the host's callgrind figure")
+    i.add_argument("--scale", type=float, default=4.0,
+                   help="cortex-m4f: each measured stretch this many times the CI test's")
+    i.add_argument("--whole-runs", action="store_true",
+                   help="cortex-m4f: the cases' whole runs (minutes)")
     i.set_defaults(func=_bench_isr)
 
     pl = bsub.add_parser(
@@ -159,6 +166,13 @@ def sil_bench_argv(profile: str, periods: int) -> list[str]:
 
 
 def _bench_isr(args: argparse.Namespace) -> int:
+    if args.target == "cortex-m4f":
+        from rig.target_m4.bench import bench_isr_m4
+
+        cg = (callgrind_isr(sil_bench_argv(args.profile, args.callgrind_periods),
+                            args.callgrind_periods) if args.callgrind_periods > 0 else None)
+        print(json.dumps(bench_isr_m4(args.scale, args.whole_runs, cg)))
+        return 0
     argv = sil_bench_argv(args.profile, args.periods)
     timed = subprocess.run([*argv, "--time-isr"], capture_output=True, text=True, check=True)
     report: dict[str, Any] = {"benchmark": "isr", "host_timing": json.loads(timed.stdout)}

@@ -53,6 +53,12 @@ def run_in_process(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult
         bench = sil.SilBench(profile_path, psets, fsets, out / "plant.trace", out / "fw.trace")
     except sil.BenchError as exc:
         raise RunError("config", f"in-process bench: {exc}") from exc
+    if opts.core_journal is not None:
+        try:
+            bench.journal(opts.core_journal, opts.core_journal_windows)
+        except sil.BenchError as exc:
+            bench.close()
+            raise RunError("config", f"in-process bench: {exc}") from exc
     port = sil.BenchPort(bench)
     link = BusLink(port, frame_faults=drive_link.DriveLink(plan.link_windows))
     try:

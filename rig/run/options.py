@@ -38,3 +38,8 @@ class RunOptions:
     jobs: int = 1
     # suites: no scenario starts after one did not pass (the others' verdicts are not needed)
     fail_fast: bool = False
+    # in process only: journal every call into the control core to this file (rig.target_m4
+    # replays it on the Cortex-M4F build), in these ISR index windows (start, length; none:
+    # the whole run)
+    core_journal: Path | None = None
+    core_journal_windows: Sequence[tuple[int, int]] = ()
