@@ -10,6 +10,7 @@ With ``both`` every detector runs on every mutant (for a per-detector score)."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import time
@@ -77,13 +78,15 @@ def _gate_failures(out: Path) -> list[str]:
     return found or ([] if data.get("passed") else ["suite failed (incomplete)"])
 
 
+_CTEST_FAILED = re.compile(r"^\s*\d+ - (\S+) \((Failed|Timeout|Exception|Not Run|SEGFAULT|"
+                           r"Subprocess aborted|Child aborted|Bus error|[^)]*)\)")
+
+
 def _ctest_failures(step: Step) -> list[str]:
-    out = []
-    for line in step.log.splitlines():
-        if "***Failed" in line or "***Exception" in line or "***Timeout" in line:
-            parts = line.split(":", 1)
-            out.append(parts[1].split("*")[0].strip() if len(parts) > 1 else line.strip())
-    return out or (["ctest failed"] if not step.ok else [])
+    """The failed tests' names from ctest's closing summary."""
+    found = [m.group(1) for line in step.log.splitlines()
+             if (m := _CTEST_FAILED.match(line))]
+    return found or (["ctest failed"] if not step.ok else [])
 
 
 def run_gate(tree: MutationTree, gate: Gate, out: Path) -> tuple[bool, list[str]]:
