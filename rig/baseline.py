@@ -14,6 +14,10 @@ A run compares each criterion's value with its baseline and classifies it:
   recorded again, so a baseline never silently judges something else;
 - ``new``: no baseline (a scenario or criterion added since).
 
+A scenario decided over its own seeds (``[run] seeds``) reports the worst of them; its
+baseline compares the mean of its per-seed values instead, with the band of such a mean
+(the worst of a noisy sample moves with any change of rounding, the mean much less).
+
 A regressed, changed or stale criterion fails the run (exit 1) even inside its limit, and an
 XFAIL is held to its measured value the same way: it fails when it gets worse.
 
@@ -130,20 +134,28 @@ class Band:
     seeds_max: float | None
 
     @classmethod
-    def of(cls, values: Sequence[float | None], unit: str) -> Band:
+    def of(cls, values: Sequence[float | None], unit: str, of_mean: bool = False) -> Band:
+        """The band of one more value like ``values`` (one per seed), or with ``of_mean``
+        of the mean of as many values again drawn on the same seeds (a scenario decided
+        over its own seeds: its value is the worst of a noisy sample, the mean of that
+        sample is what can be compared)."""
         nums = [float(v) for v in values if v is not None and math.isfinite(v)]
         if not nums:
             return cls(None, 0.0, math.nan, math.nan, None, None)
-        m = sum(nums) / len(nums)
-        sd = (math.sqrt(sum((v - m) ** 2 for v in nums) / (len(nums) - 1))
-              if len(nums) > 1 else 0.0)
+        n = len(nums)
+        m = sum(nums) / n
+        sd = math.sqrt(sum((v - m) ** 2 for v in nums) / (n - 1)) if n > 1 else 0.0
         floor = max(REL_FLOOR * abs(m), UNIT_FLOOR.get(unit, 0.0))
-        spread = (stats.t_quantile(0.5 + PREDICTION / 2, len(nums) - 1)
-                  * math.sqrt(1.0 + 1.0 / len(nums)) * sd if len(nums) > 1 else 0.0)
+        # the difference of one more value from the mean: sd sqrt(1 + 1/n); of the mean of n
+        # more (a round-off change decorrelates the same seeds' values): sd sqrt(2/n)
+        scale = math.sqrt(2.0 / n) if of_mean else math.sqrt(1.0 + 1.0 / n)
+        spread = stats.t_quantile(0.5 + PREDICTION / 2, n - 1) * scale * sd if n > 1 else 0.0
         half = max(spread, floor)
-        lo = _round_out(min(m - half, min(nums)), up=False)
-        hi = _round_out(max(m + half, max(nums)), up=True)
-        return cls(m, sd, lo, hi, min(nums), max(nums))
+        lo, hi = m - half, m + half
+        if not of_mean:
+            lo, hi = min(lo, min(nums)), max(hi, max(nums))
+        return cls(m, sd, _round_out(lo, up=False), _round_out(hi, up=True), min(nums),
+                   max(nums))
 
     def classify(self, value: float | None, better: str) -> str:
         if self.value is None:  # no seed gave a number: only "still none" is unchanged
@@ -171,6 +183,21 @@ class Record:
     better: str
     outcome: str  # the criterion's outcome, the same for every seed
     band: Band
+    # "value": the criterion's value; "mean": the mean of its per-seed values (a scenario
+    # decided over its own seeds)
+    stat: str = "value"
+
+    def statistic(self, c: Mapping[str, Any]) -> float | None:
+        """What of a run's criterion is compared with the band."""
+        if self.stat != "mean":
+            v = c.get("value")
+            return None if v is None else float(v)
+        vals = [x.get("value") for x in c.get("seeds") or []]
+        if not vals:
+            return None
+        if any(v is None for v in vals):
+            return None  # a seed without a number: the worst of its side
+        return sum(float(v) for v in vals) / len(vals)
 
     def matches(self, c: Mapping[str, Any]) -> str:
         """Why a criterion of a run is not this record's ('' when it is)."""
@@ -239,12 +266,15 @@ class Baseline:
                 c["baseline"] = {"class": STALE, "note": note + "; record the baseline again "
                                  f"(rig baseline record {self.suite})"}
             else:
-                value = c.get("value")
-                cls = rec.band.classify(value, rec.better)
+                got = rec.statistic(c)
+                cls = rec.band.classify(got, rec.better)
                 c["baseline"] = {
                     "class": cls, "value": rec.band.value, "lo": rec.band.lo,
                     "hi": rec.band.hi, "better": rec.better, "seeds": len(self.seeds),
                 }
+                if rec.stat == "mean":
+                    c["baseline"].update(stat="mean", mean=got,
+                                         seeds=len(c.get("seeds") or []))
             counts[c["baseline"]["class"]] += 1
         return {
             "file": str(self.path) if self.path else None, "suite": self.suite,
@@ -283,6 +313,8 @@ class Baseline:
                 }
                 if r.params:
                     row["params"] = dict(r.params)
+                if r.stat != "value":
+                    row["stat"] = r.stat
                 lines.append(f"{_toml(name)} = {_inline(row)}")
         return "\n".join(lines) + "\n"
 
@@ -307,7 +339,7 @@ class Baseline:
                     e.records[name] = Record(
                         name, str(row["metric"]), (row["window"][0], row["window"][1]),
                         dict(row.get("params") or {}), str(row["unit"]), str(row["better"]),
-                        str(row["outcome"]), band)
+                        str(row["outcome"]), band, str(row.get("stat", "value")))
                 entries[key] = e
             return cls(str(data["suite"]), tuple(int(s) for s in data["seeds"]),
                        str(data.get("recorded", "")), dict(data.get("source") or {}),
@@ -424,10 +456,15 @@ def build(suite: str, seeds: Sequence[int], scenarios: Sequence[Scenario],
             first = got[0]
             assert first is not None
             unit = str(first.get("unit") or "")
-            values = [c.get("value") if c is not None else None for c in got]
+            if sc.seeds:  # decided over its own seeds: the same run stands for every seed
+                values = [x.get("value") for x in first.get("seeds") or []]
+                band, stat = Band.of(values, unit, of_mean=True), "mean"
+            else:
+                values = [c.get("value") if c is not None else None for c in got]
+                band, stat = Band.of(values, unit), "value"
             entry.records[cr.name] = Record(
                 cr.name, cr.metric, (cr.window[0], cr.window[1]), dict(cr.params), unit,
-                cr.side(), outcomes[0], Band.of(values, unit))
+                cr.side(), outcomes[0], band, stat)
         entries[key] = entry
     return Baseline(suite, tuple(seeds), now(), dict(source), entries), problems
 

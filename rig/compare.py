@@ -63,9 +63,15 @@ def _from_criteria(name: str, profile: str, criteria: Any, out: dict[Key, Value]
     key0 = baseline.entry_key(name, profile)
     for c in criteria or []:
         v = c.get("value")
+        unit = str(c.get("unit") or "")
+        band, n = None, 1
+        if c.get("seeds"):  # decided over its own seeds: the mean of them (rig.baseline)
+            per = [x.get("value") for x in c["seeds"]]
+            band, n = baseline.Band.of(per, unit, of_mean=True), len(per)
+            v = None if any(x is None for x in per) else band.value
         out[(key0, str(c.get("name")))] = Value(
-            None if v is None else float(v), str(c.get("unit") or ""), str(c.get("metric")),
-            baseline.better_side(c), str(c.get("outcome", "")))
+            None if v is None else float(v), unit, str(c.get("metric")),
+            baseline.better_side(c), str(c.get("outcome", "")), band, n)
 
 
 def _run_folder(d: Path) -> dict[Key, Value] | None:

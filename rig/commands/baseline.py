@@ -183,10 +183,42 @@ def read_seed_runs(suite: Any, seeds: tuple[int, ...], root: Path) -> dict[int, 
         for sc in suite.scenarios:
             folder = seed_dir(root, seeds[0] if sc.seeds else seed) / sc.name
             try:
-                rows.append(RunResult.load(folder))
+                r = RunResult.load(folder)
             except (OSError, ValueError):
                 rows.append(None)
+                continue
+            r.criteria = rejudge(sc, r.criteria)
+            rows.append(r)
         out[seed] = rows
+    return out
+
+
+def rejudge(sc: Any, criteria: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A recorded run's criteria judged again on the scenario as it is now: a value is kept
+    where the criterion still asks for the same metric, window and parameters (its limit,
+    comparison or xfail may have changed: the outcome follows); a criterion that asks for
+    something else has no value here (the run must be made again: `record` without --from
+    says so as a missing criterion)."""
+    import math
+
+    from rig import metrics
+    from rig.verdict import NOT_EVALUATED, outcome_of
+
+    by_name = {c.get("name"): c for c in criteria}
+    out: list[dict[str, Any]] = []
+    for cr in sc.criteria:
+        c = by_name.get(cr.name)
+        if c is None or c.get("metric") != cr.metric or dict(c.get("params") or {}) != dict(
+                cr.params) or [float(x) for x in c.get("window") or []] != list(cr.window):
+            continue
+        c = dict(c, limit=cr.limit if math.isfinite(cr.limit) else None,
+                 comparison=cr.comparison, xfail=cr.xfail, better=cr.side())
+        if c.get("outcome") != NOT_EVALUATED:
+            v = c.get("value")
+            passed = metrics.compare(math.nan if v is None else float(v), cr.comparison,
+                                     cr.limit)
+            c.update(passed=passed, outcome=outcome_of(passed, cr.xfail))
+        out.append(c)
     return out
 
 

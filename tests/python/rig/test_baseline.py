@@ -230,3 +230,30 @@ def test_record_then_run_catches_a_regression(tmp_path: Path, monkeypatch: pytes
     # --baseline off: the limits only
     assert cli.main(["run", str(suite), "--bus", "inproc", "--out", str(tmp_path / "run3"),
                      "--no-record", "--quiet", "--baseline", "off"]) == 0
+
+
+def test_a_scenario_over_its_own_seeds_is_held_to_its_mean(tmp_path: Path) -> None:
+    """Its value is the worst of its seeds (a noisy statistic); the baseline compares the
+    mean of the per-seed values, with the band of such a mean."""
+    path = tmp_path / "own.toml"
+    path.write_text(SCENARIO.replace("[[speed]]", "[run]\nseeds = 4\n[[speed]]", 1))
+    sc = scenario.load_scenario(path)
+    per = [0.4, 0.9, 0.5, 0.6]
+
+    def c(vals: list[float]) -> dict[str, object]:
+        return {**crit("position", max(vals)),
+                "seeds": [{"seed": i + 1, "value": v} for i, v in enumerate(vals)]}
+
+    runs = {s: [SeedResult([c(per), crit("no polarity loss", 0.0, comparison="==")])]
+            for s in (1, 2, 3, 4, 5)}
+    b, problems = baseline.build("t", (1, 2, 3, 4, 5), [sc], runs, {})
+    assert not problems
+    rec = b.entries["own@paper"].records["position"]
+    assert rec.stat == "mean" and rec.band.value == pytest.approx(0.6)
+    rec = baseline.Baseline.loads(b.dumps()).entries["own@paper"].records["position"]
+    assert rec.stat == "mean"
+    # the same seeds drawn again after a change of rounding: the worst moved, the mean not
+    again = [0.45, 0.85, 0.55, 0.55]
+    assert rec.band.classify(rec.statistic(c(again)), LOWER) == UNCHANGED
+    worse = [v * 3 for v in per]
+    assert rec.band.classify(rec.statistic(c(worse)), LOWER) == REGRESSED
