@@ -277,7 +277,7 @@ class Baseline:
                                          seeds=len(c.get("seeds") or []))
             counts[c["baseline"]["class"]] += 1
         return {
-            "file": str(self.path) if self.path else None, "suite": self.suite,
+            "file": _shown(self.path), "suite": self.suite,
             "seeds": list(self.seeds), "recorded": self.recorded,
             "counts": {k: v for k, v in counts.items() if v},
             "passed": not any(counts[k] for k in FAILING),
@@ -353,6 +353,16 @@ class Baseline:
             return cls.loads(path.read_text(encoding="utf-8"), path)
         except OSError as exc:
             raise BaselineError(f"cannot read {path}: {exc.strerror or exc}") from exc
+
+
+def _shown(path: Path | None) -> str | None:
+    """A baseline file as a reader finds it: relative to the checkout when inside it."""
+    if path is None:
+        return None
+    try:
+        return str(path.resolve().relative_to(BASELINE_DIR.parent.parent))
+    except ValueError:
+        return str(path)
 
 
 def _opt(v: Any) -> float | None:
