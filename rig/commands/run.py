@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import subprocess
 import sys
@@ -128,6 +129,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         if args.out is None:  # runs named by time pile up: say so when they have
             from rig.commands.clean import notice
+
+            with contextlib.suppress(OSError):
+                out.rmdir()  # the folder made for a run that did not start (only if empty)
 
             hint = notice(out.parent)
             if hint:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from rig import capture, metrics, output, report
+from rig.run import outputs
 from rig.run.options import RunOptions
 from rig.run.outputs import json_default
 from rig.run.result import RunResult
@@ -51,7 +52,8 @@ def entry(sc: Scenario, r: RunResult) -> dict[str, Any]:
 def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     out = Path(opts.out)
     # (each scenario checks its own room again before it starts)
-    output.prepare(out, max((round(sc.duration / capture.TS) for sc in suite.scenarios),
+    outputs.claim_suite(out, [sc.name for sc in suite.scenarios],
+                        max((round(sc.duration / capture.TS) for sc in suite.scenarios),
                             default=0))
     results: list[RunResult] = []
     entries: list[dict[str, Any]] = []
