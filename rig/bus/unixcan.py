@@ -129,9 +129,49 @@ def _own_directory(path: Path, mode: int, group: int | None, tighten: bool) -> N
             "refused (chmod go-w it, or set UNIXCAN_DIR to a folder of your own)")
 
 
+def _trusted_parent(path: Path, group: int | None) -> bool:
+    """One existing folder above the base (the rule in hilbus/src/unixcan.c): a directory of
+    root or of this user that nobody else can write (a sticky one such as /tmp excepted, the
+    bus's group with UNIXCAN_GROUP); a symbolic link among them must be root's or this
+    user's. True when it exists and is trusted, False when it does not exist; refused with
+    UnixCanDirError."""
+    me = os.geteuid()
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    except OSError as exc:
+        raise UnixCanDirError(f"unixcan: {path}: {exc.strerror}") from exc
+    if stat.S_ISLNK(st.st_mode):
+        if st.st_uid not in (0, me):
+            raise UnixCanDirError(
+                f"unixcan: {path} (above the bus folder) is a symbolic link of uid {st.st_uid}, "
+                "neither root nor this user; refused (set UNIXCAN_DIR to a folder of your own)")
+        try:
+            st = os.stat(path)
+        except FileNotFoundError:
+            return False  # a dangling link: making the folder fails and says so
+        except OSError as exc:
+            raise UnixCanDirError(f"unixcan: {path}: {exc.strerror}") from exc
+    if not stat.S_ISDIR(st.st_mode):
+        raise UnixCanDirError(f"unixcan: {path} (above the bus folder) is not a directory")
+    if st.st_uid not in (0, me):
+        raise UnixCanDirError(
+            f"unixcan: {path} (above the bus folder) belongs to uid {st.st_uid}, neither root "
+            "nor this user; refused (set UNIXCAN_DIR to a folder of your own)")
+    group_ok = group is not None and st.st_gid == group
+    if not st.st_mode & stat.S_ISVTX and (
+            st.st_mode & stat.S_IWOTH or (st.st_mode & stat.S_IWGRP and not group_ok)):
+        raise UnixCanDirError(
+            f"unixcan: {path} (above the bus folder) is writable by other users (mode "
+            f"{stat.S_IMODE(st.st_mode):03o}); refused (set UNIXCAN_DIR to a folder of your own)")
+    return True
+
+
 def channel_dir(channel: str) -> Path:
     """The channel's folder, created and checked by the directory rule (docs/interfaces.md):
-    missing folders are made 0700 (0770 of ``UNIXCAN_GROUP``); the base and the channel
+    the folders above the base that exist must be trusted (``_trusted_parent``); missing
+    folders are made 0700 (0770 of ``UNIXCAN_GROUP``); the base and the channel
     folder must be real directories of this user that nobody else can write; the channel
     folder's mode is set to 0700 (0770)."""
     if not channel_name_ok(channel):
@@ -141,12 +181,19 @@ def channel_dir(channel: str) -> Path:
     group = bus_group()
     mode = 0o770 if group is not None else 0o700
     base = base_dir()
+    missing = False  # a folder above is missing: what is below it is made here, 0700
     for parent in reversed(base.parents):
-        if not parent.exists():
+        if parent == parent.parent:
+            continue  # the root, or the start of a relative path
+        if not missing:
+            missing = not _trusted_parent(parent, group)
+        if missing:
             try:
                 parent.mkdir(mode=0o700)
             except FileExistsError:
                 pass
+            except OSError as exc:
+                raise UnixCanDirError(f"unixcan: cannot create {parent}: {exc.strerror}") from exc
     _own_directory(base, mode, group, tighten=False)
     folder = base / channel
     _own_directory(folder, mode, group, tighten=True)
