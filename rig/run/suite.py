@@ -16,7 +16,7 @@ from rig.run.outputs import json_default
 from rig.run.result import RunResult
 from rig.runner import run_scenario
 from rig.scenario import Comparison, Scenario, Suite
-from rig.supervisor import Terminated
+from rig.supervisor import Terminated, signals_deferred
 from rig.verdict import NOT_EVALUATED, outcome, outcome_of
 
 SUITE_SCHEMA = "hil-suite/1"
@@ -76,8 +76,10 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
         and all(c["outcome"] in ("pass", "xfail") for c in summary["comparisons"])
     )
     summary["complete"] = len(results) == len(suite.scenarios)
-    output.write_text(out / "result.json", json.dumps(summary, indent=1, default=json_default))
-    output.write_text(out / "report.md", report.suite_report(summary))
+    with signals_deferred():  # the summary is written whole
+        output.write_text(out / "result.json",
+                          json.dumps(summary, indent=1, default=json_default))
+        output.write_text(out / "report.md", report.suite_report(summary))
     if interrupted is not None:
         raise interrupted
     return SuiteResult(out, summary, results)
