@@ -9,7 +9,12 @@ work on it.
 The kernel queues only a few datagrams per receiving socket (``net.unix.max_dgram_qlen``), so
 a reader thread drains the socket into a bounded buffer at once; a frame that finds the
 buffer full is counted in ``stats["rx_overflows"]``, and a frame a peer could not deliver to
-us is counted by that peer as a transmit drop. Nothing is lost silently.
+us is counted by that peer as a transmit drop. Nothing is lost silently: ``shutdown`` logs a
+warning (logger ``can.unixcan``, on stderr by default, also under ``can.player`` and
+``can.logger``) with the drops and overflows of the node's life.
+
+``rx_ids`` counts every frame that reached the node by identifier, the filtered ones too (the
+rig compares what nodes received with what the run's nodes sent: ``rig.run.traffic``).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import collections
 import errno
 import grp
 import itertools
+import logging
 import os
 import re
 import select
@@ -53,6 +59,7 @@ _RECENT_CHANGE_S = 0.1
 # full after that is marked congested and costs no more waiting until it accepts a frame.
 _FULL_PEER_GRACE_S = 0.002
 _serial = itertools.count()
+log = logging.getLogger("can.unixcan")
 
 
 _CHANNEL_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,62}")
@@ -334,6 +341,7 @@ class UnixCanBus(can.BusABC):
         self.stats = {"tx_frames": 0, "tx_drops": 0, "tx_errors": 0, "rx_frames": 0,
                       "rx_overflows": 0, "rx_filtered": 0, "peers_removed": 0,
                       "rx_malformed": 0, "foreign_entries": 0}
+        self.rx_ids: collections.Counter[int] = collections.Counter()  # by raw can_id
         self._accept: Callable[[int], bool] | None = None
         self._rx: collections.deque[can.Message] = collections.deque()
         self._rx_limit = receive_buffer
@@ -457,8 +465,9 @@ class UnixCanBus(can.BusABC):
                 # Filter on the raw id before building a Message: a node that listens to a
                 # few IDs must not pay for every frame of the bus (it has to keep up with
                 # the 10 kHz virtual I/O traffic it ignores).
+                (raw_id,) = _ID.unpack_from(datagram)
+                self.rx_ids[raw_id] += 1
                 if accept is not None:
-                    (raw_id,) = _ID.unpack_from(datagram)
                     if not accept(raw_id):
                         self.stats["rx_filtered"] += 1
                         continue
@@ -527,6 +536,13 @@ class UnixCanBus(can.BusABC):
         os.close(self._wake_r)
         os.close(self._wake_w)
         self._path.unlink(missing_ok=True)
+        st = self.stats
+        if st["tx_drops"] or st["rx_overflows"]:
+            # a replay (can.player) or a log (can.logger) must not lose frames without a word
+            log.warning("unixcan channel %s: %d deliveries of the %d frames sent were "
+                        "dropped (a receiver's queue stayed full for %g ms), %d received "
+                        "frames overflowed this node's buffer", self.channel, st["tx_drops"],
+                        st["tx_frames"], _FULL_PEER_GRACE_S * 1e3, st["rx_overflows"])
         super().shutdown()
 
     @staticmethod

@@ -17,7 +17,8 @@ EPILOG_RUN = """\
 exit status: 0 every criterion passed; 1 a criterion failed or was not evaluated (its
 window was not captured), or the run failed (crash, stall, time-out, capture loss); 2 usage
 or scenario schema error; 3 the run could not start here (programs not built, bus
-unavailable); 130 interrupted.
+unavailable, an output folder that is not a run's), or foreign traffic on its channel (a node
+outside the run sent frames; nodes that only listen are welcome); 130 interrupted.
 
 output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
 DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture

@@ -18,7 +18,7 @@ COUNTER_KEYS = {
     "console_lines", "console_errors", "console_keepalive_lapses", "console_out_dropped",
     "state", "fault_code", "fault_name", "core_overruns", "tx_frames", "tx_drops", "tx_errors",
     "rx_frames", "rx_overflows", "rx_malformed", "rx_filtered", "non_data_frames",
-    "foreign_entries", "peers_beyond_limit", "rt",
+    "foreign_entries", "peers_beyond_limit", "tx_ids", "rx_ids", "rt",
 }
 
 
