@@ -29,6 +29,7 @@ from urllib.parse import quote
 DEFAULT_WEB_PORT = 9090  # Rerun's defaults
 DEFAULT_GRPC_PORT = 9876
 START_TIMEOUT_S = 30.0
+NATIVE_SETTLE_S = 1.0  # a native viewer that fails to open its window exits within this
 
 
 class WebViewerError(RuntimeError):
@@ -141,7 +142,15 @@ def start_native(*, grpc_port: int = DEFAULT_GRPC_PORT, log: Path | None = None,
         raise WebViewerError(f"{NO_DISPLAY}: use --web")
     if not _listening("127.0.0.1", grpc_port):
         argv = [sys.executable, "-m", "rerun", "--bind", "127.0.0.1", "--port", str(grpc_port)]
-        _launch(argv, "127.0.0.1", 0, grpc_port, (grpc_port,), log, env, timeout_s)
+        viewer = _launch(argv, "127.0.0.1", 0, grpc_port, (grpc_port,), log, env, timeout_s)
+        # its server listens before its window opens: a display it cannot use ends it
+        # right after (winit), and it must not be taken for a viewer then
+        deadline = time.monotonic() + NATIVE_SETTLE_S
+        while time.monotonic() < deadline:
+            if viewer.proc.poll() is not None:
+                raise WebViewerError(f"the Rerun viewer exited with status "
+                                     f"{viewer.proc.returncode} (no usable display?)")
+            time.sleep(0.05)
     return url
 
 

