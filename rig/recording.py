@@ -21,8 +21,10 @@ every run keeps.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -531,18 +533,31 @@ class LiveView:
             vs.clear()
 
     def close(self) -> None:
+        """The last rows sent, waiting at most LIVE_FLUSH_S for the viewer to take them (a
+        viewer that went away must not hold the run, nor Ctrl-C: the wait is in native code),
+        then the stream disconnected (nothing left for rerun's exit handler to wait on)."""
         self.flush()
-        self.rec.flush()
+        try:
+            self.rec.flush(timeout_sec=LIVE_FLUSH_S)
+        except Exception as exc:  # rerun raises on the time-out
+            print(f"rig: the live viewer did not take the last rows within {LIVE_FLUSH_S:g} s "
+                  f"({exc})", file=sys.stderr)
+        with contextlib.suppress(Exception):
+            self.rec.disconnect()
+
+
+LIVE_FLUSH_S = 5.0
 
 
 def spawn_live(title: str, grpc_url: str | None = None) -> rr.RecordingStream:
-    """A recording stream connected to a freshly spawned local viewer, or with ``grpc_url``
-    to a running server (the web viewer's: ``rig.webview``)."""
+    """A recording stream connected to a native viewer window (``rig.webview.start_native``:
+    127.0.0.1 only, started here unless one listens already), or with ``grpc_url`` to a
+    running server (the web viewer's: ``rig.webview.start``)."""
+    from rig import webview
+
+    url = grpc_url or webview.start_native()
     rec = rr.RecordingStream(APP_ID + "_live")
-    if grpc_url:
-        rec.connect_grpc(grpc_url)
-    else:
-        rec.spawn(connect=True)
+    rec.connect_grpc(url)
     rec.send_recording_name(title)
     return rec
 

@@ -125,6 +125,9 @@ def scenario_report(result: Mapping[str, Any]) -> str:
         else:
             lines.append("- no full-rate traces or capture")
     counters = result.get("counters") or {}
+    if "rig.listeners.start" in counters:
+        foreign = (result.get("failure") or {}).get("kind") == "foreign_traffic"
+        lines += ["", "## Bus", "", _listeners(counters, foreign)]
     if counters:
         lines += ["", "## Counters", "", "| counter | value |", "|---|---|"]
         for k in sorted(counters):
@@ -171,6 +174,18 @@ def _seed_span(seeds: Any) -> str:
     s = sorted(seeds or [])
     return f"{s[0]}-{s[-1]}" if len(s) > 2 and s == list(range(s[0], s[-1] + 1)) else \
         ", ".join(map(str, s))
+
+
+def _listeners(counters: dict[str, Any], foreign: bool) -> str:
+    """Other nodes on a unixcan channel: welcome while they only listen (rig.run.traffic)."""
+    start = int(counters["rig.listeners.start"])
+    end = int(counters.get("rig.listeners.end", start))
+    nodes = (f"- {start} other node{'' if start == 1 else 's'} on the channel at the start, "
+             f"{end} at the end")
+    if foreign:
+        return f"{nodes}; a node outside the run sent frames (see the failure)"
+    return (f"{nodes}, listening only (the frame counts add up: a node that sent would have "
+            "failed the run as foreign traffic)")
 
 
 _OUTCOME = {"pass": "pass", "fail": "**FAIL**", "xfail": "XFAIL", "xpass": "**XPASS**",

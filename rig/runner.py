@@ -16,7 +16,7 @@ from __future__ import annotations
 import datetime as dt
 from pathlib import Path
 
-from rig import outdirs, sil
+from rig import capture, outdirs, sil
 from rig.link.bus import LinkError
 from rig.link.clock import BenchStall
 from rig.run import evaluation, outputs
@@ -29,7 +29,8 @@ from rig.run.plan import Plan
 from rig.run.record import write_recording
 from rig.run.result import Failure, RunResult, Timing
 from rig.scenario import Scenario
-from rig.supervisor import ChildFailed, Terminated
+from rig.supervisor import ChildFailed, Terminated, signals_deferred
+from rig.verdict import Coverage
 
 EXIT_PASS = 0
 EXIT_FAIL = 1
@@ -81,27 +82,50 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
         interrupted = exc
         failure = Failure("interrupted", f"interrupted ({type(exc).__name__})")
     wall = run.wall()
-    failure = evaluation.program_failure(run, failure, on_bus=opts.bus != sil.INPROC)
-    cap, loss, failure = evaluation.merge_capture(sc, plan, out, run, opts.realtime, failure,
-                                                  interrupted is not None)
-    if loss is not None:
-        result.capture_loss = {**loss.to_json(), "summary": loss.summary()}
-    result.counters = run.counters
-    coverage = evaluation.coverage(plan, cap, loss, run.periods_done, opts.realtime,
-                                   interrupted is not None, failure)
-    reads = evaluation.judge(result, sc, cap, coverage, failure)
-    evaluation.judge_baseline(result, sc, opts.baseline, opts.realtime)
-    result.timing = run.timing(wall)
-    result.finished = _now()
-    if cap is not None and cap.n and opts.record:
-        result.recording = write_recording(result, cap, run, reads)
-    result.kept = outputs.prune(out, keep_full=opts.keep == "all" or not result.passed,
-                                keep=opts.keep)
-    result.capture = cap if result.kept.full_rate else None
-    outputs.write_result(result)
+    cap: capture.Capture | None = None
+    try:
+        failure = evaluation.program_failure(run, failure, on_bus=opts.bus != sil.INPROC)
+        cap, loss, failure = evaluation.merge_capture(sc, plan, out, run, opts.realtime,
+                                                      failure, interrupted is not None)
+        if loss is not None:
+            result.capture_loss = {**loss.to_json(), "summary": loss.summary()}
+        result.counters = run.counters
+        coverage = evaluation.coverage(plan, cap, loss, run.periods_done, opts.realtime,
+                                       interrupted is not None, failure)
+        reads = evaluation.judge(result, sc, cap, coverage, failure)
+        evaluation.judge_baseline(result, sc, opts.baseline, opts.realtime)
+        result.timing = run.timing(wall)
+        result.finished = _now()
+        if cap is not None and cap.n and opts.record:
+            result.recording = write_recording(result, cap, run, reads)
+    except (KeyboardInterrupt, Terminated) as exc:
+        # interrupted while the results were worked out: the result says so, whole
+        cap, interrupted = None, interrupted or exc
+        _judge_interrupted(result, sc, plan, run, wall, failure, exc)
+    with signals_deferred():  # result.json and report.md are written whole
+        result.kept = outputs.prune(out, keep_full=opts.keep == "all" or not result.passed,
+                                    keep=opts.keep)
+        result.capture = cap if result.kept.full_rate else None
+        outputs.write_result(result)
     if interrupted is not None:
         raise interrupted
     return result
+
+
+def _judge_interrupted(result: RunResult, sc: Scenario, plan: Plan, run: Execution,
+                       wall: float, failure: Failure | None, exc: BaseException) -> None:
+    """The verdict of a run interrupted after its programs stopped (merging, judging or
+    recording): nothing is judged, and the failure says where it stopped."""
+    before = f" (after {failure.kind}: {failure.message[:200]})" if failure is not None else ""
+    why = (f"interrupted ({type(exc).__name__}) while the results were worked out, before "
+           f"any criterion was judged{before}")
+    stopped = Failure("interrupted", why)
+    result.counters = run.counters
+    evaluation.judge(result, sc, None, Coverage(plan.n_periods, None, None, False, why),
+                     stopped)
+    result.recording = None
+    result.timing = run.timing(wall)
+    result.finished = _now()
 
 
 def exit_code(passed: bool, status: str) -> int:

@@ -182,6 +182,7 @@ static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *er
     int16_t st;
     fw_core_init(&b->core);
     fwh_adc_init(&b->adc);
+    fwh_adc_lockstep(&b->adc); /* as fw_host in lockstep: periods skip only behind a barrier */
     if (cfg->n_fw_sets + N_HARDWARE > FWH_PARAM_ITEMS_MAX) {
         fail(err, errlen, "firmware: more than %d parameters", FWH_PARAM_ITEMS_MAX - N_HARDWARE);
         return -1;
@@ -549,7 +550,9 @@ int sil_bench_step(sil_bench_t *b)
         }
     }
     if (barrier) {
-        /* the barrier: everything the firmware made of these frames is in */
+        /* the barrier (VIO_SYNC after the period's frames, as on the bus): everything the
+         * firmware made of these frames is in */
+        fwh_adc_barrier(&b->adc);
         plant_link_resolve(&b->link);
     }
     if (!plant_link_decided(&b->link)) {

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import subprocess
 import sys
@@ -16,7 +17,8 @@ EPILOG_RUN = """\
 exit status: 0 every criterion passed; 1 a criterion failed or was not evaluated (its
 window was not captured), or the run failed (crash, stall, time-out, capture loss); 2 usage
 or scenario schema error; 3 the run could not start here (programs not built, bus
-unavailable); 130 interrupted.
+unavailable, an output folder that is not a run's), or foreign traffic on its channel (a node
+outside the run sent frames; nodes that only listen are welcome); 130 interrupted.
 
 output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
 DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture
@@ -105,7 +107,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     v.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
                    help="the port of the gRPC server that holds the data (default 9876)")
     v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
-                   help="address both listen on (default 127.0.0.1: this machine only)")
+                   help="address the viewer's servers listen on (default 127.0.0.1: this "
+                   "machine only)")
     v.add_argument("--screenshot", type=Path, default=None, metavar="PNG",
                    help="with --web: open the viewer in headless Chromium, save a screenshot "
                    "once the blueprint is drawn, and exit (1 if the viewer reported an error)")
@@ -184,6 +187,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.out is None:  # runs named by time pile up: say so when they have
             from rig.commands.clean import notice
 
+            with contextlib.suppress(OSError):
+                out.rmdir()  # the folder made for a run that did not start (only if empty)
+
             hint = notice(out.parent)
             if hint:
                 print(hint, file=sys.stderr)
@@ -196,6 +202,10 @@ def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
         print("rig run: --web goes with --live (a finished run: rig view --web DIR)",
               file=sys.stderr)
         return runner.EXIT_USAGE
+    if args.live and not args.web and args.bus != "inproc" and not webview.has_display():
+        print(f"rig run: {webview.NO_DISPLAY}: the live view goes to the web viewer",
+              file=sys.stderr)
+        args.web = True
     if not args.web:
         return _run_with(args, target, out, None)
     try:
@@ -362,11 +372,29 @@ def cmd_view(args: argparse.Namespace) -> int:
         print("rig view: --screenshot needs --web", file=sys.stderr)
         return 2
     if not args.web:
-        return subprocess.call([sys.executable, "-m", "rerun", *map(str, files)])
+        from rig import webview
+
+        if not webview.has_display():
+            print(f"rig view: {webview.NO_DISPLAY}: use `rig view --web {path}` and open the "
+                  "address it prints in a browser", file=sys.stderr)
+            return 3
+        port = ["--port", str(args.grpc_port)] if args.grpc_port else []
+        return subprocess.call([sys.executable, "-m", "rerun", "--bind", args.bind, *port,
+                                *map(str, files)])
     return _view_web(args, files)
 
 
 def _view_web(args: argparse.Namespace, files: list[Path]) -> int:
+    from rig.supervisor import Terminated, terminate_as_exception
+
+    try:
+        with terminate_as_exception():  # SIGTERM/SIGHUP stop the server too (its own session)
+            return _serve_web(args, files)
+    except Terminated:
+        return 130
+
+
+def _serve_web(args: argparse.Namespace, files: list[Path]) -> int:
     import time
 
     from rig import webview

@@ -32,6 +32,10 @@ class Execution:
     # wall s since t0 at its end, the grant's own wall s)
     cpu_s: float | None = None  # in process: CPU time of the closed loop
     grant_resends: int = 0  # lockstep grants the plant did not take at once (lost frames)
+    # on the bus: the frames per identifier the rig sent and received (rig.run.traffic)
+    rig_tx_ids: dict[int, int] | None = None
+    rig_rx_ids: dict[int, int] | None = None
+    where: str = ""  # "unixcan channel 'x'": for the messages
 
     def wall(self) -> float:
         return time.monotonic() - self.t0

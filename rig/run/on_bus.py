@@ -1,6 +1,8 @@
-"""A scenario run on the bus: plant_rt and fw_host started on a channel nobody else is on,
-the plan paced in lockstep or real time, the programs stopped, what the rig and the bus
-counted."""
+"""A scenario run on the bus: plant_rt and fw_host started on a channel nobody else sends on
+(nodes that only listen are welcome, and counted), the plan paced in lockstep or real time,
+the programs stopped, what the rig and the bus counted. A frame from outside the run that
+the rig sees (one only the rig sends, a BENCH_PROGRESS the plant cannot have sent) stops the
+run as foreign traffic at once; the counts catch the rest afterwards (``rig.run.traffic``)."""
 
 from __future__ import annotations
 
@@ -12,11 +14,11 @@ from collections.abc import Mapping
 from rig import bus as rigbus
 from rig import drive_link, recording
 from rig.link import bench
-from rig.link.bus import BusLink, ForeignNodes, LinkError
+from rig.link.bus import BusLink, ForeignNodes, ForeignTraffic, LinkError
 from rig.link.clock import GrantClock, LockstepClock, PlantProgress, WallClock
 from rig.link.drive import DriveMaster
 from rig.progress import Progress
-from rig.run import pacing
+from rig.run import pacing, traffic
 from rig.run.bench_commands import BenchCommands
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import TS, Execution
@@ -50,13 +52,31 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
                             frame_faults=drive_link.DriveLink(plan.link_windows))
     except LinkError as exc:
         raise EnvironmentProblem(str(exc)) from exc
+    run.where = f"{transport} channel {channel!r}"
     try:
-        link.refuse_foreign_nodes()
+        link.check_channel()
+    except ForeignTraffic as exc:
+        link.close()
+        raise RunError(traffic.KIND, f"foreign traffic: {exc}") from exc
     except ForeignNodes as exc:
         link.close()
         raise EnvironmentProblem(str(exc)) from exc
-    run.progress = PlantProgress(link)
+    except (RuntimeError, FileNotFoundError, OSError) as exc:  # hilbus_tool: not built
+        link.close()
+        raise EnvironmentProblem(str(exc)) from exc
+    if link.listeners_at_start is not None:
+        run.counters["rig.listeners.start"] = float(link.listeners_at_start)
+    run.progress = PlantProgress(link, grants_from_start=not opts.realtime)
     run.monitor = Monitor(link)
+
+    def foreign(what: str) -> None:
+        period = run.progress.period if run.progress is not None else None
+        raise RunError(traffic.KIND, f"foreign traffic on {run.where} at period {period}: "
+                       f"{what}. Another node sends on this channel: the run's data is not "
+                       "its own and nothing is judged. Use a channel of its own "
+                       "(--channel NAME)")
+
+    link.on_foreign = foreign
     live = _live_view(sc, opts, link, run.monitor, run.progress) if opts.live else None
     switch = sys.getswitchinterval()
     sys.setswitchinterval(min(switch, SWITCH_INTERVAL_S))
@@ -64,10 +84,19 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
         _run_programs(sc, plan, opts, programs, link, run, live)
     finally:
         sys.setswitchinterval(switch)
+        link.on_foreign = None  # (the frames of the stop are counted, not raised)
+        if transport == "unixcan":
+            from rig.bus import unixcan
+
+            own = {str(getattr(link.bus, "socket_path", ""))}
+            run.counters["rig.listeners.end"] = float(len(unixcan.live_nodes(channel, own)))
         link.close()
         stats = getattr(link.bus, "stats", None)
         if isinstance(stats, Mapping):
             run.add_counters("rig.bus", stats)
+        run.rig_tx_ids = dict(link.tx_ids)
+        # unixcan: every frame that reached the socket, the filtered ones too
+        run.rig_rx_ids = dict(getattr(link.bus, "rx_ids", None) or link.rx_ids)
         if live is not None:
             with contextlib.suppress(Exception):
                 live.close()

@@ -11,13 +11,13 @@ from pathlib import Path
 from typing import Any
 
 from rig import capture, metrics, output, report, sil, stats
-from rig.run import parallel
+from rig.run import outputs, parallel
 from rig.run.options import RunOptions
 from rig.run.outputs import json_default
 from rig.run.result import RunResult
 from rig.runner import run_scenario
 from rig.scenario import Comparison, Scenario, Suite
-from rig.supervisor import Terminated
+from rig.supervisor import Terminated, signals_deferred
 from rig.verdict import NOT_EVALUATED, outcome, outcome_of
 
 SUITE_SCHEMA = "hil-suite/1"
@@ -55,7 +55,8 @@ def entry(sc: Scenario, r: RunResult) -> dict[str, Any]:
 def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     out = Path(opts.out)
     # (each scenario checks its own room again before it starts)
-    output.prepare(out, max((round(sc.duration / capture.TS) for sc in suite.scenarios),
+    outputs.claim_suite(out, [sc.name for sc in suite.scenarios],
+                        max((round(sc.duration / capture.TS) for sc in suite.scenarios),
                             default=0))
     results: list[RunResult] = []
     entries: list[dict[str, Any]] = []
@@ -82,8 +83,10 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     )
     summary["complete"] = len(results) == len(suite.scenarios)
     summary["baseline"] = baseline_summary(entries)
-    output.write_text(out / "result.json", json.dumps(summary, indent=1, default=json_default))
-    output.write_text(out / "report.md", report.suite_report(summary))
+    with signals_deferred():  # the summary is written whole
+        output.write_text(out / "result.json",
+                          json.dumps(summary, indent=1, default=json_default))
+        output.write_text(out / "report.md", report.suite_report(summary))
     if interrupted is not None:
         raise interrupted
     return SuiteResult(out, summary, results)
