@@ -9,7 +9,15 @@ from pathlib import Path
 from typing import Any
 
 from rig import faults, metrics, profiles, protocols
-from rig.scenario.checker import Checker, Issue, ScenarioError, parse_toml, read_text
+from rig.scenario.checker import (
+    Checker,
+    Issue,
+    ScenarioError,
+    finite,
+    parse_toml,
+    read_text,
+    shown,
+)
 from rig.scenario.checks import check_firmware, check_overrides
 from rig.scenario.model import (
     PROFILES,
@@ -27,6 +35,8 @@ LOAD_KINDS = ("step", "ramp", "off", "speed_hold")
 MAX_DURATION_S = 3600.0
 MAX_TIMEOUT_S = 86400.0
 MAX_READY_TIMEOUT_S = 600.0
+
+MAX_REPEAT = 100_000  # cycles of a periodic speed segment (the duration is bounded too)
 
 
 TOP_KEYS = (
@@ -56,8 +66,9 @@ def _segment(c: Checker, raw: Any, path: Path_) -> SpeedSegment | None:
             c.err((*path, "hold"), "a triangle has no hold (use a trapezoid)")
         dwell = c.number(d, path, "dwell", 0.0, minimum=0)
         rep = d.get("repeat", 1)
-        if isinstance(rep, bool) or not isinstance(rep, int) or rep < 1:
-            c.err((*path, "repeat"), f"must be an integer >= 1, not {rep!r}")
+        if isinstance(rep, bool) or not isinstance(rep, int) or not 1 <= rep <= MAX_REPEAT:
+            c.err((*path, "repeat"), f"must be an integer >= 1 (at most {MAX_REPEAT}), not "
+                  f"{shown(rep)}")
             rep = 1
         dur = (rise + hold + fall + dwell) * rep
         return SpeedSegment(kind, dur, peak=peak, rise=rise, hold=hold, fall=fall,
@@ -120,12 +131,13 @@ def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion 
             c.err(wp, f"must be [t0, t1] in seconds (t1 may be \"end\"), not {w!r}")
         else:
             t0, t1 = w
+            given = (t0,) if isinstance(t1, str) and t1 == "end" else (t0, t1)
             if isinstance(t1, str) and t1 == "end":
-                t1 = duration
+                t1 = duration  # (an invalid duration is reported as such)
             ok = True
-            for i, v in enumerate((t0, t1)):
-                if isinstance(v, bool) or not isinstance(v, int | float):
-                    c.err((*wp, i), f"must be a number of seconds, not {v!r}")
+            for i, v in enumerate(given):
+                if finite(v) is None:
+                    c.err((*wp, i), f"must be a finite number of seconds, not {shown(v)}")
                     ok = False
             if ok:
                 if not 0 <= t0 < t1:
