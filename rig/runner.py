@@ -55,7 +55,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
         timing=Timing(sim_s=sc.duration),
     )
     plan = Plan.build(sc)
-    run = Execution()
+    run = Execution(preload=("rig.recording",) if opts.record else ())
     interrupted: BaseException | None = None
     failure: Failure | None = None
     try:

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig import cliargs
+
 EPILOG = """\
 --mf4 [FILE]        the capture (every PWM period: the plant's truth, the firmware's trace and
                     the rig's derived columns) as ASAM MDF 4.10, channel names and units from
@@ -35,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="write the capture as MDF 4.10 (default FILE: DIR/<scenario>.mf4)")
     p.add_argument("--can-log", type=Path, default=None, metavar="FILE",
                    help="write the traced frames to FILE (.blf, .asc or .log)")
-    p.set_defaults(func=cmd_export)
+    cliargs.command(p, cmd_export)
 
 
 def cmd_export(args: argparse.Namespace) -> int:

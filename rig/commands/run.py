@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rig import cliargs
+
 if TYPE_CHECKING:
     from rig.run.result import RunResult
 
@@ -38,14 +40,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("target", metavar="SCENARIO|SUITE",
                    help="a scenario or suite name (see `rig list`) or a path to its TOML file")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default: $HIL_OUT or ./out, plus name and time)")
-    p.add_argument("--bus", choices=("auto", "socketcan", "unixcan", "inproc"), default=None,
-                   help="transport (default: $HIL_BUS, else auto: SocketCAN when available); "
-                   "inproc: plant and firmware core in this process, no bus (rig.sil; "
-                   "lockstep only)")
-    p.add_argument("--channel", default=None,
-                   help="bus channel (default: $HIL_CHANNEL, else vcan0)")
+    cliargs.add_shared(p, "out", type=Path,
+                       help="output folder (default: $HIL_OUT or ./out, plus name and time)")
+    cliargs.add_shared(p, "bus", choices=cliargs.BUS_WITH_INPROC,
+                       help="transport (default: $HIL_BUS, else auto: SocketCAN when "
+                       "available); inproc: plant and firmware core in this process, no bus "
+                       "(rig.sil; lockstep only)")
+    cliargs.add_shared(p, "channel", env="HIL_CHANNEL",
+                       help="bus channel (default: $HIL_CHANNEL, else vcan0)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the plant on the wall clock instead of lockstep")
     p.add_argument("--live", action="store_true",
@@ -53,20 +55,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--web", action="store_true",
                    help="with --live: stream to the Rerun web viewer instead (its address is "
                    "printed; it stops with the run: afterwards `rig view --web DIR`)")
-    p.add_argument("--web-port", type=int, default=None, metavar="PORT",
+    p.add_argument("--web-port", type=cliargs.port, default=None, metavar="PORT",
                    help="with --live --web: the web viewer's HTTP port (default 9090)")
-    p.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+    p.add_argument("--grpc-port", type=cliargs.port, default=None, metavar="PORT",
                    help="with --live --web: the gRPC server's port (default 9876)")
-    p.add_argument("--timeout", type=float, default=None, metavar="S",
-                   help="wall-clock limit per scenario (default: from the scenario)")
+    cliargs.add_shared(p, "timeout",
+                       help="wall-clock limit per scenario, s (default: from the scenario)")
     p.add_argument("--no-record", action="store_true",
                    help="skip writing recording.rrd (the verdict does not depend on it)")
     p.add_argument("--keep-all", action="store_true",
                    help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
                    "passing scenarios too (default: only of scenarios that did not pass; "
                    "`rig export` needs them)")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
-    p.set_defaults(func=cmd_run)
+    cliargs.add_shared(p, "quiet", help="no progress line")
+    cliargs.command(p, cmd_run)
 
     ls = sub.add_parser(
         "list", help="list scenarios and suites (name, profile, duration, description)",
@@ -77,7 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     ls.add_argument("--metrics", action="store_true",
                     help="list the metrics criteria can use instead")
     ls.add_argument("--json", action="store_true", help="machine-readable output")
-    ls.set_defaults(func=cmd_list)
+    cliargs.command(ls, cmd_list)
 
     v = sub.add_parser(
         "view", help="open a run's recording.rrd in the Rerun viewer",
@@ -88,16 +90,16 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     v.add_argument("--web", action="store_true",
                    help="serve the recording(s) to the Rerun web viewer and print its address "
                    "(open it in a browser; Ctrl-C stops)")
-    v.add_argument("--web-port", type=int, default=None, metavar="PORT",
+    v.add_argument("--web-port", type=cliargs.port, default=None, metavar="PORT",
                    help="the web viewer's HTTP port (default 9090)")
-    v.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+    v.add_argument("--grpc-port", type=cliargs.port, default=None, metavar="PORT",
                    help="the port of the gRPC server that holds the data (default 9876)")
     v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
                    help="address both listen on (default 127.0.0.1: this machine only)")
     v.add_argument("--screenshot", type=Path, default=None, metavar="PNG",
                    help="with --web: open the viewer in headless Chromium, save a screenshot "
                    "once the blueprint is drawn, and exit (1 if the viewer reported an error)")
-    v.set_defaults(func=cmd_view)
+    cliargs.command(v, cmd_view)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -209,7 +211,10 @@ def _print_verdict(result: RunResult) -> None:
         print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
               f"({bound}) over {c['window']}", file=sys.stderr)
         if c.get("outcome") == "not_evaluated" or (value is None and c.get("note")):
-            print(f"        {c.get('note')}", file=sys.stderr)
+            note = str(c.get("note"))
+            if failure is not None:  # the failure is printed once, above
+                note = note.replace(f"({failure.kind}: {failure.message})", "(see above)")
+            print(f"        {note}", file=sys.stderr)
         if c.get("xfail") and c.get("outcome") != "not_evaluated":
             print(f"        expected failure: {c['xfail']}", file=sys.stderr)
 

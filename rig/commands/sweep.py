@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from rig import cliargs
+
 EPILOG = """\
 axes (--param NAME=SPEC, repeatable):
   NAME  a plant profile key section.key, firmware.NAME (a firmware parameter),
@@ -39,32 +41,26 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("scenario", metavar="SCENARIO", help="scenario name or file (name@profile)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=SPEC", required=True,
                    help="a swept axis (repeatable; see below)")
-    p.add_argument("--random", type=int, default=0, metavar="N",
+    p.add_argument("--random", type=cliargs.number(int, minimum=1), default=0, metavar="N",
                    help="N random points instead of the grid")
     p.add_argument("--seed", type=int, default=1, help="seed of --random (default 1)")
-    p.add_argument("--bus", default="inproc",
-                   help="inproc (default), or a transport to run the points on the bus")
+    cliargs.add_shared(p, "bus", choices=cliargs.BUS_WITH_INPROC, default="inproc",
+                       help="inproc (default), or a transport to run the points on the bus")
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                    help="an existing Dask scheduler (default: a local process pool)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--workers", type=cliargs.number(int, minimum=1),
+                   default=os.cpu_count() or 1,
                    help="local pool size (default: the number of CPUs)")
-    p.add_argument("--retries", type=int, default=2,
+    p.add_argument("--retries", type=cliargs.number(int, minimum=0), default=2,
                    help="times a point is retried when its worker dies (default 2)")
     p.add_argument("--metric", default="pos_err_max_deg",
                    help="summary metric (rig list --metrics; default pos_err_max_deg)")
-    p.add_argument("--window", default=None, metavar="T0,T1",
+    p.add_argument("--window", type=cliargs.window, default=None, metavar="T0,T1",
                    help="its window in s (default: the scenario's criterion window on that "
                    "metric, else the second half)")
-    p.add_argument("--out", type=Path, default=None, help="output folder")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
-    p.set_defaults(func=cmd_sweep)
-
-
-def _window(text: str | None) -> tuple[float, float] | None:
-    if not text:
-        return None
-    a, _, b = text.partition(",")
-    return (float(a), float(b))
+    cliargs.add_shared(p, "out", type=Path, help="output folder")
+    cliargs.add_shared(p, "quiet", help="no progress line")
+    cliargs.command(p, cmd_sweep)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -82,7 +78,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise spec.SpecError("an axis is given twice")
         points = (spec.sample(axes, args.random, args.seed) if args.random > 0
                   else spec.grid(axes))
-        window = _window(args.window)
+        window = args.window
+        if window is not None and window[1] > sc.duration:
+            raise spec.SpecError(f"--window {window[0]:g},{window[1]:g}: {sc.name} lasts "
+                                 f"{sc.duration:g} s")
         if not metrics.known(args.metric):
             raise spec.SpecError(f"--metric {args.metric}: unknown (rig list --metrics)")
     except (FileNotFoundError, scenario.ScenarioError, spec.SpecError, ValueError) as exc:
