@@ -67,6 +67,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
                    "passing scenarios too (default: only of scenarios that did not pass; "
                    "`rig export` needs them)")
+    p.add_argument("--junit", type=Path, default=None, metavar="FILE",
+                   help="also write the verdicts as JUnit XML for CI systems: a testcase per "
+                   "criterion (metric, value, limit as properties, the report attached) and "
+                   "one for the run itself")
     cliargs.add_shared(p, "quiet", help="no progress line")
     cliargs.command(p, cmd_run)
 
@@ -126,7 +130,10 @@ def cmd_run(args: argparse.Namespace) -> int:
             return runner.EXIT_USAGE
     out = args.out or runner.default_out(target.name)
     try:
-        return _run(args, target, out)
+        status = _run(args, target, out)
+        if args.junit is not None:
+            status = _write_junit(args.junit, out, target.name, status)
+        return status
     finally:
         if args.out is None:  # runs named by time pile up: say so when they have
             from rig.commands.clean import notice
@@ -190,6 +197,34 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     _print_verdict(result)
     print(f"  -> {out}/report.md", file=sys.stderr)
     return runner.exit_code(result.passed, result.status)
+
+
+def _write_junit(dest: Path, out: Path, name: str, status: int) -> int:
+    """The JUnit file of what the run (or suite) wrote into ``out``; exit 3 when it cannot be
+    written (the run's own status otherwise)."""
+    from rig import junit, output
+
+    try:
+        data = json.loads((out / "result.json").read_text())
+    except (OSError, ValueError):
+        return status  # the run wrote nothing (it could not start): nothing to report
+    if data.get("schema") == "hil-suite/1":
+        runs = []
+        for entry in data.get("scenarios") or []:
+            try:
+                runs.append(json.loads((out / entry["dir"] / "result.json").read_text()))
+            except (OSError, ValueError, KeyError):
+                continue
+        comparisons = data.get("comparisons") or []
+    else:
+        runs, comparisons = [data], []
+    try:
+        junit.write(dest, runs, name, comparisons, suite_dir=out)
+    except output.OutputError as exc:
+        print(f"rig run: --junit: {exc}", file=sys.stderr)
+        return max(status, 3)
+    print(f"  -> {dest} (JUnit XML)", file=sys.stderr)
+    return status
 
 
 def _print_verdict(result: RunResult) -> None:

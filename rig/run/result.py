@@ -173,6 +173,13 @@ class RunResult:
         cap = capture.Capture(d / "capture") if (d / "capture" / "meta.json").exists() else None
         return cls.from_json(data, d, cap)
 
+    def __repr__(self) -> str:  # short: pytest shows it in a failed assertion
+        return f"RunResult({self.scenario}: {self.status}, report {self.report_path})"
+
+    @property
+    def report_path(self) -> Path:
+        return Path(self.out_dir) / "report.md"
+
     # -- questions -----------------------------------------------------------------------
     def failed_criteria(self) -> list[Criterion]:
         """Criteria that count against the run: failed or not evaluated (an XFAIL does not,
@@ -203,7 +210,7 @@ class RunResult:
         return metrics.compute(name, w, params)
 
     def explain(self) -> str:
-        lines = [f"{self.scenario}: {self.status} ({self.out_dir})"]
+        lines = [f"{self.scenario}: {self.status} (report: {self.report_path})"]
         if self.failure is not None:
             lines.append(f"  {self.failure.kind}: {self.failure.message}")
             if self.failure.log_tail:
