@@ -52,7 +52,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _run(sc: scenario.Scenario, out: Path, bus: str | None, channel: str) -> dict[str, Any]:
     r = runner.run_scenario(sc, runner.RunOptions(out=out, bus=bus, channel=channel,
-                                                  progress=False, record=False))
+                                                  progress=False, record=False,
+                                                  figures=False))
     if r.status != "passed" and not r.criteria:
         raise RuntimeError(f"{sc.name} on {bus}: {r.explain()}")
     t = r.timing

@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import datetime as dt
 from pathlib import Path
+from typing import Any
 
-from rig import outdirs, sil
+from rig import capture, outdirs, sil
 from rig.link.bus import LinkError
 from rig.link.clock import BenchStall
 from rig.run import evaluation, outputs
@@ -55,7 +56,8 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
         timing=Timing(sim_s=sc.duration),
     )
     plan = Plan.build(sc)
-    run = Execution(preload=("rig.recording",) if opts.record else ())
+    run = Execution(preload=(*(("rig.recording",) if opts.record else ()),
+                             *(("rig.figures",) if opts.figures else ())))
     interrupted: BaseException | None = None
     failure: Failure | None = None
     try:
@@ -90,6 +92,8 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     result.finished = _now()
     if cap is not None and cap.n and opts.record:
         result.recording = write_recording(result, cap, run, reads)
+    if cap is not None and cap.n and opts.figures:
+        result.figures = write_figures(out, cap, result)
     result.kept = outputs.prune(out, keep_full=opts.keep == "all" or not result.passed,
                                 keep=opts.keep)
     result.capture = cap if result.kept.full_rate else None
@@ -97,6 +101,17 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     if interrupted is not None:
         raise interrupted
     return result
+
+
+def write_figures(out: Path, cap: capture.Capture, result: RunResult) -> dict[str, Any]:
+    """The run's pictures (rig.figures); the error instead when they cannot be drawn (the
+    verdict stands without them)."""
+    from rig import figures
+
+    try:
+        return figures.write(out, cap, result.to_json())
+    except Exception as exc:  # a picture is never worth a run
+        return {"files": [], "error": f"{type(exc).__name__}: {exc}"}
 
 
 def exit_code(passed: bool, status: str) -> int:

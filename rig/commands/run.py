@@ -20,7 +20,8 @@ window was not captured), or the run failed (crash, stall, time-out, capture los
 or scenario schema error; 3 the run could not start here (programs not built, bus
 unavailable); 130 interrupted.
 
-output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
+output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md (with
+DIR/figure.png and a DIR/criterion-N.png per criterion that did not pass),
 DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture
 column a criterion read at the full 10 kHz over the rows it read) and the programs' logs.
 A scenario that does not pass also keeps DIR/*.trace (every frame) and DIR/capture/ (the
@@ -63,6 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                        help="wall-clock limit per scenario, s (default: from the scenario)")
     p.add_argument("--no-record", action="store_true",
                    help="skip writing recording.rrd (the verdict does not depend on it)")
+    p.add_argument("--no-figures", action="store_true",
+                   help="skip drawing figure.png and the pictures of the criteria that did not "
+                   "pass (shown in report.md)")
     p.add_argument("--keep-all", action="store_true",
                    help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
                    "passing scenarios too (default: only of scenarios that did not pass; "
@@ -172,7 +176,8 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     opts = runner.RunOptions(
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
         live_url=live_url, progress=not args.quiet, timeout_s=args.timeout,
-        record=not args.no_record, keep="all" if args.keep_all else "failing",
+        record=not args.no_record, figures=not args.no_figures,
+        keep="all" if args.keep_all else "failing",
     )
     try:
         with terminate_as_exception():

@@ -24,6 +24,7 @@ class RunOptions:
     grace_s: float = 5.0
     stall_s: float = STALL_S
     record: bool = True
+    figures: bool = True  # figure.png and a picture per criterion that did not pass (rig.figures)
     # what a run keeps besides result.json, report.md and recording.rrd: "all" keeps the
     # full-rate traces (*.trace) and capture columns (capture/) of every run, "failing" only
     # of runs that did not pass (rig run's default; the API's is "all": callers read captures)

@@ -17,7 +17,9 @@ from rig.run.result import Kept, RunResult
 from rig.scenario import Scenario
 
 FULL_RATE_FILES = ("plant.trace", "fw.trace", "capture")
-RUN_FILES = ("capture", "recording.rrd", "result.json", "report.md", "plant.trace", "fw.trace")
+RUN_FILES = ("capture", "recording.rrd", "result.json", "report.md", "plant.trace", "fw.trace",
+             "figure.png")
+FIGURE_GLOB = "criterion-*.png"  # rig.figures: a picture per criterion that did not pass
 
 
 def prepare(out: Path, sc: Scenario) -> None:
@@ -31,6 +33,8 @@ def prepare(out: Path, sc: Scenario) -> None:
                 shutil.rmtree(target)
             else:
                 target.unlink(missing_ok=True)
+        for picture in out.glob(FIGURE_GLOB):
+            picture.unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
     with contextlib.suppress(OSError):
         shutil.copyfile(sc.file, out / "scenario.toml")

@@ -118,6 +118,7 @@ class RunResult:
     command_lines: dict[str, Any] | None = None  # the programs' (or the bench's) settings
     finished: str = ""
     kept: Kept | None = None
+    figures: dict[str, Any] | None = None  # rig.figures: the pictures in the run folder
     capture: capture.Capture | None = field(default=None, compare=False, repr=False)
 
     # -- result.json ---------------------------------------------------------------------
@@ -141,6 +142,8 @@ class RunResult:
         out["finished"] = self.finished
         if self.kept is not None:
             out["kept"] = self.kept.to_json()
+        if self.figures is not None:
+            out["figures"] = self.figures
         return out
 
     @classmethod
@@ -162,7 +165,7 @@ class RunResult:
             recording=data.get("recording"), timing=_from_json(Timing, data.get("timing")),
             versions=dict(data.get("versions") or {}), command_lines=data.get("command_lines"),
             finished=str(data.get("finished", "")), kept=_from_json(Kept, data.get("kept")),
-            capture=cap,
+            figures=data.get("figures"), capture=cap,
         )
 
     @classmethod

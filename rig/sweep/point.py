@@ -79,7 +79,7 @@ def _run(task: Task) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="rig-sweep-") as tmp:
         result = runner.run_scenario(sc, runner.RunOptions(
             out=Path(tmp) / "run", bus=task.bus, channel=channel, progress=False,
-            record=False))
+            record=False, figures=False))
         value: float | None = None
         if result.capture is not None:
             with _suppress_metric_errors():
