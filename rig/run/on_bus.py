@@ -50,7 +50,8 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
     result.command_lines = {"plant": argv[bench.PLANT], "firmware": argv[bench.FIRMWARE]}
     try:
         link = BusLink.open(transport, channel,
-                            frame_faults=drive_link.DriveLink(plan.link_windows))
+                            frame_faults=drive_link.DriveLink(plan.link_windows),
+                            trace=result.out_dir / "rig.trace" if opts.trace_bus else None)
     except LinkError as exc:
         raise EnvironmentProblem(str(exc)) from exc
     try:

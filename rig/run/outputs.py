@@ -16,9 +16,9 @@ from rig import capture, output, report
 from rig.run.result import Kept, RunResult
 from rig.scenario import Scenario
 
-FULL_RATE_FILES = ("plant.trace", "fw.trace", "capture")
+FULL_RATE_FILES = ("plant.trace", "fw.trace", "rig.trace", "capture")
 RUN_FILES = ("capture", "recording.rrd", "result.json", "report.md", "plant.trace", "fw.trace",
-             "figure.png")
+             "rig.trace", "figure.png")
 FIGURE_GLOB = "criterion-*.png"  # rig.figures: a picture per criterion that did not pass
 
 
