@@ -40,6 +40,31 @@ SCALES = ("speed_scale", "load_scale")
 MAX_POINTS = 100_000
 
 
+# the profile's keys end in their SI unit (rs_ohm, ld_h, lambda_m_wb, noise_rms_a, ...)
+KEY_UNITS = {"ohm": "Ω", "h": "H", "wb": "Wb", "a": "A", "s": "s", "v": "V", "hz": "Hz",
+             "rpm": "r/min", "nm": "N·m", "kgm2": "kg·m²", "per_a2": "1/A²"}
+
+
+def unit_of(name: str) -> str:
+    """The unit of a swept parameter (axis name or key): the profile key's suffix, the
+    firmware parameter's unit (protocols/parameters.csv), 'factor' for a scale."""
+    key = ALIASES.get(name, name)
+    if key in SCALES:
+        return "factor"
+    if key.startswith("firmware."):
+        from rig import params
+
+        try:
+            return params.table().lookup(key.removeprefix("firmware.")).unit
+        except params.ParamError:
+            return ""
+    leaf = key.rsplit(".", 1)[-1]
+    for suffix, unit in sorted(KEY_UNITS.items(), key=lambda kv: -len(kv[0])):
+        if leaf.endswith("_" + suffix):
+            return unit
+    return ""
+
+
 class SpecError(ValueError):
     """A sweep axis that cannot be read (the message names it)."""
 
