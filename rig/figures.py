@@ -34,6 +34,8 @@ if TYPE_CHECKING:
     from rig.run.result import Criterion
 
 OVERVIEW = "figure.png"
+# what drawing imports (in the background while a run's loop runs: rig.run.execution)
+MODULES = ("rig.figures", "matplotlib.figure", "matplotlib.backends.backend_agg")
 MAX_POINTS = 1500  # per series: buckets of min and max
 DPI = 80
 SHOWN = ("fail", "xfail", "xpass")  # criteria that get a picture (not evaluated: no window)
