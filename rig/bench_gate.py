@@ -19,10 +19,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rig import cliargs
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", default="gate", help="the suite to time (default: gate)")
-    p.add_argument("--jobs", "-j", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--jobs", "-j", type=cliargs.number(int, minimum=1, maximum=64), default=2,
+                   help="worker processes (default 2)")
     p.add_argument("--baseline", choices=("require", "auto", "off"), default="require",
                    help="as rig run (default require, as CI runs it)")
 

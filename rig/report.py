@@ -52,6 +52,11 @@ def scenario_report(result: Mapping[str, Any]) -> str:
     ]
     if result.get("figure"):
         lines.append(f"| paper | {result['figure']} |")
+    pictures = (result.get("figures") or {}).get("files") or []
+    overview = [f for f in pictures if f.get("shows") == "overview"]
+    if overview:
+        lines += ["", f"![{result.get('scenario')}: position error, speed, currents and load; "
+                  f"the windows of criteria that did not pass shaded]({overview[0]['path']})"]
     injected = result.get("faults") or []
     if injected:
         lines += ["", "## Faults injected", ""]
@@ -85,6 +90,10 @@ def scenario_report(result: Mapping[str, Any]) -> str:
                 lines.append(f"| | | | expected failure: {c['xfail']} | | |")
     else:
         lines.append("(none)")
+    for f in pictures:
+        if f.get("shows") == "criterion":
+            lines += ["", f"![{f.get('criterion')}: what it read over its window, and its "
+                      f"limit]({f['path']})"]
     lines += _baseline_section(result.get("baseline"), crits)
     cap = result.get("capture") or {}
     if cap:
@@ -287,7 +296,8 @@ def _figures(entries: list[Mapping[str, Any]]) -> list[str]:
         if s.get("failure"):
             lines += ["", f"run failure: {s['failure']}"]
         lines += ["", f"recording: `rig view {s['dir']}`"
-                  + (f" ({s['recording']})" if s.get("recording") else ""), ""]
+                  + (f" ({s['recording']})" if s.get("recording") else "")
+                  + "".join(f"; [{p}]({s['dir']}/{p})" for p in s.get("figures") or []), ""]
     return lines
 
 
@@ -362,13 +372,14 @@ def suite_report(summary: Mapping[str, Any]) -> str:
     lines += [
         "## Runs",
         "",
-        "| scenario | result | failed criteria / failure | wall (s) |",
-        "|---|---|---|---|",
+        "| scenario | result | failed criteria / failure | wall (s) | pictures |",
+        "|---|---|---|---|---|",
     ]
     for s in entries:
         why = ", ".join(s.get("failed_criteria", [])) or (s.get("failure") or "")
+        pictures = ", ".join(f"[{p}]({s['dir']}/{p})" for p in s.get("figures") or [])
         lines.append(
             f"| [{s['name']}]({s['dir']}/report.md) | {'pass' if s.get('passed') else '**FAIL**'}"
-            f" ({s.get('status')}) | {why} | {_fmt(s.get('wall_s'))} |"
+            f" ({s.get('status')}) | {why} | {_fmt(s.get('wall_s'))} | {pictures} |"
         )
     return "\n".join(lines) + "\n"

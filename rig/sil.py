@@ -99,7 +99,8 @@ class SilBench:
     ``--set`` parameters, feed frames, run grants, read the counters, close."""
 
     def __init__(self, profile: Path | None, plant_sets: Sequence[str], fw_sets: Sequence[str],
-                 plant_trace: Path | None = None, fw_trace: Path | None = None) -> None:
+                 plant_trace: Path | None = None, fw_trace: Path | None = None,
+                 trace_vio: bool = False) -> None:
         self._lib = library()
         psets, self._keep_p = _strings(plant_sets)
         fsets, self._keep_f = _strings(fw_sets)
@@ -107,7 +108,7 @@ class SilBench:
         cfg = _Config(
             str(profile).encode() if profile else None, psets, len(plant_sets), fsets,
             len(fw_sets), str(plant_trace).encode() if plant_trace else None,
-            str(fw_trace).encode() if fw_trace else None, 0, 0,
+            str(fw_trace).encode() if fw_trace else None, int(trace_vio), 0,
         )
         err = C.create_string_buffer(1024)
         handle = self._lib.sil_bench_open(C.byref(cfg), err, len(err))

@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from rig import cliargs
+
 EPILOG = """\
 record: runs every scenario of SUITE in process at every seed (default 1-8), refuses a
 baseline whose verdicts depend on the seed or that holds a failing criterion (exit 1,
@@ -32,19 +34,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     r.add_argument("--seeds", default="1-8", metavar="LIST",
                    help="noise seeds: a range and/or a list, e.g. 1-8 or 1,2,3,4,5 "
                    "(default 1-8, at least 5)")
-    r.add_argument("--jobs", "-j", type=int, default=2, metavar="N",
-                   help="scenario runs at once, one worker process each (default 2)")
-    r.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="where the runs go (default: $HIL_OUT or ./out, baseline-SUITE-time)")
+    r.add_argument("--jobs", "-j", type=cliargs.number(int, minimum=1, maximum=64), default=2,
+                   metavar="N", help="scenario runs at once, one worker process each "
+                   "(default 2)")
+    cliargs.add_shared(r, "out", type=Path,
+                       help="where the runs go (default: $HIL_OUT or ./out, baseline-SUITE-time)")
     r.add_argument("--from", dest="from_dir", type=Path, default=None, metavar="DIR",
                    help="accept the runs an earlier `rig baseline record --out DIR` left "
                    "(DIR/seed-N/<scenario>) instead of running the suite again")
     r.add_argument("--to", type=Path, default=None, metavar="FILE",
                    help="write the baseline here instead of rig/baselines/SUITE.toml")
-    r.set_defaults(func=cmd_record)
+    cliargs.command(r, cmd_record)
     s = verbs.add_parser("show", help="print a suite's baseline")
     s.add_argument("suite", metavar="SUITE|FILE")
-    s.set_defaults(func=cmd_show)
+    cliargs.command(s, cmd_show)
 
 
 def _git(*args: str) -> str:
@@ -85,9 +88,6 @@ def cmd_record(args: argparse.Namespace) -> int:
     if len(seeds) < baseline.MIN_SEEDS:
         print(f"rig baseline record: a baseline needs at least {baseline.MIN_SEEDS} seeds "
               f"(--seeds {args.seeds} gives {len(seeds)})", file=sys.stderr)
-        return 2
-    if args.jobs < 1:
-        print("rig baseline record: --jobs must be at least 1", file=sys.stderr)
         return 2
     try:
         suite = scenario.load(args.suite)

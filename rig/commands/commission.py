@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig import cliargs
+
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 EPILOG = """\
@@ -39,13 +41,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("step", nargs="+", metavar="STEP",
                    help="a step (listed below) or 'all'; several allowed")
-    p.add_argument("--bench", required=True, metavar="FILE|NAME",
-                   help="bench description (a file, or a shipped name: virtual)")
+    cliargs.add_shared(p, "bench", required=True,
+                       help="bench description (a file, or a shipped name: virtual)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a field of the bench description (repeatable)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="run folder (default: ./out/commission-NAME-TIME)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    cliargs.add_shared(p, "out", type=Path,
+                       help="run folder (default: ./out/commission-NAME-TIME)")
+    cliargs.add_shared(p, "quiet", help="no progress lines")
     p.add_argument("--save-params", type=Path, default=None, metavar="FILE",
                    help="after a passing run, write the drive parameters the steps identified "
                    "(rs_ohm, ld_h, lq_h, lambda_m_wb, xsat_ldq_per_a) or wrote to the drive "
@@ -53,7 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    "PROFILE.toml is what scenario runs on that virtual bench use. FILE is "
                    "checked before the run: it may not be a symbolic link, and an existing "
                    "FILE is replaced only if --save-params wrote it")
-    p.set_defaults(func=cmd_commission)
+    cliargs.command(p, cmd_commission)
 
 
 def cmd_commission(args: argparse.Namespace) -> int:

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig import cliargs
+
 EPILOG = """\
 A and B: a run folder, a suite folder, a `rig baseline record` folder (seed-N/ inside: the
 mean over its seeds), a baseline file, or baseline:SUITE (the committed one). Each criterion
@@ -27,9 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("b", metavar="B")
     p.add_argument("--all", action="store_true",
                    help="list every criterion, not only those that moved")
-    p.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="also write DIR/compare.md, compare.json and a plot per moved metric")
-    p.set_defaults(func=cmd_compare)
+    cliargs.add_shared(p, "out", type=Path,
+                       help="also write DIR/compare.md, compare.json and a plot per moved "
+                       "metric")
+    cliargs.command(p, cmd_compare)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:

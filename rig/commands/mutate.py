@@ -9,6 +9,8 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from rig import cliargs
+
 if TYPE_CHECKING:
     from rig.mutation.campaign import Gate
     from rig.mutation.catalogue import Mutant
@@ -45,16 +47,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="ctest and/or gate (default both, ctest first)")
     p.add_argument("--both", action="store_true",
                    help="run every detector on every mutant (a score per detector)")
-    p.add_argument("--seed", type=int, default=None, metavar="N",
+    p.add_argument("--seed", type=cliargs.number(int, minimum=0, maximum=2**31 - 1),
+                   default=None, metavar="N",
                    help="run the gate at this noise seed (default: the profiles')")
-    p.add_argument("--jobs", "-j", type=int, default=2, metavar="N",
-                   help="build and gate parallelism (default 2)")
-    p.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="results (default: $HIL_OUT or ./out, mutate-time)")
+    p.add_argument("--jobs", "-j", type=cliargs.number(int, minimum=1, maximum=64), default=2,
+                   metavar="N", help="build and gate parallelism (default 2)")
+    cliargs.add_shared(p, "out", type=Path,
+                       help="results (default: $HIL_OUT or ./out, mutate-time)")
     p.add_argument("--keep-work", action="store_true",
                    help="keep the work copy (source and build) afterwards")
     p.add_argument("--list", action="store_true", help="list the catalogue and exit")
-    p.set_defaults(func=cmd_mutate)
+    cliargs.command(p, cmd_mutate)
 
 
 def cmd_mutate(args: argparse.Namespace) -> int:

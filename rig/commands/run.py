@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rig import cliargs
+
 if TYPE_CHECKING:
     from rig.run.result import RunResult
 
@@ -20,7 +22,8 @@ or scenario schema error; 3 the run could not start here (programs not built, bu
 unavailable, an output folder that is not a run's), or foreign traffic on its channel (a node
 outside the run sent frames; nodes that only listen are welcome); 130 interrupted.
 
-output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
+output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md (with
+DIR/figure.png and a DIR/criterion-N.png per criterion that did not pass),
 DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture
 column a criterion read at the full 10 kHz over the rows it read) and the programs' logs.
 A scenario that does not pass also keeps DIR/*.trace (every frame) and DIR/capture/ (the
@@ -40,14 +43,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("target", metavar="SCENARIO|SUITE",
                    help="a scenario or suite name (see `rig list`) or a path to its TOML file")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default: $HIL_OUT or ./out, plus name and time)")
-    p.add_argument("--bus", choices=("auto", "socketcan", "unixcan", "inproc"), default=None,
-                   help="transport (default: $HIL_BUS, else auto: SocketCAN when available); "
-                   "inproc: plant and firmware core in this process, no bus (rig.sil; "
-                   "lockstep only)")
-    p.add_argument("--channel", default=None,
-                   help="bus channel (default: $HIL_CHANNEL, else vcan0)")
+    cliargs.add_shared(p, "out", type=Path,
+                       help="output folder (default: $HIL_OUT or ./out, plus name and time)")
+    cliargs.add_shared(p, "bus", choices=cliargs.BUS_WITH_INPROC,
+                       help="transport (default: $HIL_BUS, else auto: SocketCAN when "
+                       "available); inproc: plant and firmware core in this process, no bus "
+                       "(rig.sil; lockstep only)")
+    cliargs.add_shared(p, "channel", env="HIL_CHANNEL",
+                       help="bus channel (default: $HIL_CHANNEL, else vcan0)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the plant on the wall clock instead of lockstep")
     p.add_argument("--live", action="store_true",
@@ -55,22 +58,27 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--web", action="store_true",
                    help="with --live: stream to the Rerun web viewer instead (its address is "
                    "printed; it stops with the run: afterwards `rig view --web DIR`)")
-    p.add_argument("--web-port", type=int, default=None, metavar="PORT",
+    p.add_argument("--web-port", type=cliargs.port, default=None, metavar="PORT",
                    help="with --live --web: the web viewer's HTTP port (default 9090)")
-    p.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+    p.add_argument("--grpc-port", type=cliargs.port, default=None, metavar="PORT",
                    help="with --live --web: the gRPC server's port (default 9876)")
-    p.add_argument("--timeout", type=float, default=None, metavar="S",
-                   help="wall-clock limit per scenario (default: from the scenario)")
+    cliargs.add_shared(p, "timeout",
+                       help="wall-clock limit per scenario, s (default: from the scenario)")
     p.add_argument("--no-record", action="store_true",
                    help="skip writing recording.rrd (the verdict does not depend on it)")
+    p.add_argument("--no-figures", action="store_true",
+                   help="skip drawing figure.png and the pictures of the criteria that did not "
+                   "pass (shown in report.md)")
     p.add_argument("--keep-all", action="store_true",
                    help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
                    "passing scenarios too (default: only of scenarios that did not pass; "
                    "`rig export` needs them)")
-    p.add_argument("--seed", type=_seed, default=None, metavar="N",
+    p.add_argument("--seed", type=cliargs.number(int, minimum=0, maximum=2**31 - 1), default=None,
+                   metavar="N",
                    help="the plant's noise seed for every scenario (default: the profile's, "
                    "1); the baselines hold seeds 1-8")
-    p.add_argument("--jobs", "-j", type=_jobs, default=1, metavar="N",
+    p.add_argument("--jobs", "-j", type=cliargs.number(int, minimum=1, maximum=64), default=1,
+                   metavar="N",
                    help="a suite in process (--bus inproc): run N scenarios at once, one "
                    "worker process each (default 1)")
     p.add_argument("--baseline", choices=("auto", "require", "off"), default="auto",
@@ -79,8 +87,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    "without one fails, off: the limits only")
     p.add_argument("--fail-fast", action="store_true",
                    help="a suite: start no further scenario once one did not pass")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
-    p.set_defaults(func=cmd_run)
+    p.add_argument("--junit", type=Path, default=None, metavar="FILE",
+                   help="also write the verdicts as JUnit XML for CI systems: a testcase per "
+                   "criterion (metric, value, limit as properties, the report attached) and "
+                   "one for the run itself")
+    cliargs.add_shared(p, "quiet", help="no progress line")
+    cliargs.command(p, cmd_run)
 
     ls = sub.add_parser(
         "list", help="list scenarios and suites (name, profile, duration, description)",
@@ -91,7 +103,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     ls.add_argument("--metrics", action="store_true",
                     help="list the metrics criteria can use instead")
     ls.add_argument("--json", action="store_true", help="machine-readable output")
-    ls.set_defaults(func=cmd_list)
+    cliargs.command(ls, cmd_list)
 
     v = sub.add_parser(
         "view", help="open a run's recording.rrd in the Rerun viewer",
@@ -102,9 +114,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     v.add_argument("--web", action="store_true",
                    help="serve the recording(s) to the Rerun web viewer and print its address "
                    "(open it in a browser; Ctrl-C stops)")
-    v.add_argument("--web-port", type=int, default=None, metavar="PORT",
+    v.add_argument("--web-port", type=cliargs.port, default=None, metavar="PORT",
                    help="the web viewer's HTTP port (default 9090)")
-    v.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+    v.add_argument("--grpc-port", type=cliargs.port, default=None, metavar="PORT",
                    help="the port of the gRPC server that holds the data (default 9876)")
     v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
                    help="address the viewer's servers listen on (default 127.0.0.1: this "
@@ -112,27 +124,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     v.add_argument("--screenshot", type=Path, default=None, metavar="PNG",
                    help="with --web: open the viewer in headless Chromium, save a screenshot "
                    "once the blueprint is drawn, and exit (1 if the viewer reported an error)")
-    v.set_defaults(func=cmd_view)
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if not 0 <= value < 2**31:
-        raise argparse.ArgumentTypeError(f"{value} is not in 0 .. 2^31 - 1")
-    return value
-
-
-def _jobs(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if not 1 <= value <= 64:
-        raise argparse.ArgumentTypeError(f"{value} is not in 1 .. 64")
-    return value
+    cliargs.command(v, cmd_view)
 
 
 def _bus_of(args: argparse.Namespace) -> str:
@@ -182,7 +174,10 @@ def cmd_run(args: argparse.Namespace) -> int:
             return runner.EXIT_USAGE
     out = args.out or runner.default_out(target.name)
     try:
-        return _run(args, target, out)
+        status = _run(args, target, out)
+        if args.junit is not None:
+            status = _write_junit(args.junit, out, target.name, status)
+        return status
     finally:
         if args.out is None:  # runs named by time pile up: say so when they have
             from rig.commands.clean import notice
@@ -228,7 +223,8 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     opts = runner.RunOptions(
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
         live_url=live_url, progress=not args.quiet, timeout_s=args.timeout,
-        record=not args.no_record, keep="all" if args.keep_all else "failing",
+        record=not args.no_record, figures=not args.no_figures,
+        keep="all" if args.keep_all else "failing",
         jobs=args.jobs, fail_fast=args.fail_fast, baseline=args.baseline,
     )
     try:
@@ -256,6 +252,34 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     return runner.exit_code(result.passed, result.status)
 
 
+def _write_junit(dest: Path, out: Path, name: str, status: int) -> int:
+    """The JUnit file of what the run (or suite) wrote into ``out``; exit 3 when it cannot be
+    written (the run's own status otherwise)."""
+    from rig import junit, output
+
+    try:
+        data = json.loads((out / "result.json").read_text())
+    except (OSError, ValueError):
+        return status  # the run wrote nothing (it could not start): nothing to report
+    if data.get("schema") == "hil-suite/1":
+        runs = []
+        for entry in data.get("scenarios") or []:
+            try:
+                runs.append(json.loads((out / entry["dir"] / "result.json").read_text()))
+            except (OSError, ValueError, KeyError):
+                continue
+        comparisons = data.get("comparisons") or []
+    else:
+        runs, comparisons = [data], []
+    try:
+        junit.write(dest, runs, name, comparisons, suite_dir=out)
+    except output.OutputError as exc:
+        print(f"rig run: --junit: {exc}", file=sys.stderr)
+        return max(status, 3)
+    print(f"  -> {dest} (JUnit XML)", file=sys.stderr)
+    return status
+
+
 def _print_verdict(result: RunResult) -> None:
     verdict = "PASS" if result.passed else "FAIL"
     print(f"{result.scenario}: {verdict} ({result.status})", file=sys.stderr)
@@ -281,7 +305,10 @@ def _print_verdict(result: RunResult) -> None:
         print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
               f"({bound}) over {c['window']}{_baseline_mark(c)}", file=sys.stderr)
         if c.get("outcome") == "not_evaluated" or (value is None and c.get("note")):
-            print(f"        {c.get('note')}", file=sys.stderr)
+            note = str(c.get("note"))
+            if failure is not None:  # the failure is printed once, above
+                note = note.replace(f"({failure.kind}: {failure.message})", "(see above)")
+            print(f"        {note}", file=sys.stderr)
         if c.get("xfail") and c.get("outcome") != "not_evaluated":
             print(f"        expected failure: {c['xfail']}", file=sys.stderr)
 

@@ -13,7 +13,11 @@ frames sent since the last ``at(period)`` are kept, so a lost lockstep grant goe
 byte for byte (``resend``).
 
 With ``record``, everything sent and received also goes into a log file (python-can's
-``Logger``: candump format for ``.log``), readable with python-can and cantools.
+``Logger``: candump format for ``.log``), readable with python-can and cantools. With
+``trace``, the same frames go into a trace file (``rig.trace``, the format of the programs'
+traces: ``rig.trace``), except the messages the programs trace themselves; ``note`` puts a
+frame there that is not sent (the in-process bench's grants, a call there, are the
+BENCH_STEP frames they are on the bus), so ``rig export`` has every frame of a run.
 
 Foreign traffic: the link also receives the messages only the rig sends (their DBC
 transmitter is RIG: BENCH_STEP, LOAD_CMD, FAULT_CMD, DRIVE_CMD, DRIVE_LIMITS, PARAM_REQ): one
@@ -38,6 +42,7 @@ from cantools.database.can import Message
 from rig import bus as rigbus
 from rig import drive_link, faults, protocols, sil
 from rig.frames import FrameDecoder
+from rig.trace import TraceWriter
 
 LISTEN = (
     ("drive", "DRIVE_STATUS"), ("drive", "HEARTBEAT"), ("drive", "PARAM_RESP"),
@@ -49,6 +54,8 @@ LISTEN = (
 LAZY = frozenset({"TLM_POS", "TLM_CUR", "TLM_REF", "TLM_PARAM", "TLM_VOLT", "BENCH_TRUTH"})
 FOREIGN_LISTEN_S = 0.25  # how long the rig listens for other traffic before a run starts
 RUN_NODES = 3  # the rig, plant_rt and fw_host: the other nodes a unixcan node must reach
+# traced by plant_rt and fw_host themselves (plant.trace, fw.trace): not again in rig.trace
+PROGRAM_TRACED = frozenset({"BENCH_TRUTH", "BENCH_TRUTH_MAG", "FW_TRACE"})
 Signals = Mapping[str, Any]
 Handler = Callable[[Signals], None]
 
@@ -88,7 +95,8 @@ class BusLink:
 
     def __init__(self, bus: FrameSink, *, transport: str = "", channel: str = "",
                  record: Path | None = None,
-                 frame_faults: drive_link.DriveLink | None = None) -> None:
+                 frame_faults: drive_link.DriveLink | None = None,
+                 trace: Path | None = None) -> None:
         self.bus = bus
         self.transport, self.channel = transport, channel
         self.decoder = FrameDecoder()
@@ -109,13 +117,16 @@ class BusLink:
         self.batch: list[tuple[can.Message, bool]] | None = None
         self.recording = record
         self._log: Any = can.Logger(str(record)) if record is not None else None
+        self._trace: TraceWriter | None = TraceWriter(trace) if trace is not None else None
+        self._untraced = {int(self.decoder.message(n).frame_id) for n in PROGRAM_TRACED}
         self.rx = 0
         self.tx = 0
         self.lazy = 0
 
     @classmethod
     def open(cls, transport: str | None, channel: str | None, *, record: Path | None = None,
-             frame_faults: drive_link.DriveLink | None = None) -> BusLink:
+             frame_faults: drive_link.DriveLink | None = None,
+             trace: Path | None = None) -> BusLink:
         """A link on a bus channel (``rig.bus.select_transport`` resolves ``auto``)."""
         transport, channel = rigbus.select_transport(transport, channel)
         try:
@@ -123,7 +134,7 @@ class BusLink:
         except (can.CanError, OSError, ValueError) as exc:
             raise LinkError(f"cannot open {transport} bus {channel!r}: {exc}") from exc
         return cls(bus, transport=transport, channel=channel, record=record,
-                   frame_faults=frame_faults)
+                   frame_faults=frame_faults, trace=trace)
 
     @property
     def where(self) -> str:
@@ -161,6 +172,19 @@ class BusLink:
         self.tx_ids[msg.arbitration_id] += 1
         if self._log is not None:
             self._log(msg)
+        self._traced(msg)
+
+    def _traced(self, msg: can.Message) -> None:
+        if self._trace is not None and msg.arbitration_id not in self._untraced:
+            self._trace.write(msg.arbitration_id, bytes(msg.data), fd=bool(msg.is_fd))
+
+    def note(self, name: str, values: Mapping[str, Any]) -> None:
+        """A frame into the trace only, not sent (a grant in process: BENCH_STEP)."""
+        if self._trace is not None:
+            m = self.decoder.message(name)
+            self._trace.write(int(m.frame_id),
+                              bytes(m.encode(dict(values), scaling=True, strict=True)),
+                              fd=bool(m.is_fd))
 
     def at(self, period: int) -> None:
         """The sends that follow are before ``period``: frames a fault held back until then
@@ -208,6 +232,7 @@ class BusLink:
         self.rx_ids[msg.arbitration_id] += 1
         if self._log is not None:
             self._log(msg)
+        self._traced(msg)
         own = self._rig_only.get(msg.arbitration_id)
         if own is not None and not msg.is_extended_id:
             self.note_foreign(f"a {own} frame (id 0x{msg.arbitration_id:03X}), which only the "
@@ -319,6 +344,10 @@ class BusLink:
             with contextlib.suppress(Exception):
                 self._log.stop()
             self._log = None
+        if self._trace is not None:
+            with contextlib.suppress(OSError):
+                self._trace.close()
+            self._trace = None
 
 
 def listen_filters() -> list[dict[str, int]]:

@@ -10,9 +10,10 @@ import contextlib
 import sys
 import time
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 from rig import bus as rigbus
-from rig import drive_link, recording
+from rig import drive_link
 from rig.link import bench
 from rig.link.bus import BusLink, ForeignNodes, ForeignTraffic, LinkError
 from rig.link.clock import GrantClock, LockstepClock, PlantProgress, WallClock
@@ -22,13 +23,15 @@ from rig.run import pacing, traffic
 from rig.run.bench_commands import BenchCommands
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import TS, Execution
-from rig.run.live import LiveFeed
 from rig.run.monitor import Monitor
 from rig.run.options import RunOptions
 from rig.run.plan import Plan
 from rig.run.programs import bench_programs, versions
 from rig.run.result import RunResult
 from rig.scenario import Scenario
+
+if TYPE_CHECKING:  # the live view (rerun) is imported only for --live
+    from rig.run.live import LiveFeed
 
 # the bus reader thread (unixcan) must get the GIL within a sender's patience (2 ms)
 SWITCH_INTERVAL_S = 0.0005
@@ -49,7 +52,8 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
     result.command_lines = {"plant": argv[bench.PLANT], "firmware": argv[bench.FIRMWARE]}
     try:
         link = BusLink.open(transport, channel,
-                            frame_faults=drive_link.DriveLink(plan.link_windows))
+                            frame_faults=drive_link.DriveLink(plan.link_windows),
+                            trace=result.out_dir / "rig.trace" if opts.trace_bus else None)
     except LinkError as exc:
         raise EnvironmentProblem(str(exc)) from exc
     run.where = f"{transport} channel {channel!r}"
@@ -104,6 +108,9 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
 
 def _live_view(sc: Scenario, opts: RunOptions, link: BusLink, monitor: Monitor,
                progress: PlantProgress) -> LiveFeed | None:
+    from rig import recording
+    from rig.run.live import LiveFeed
+
     try:
         stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)", opts.live_url)
         view = recording.LiveView(stream)
@@ -122,6 +129,7 @@ def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.Be
         sc.duration + 30.0 if opts.realtime else 60.0 + 300.0 * sc.duration)
     virtual = bench.VirtualBench(programs, opts.out, grace_s=opts.grace_s)
     with virtual.sup:
+        run.start_preload()  # while the programs start (the rig waits for them)
         virtual.start(link.transport, link.channel, ready_timeout_s=sc.ready_timeout_s,
                       env=opts.env)
         run.t0 = time.monotonic()
@@ -158,7 +166,7 @@ def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.Be
                 virtual.sup.sleep(LOCKSTEP_DRAIN_S)
             else:
                 run.periods_done = pacing.realtime(sc, plan, clock, drive, bench_cmds,
-                                                   progress, opts.stall_s)
+                                                   progress, opts.stall_s, run)
         except BaseException:
             grace = min(grace, 1.0)  # failing: end quickly
             raise

@@ -24,6 +24,10 @@ class RunOptions:
     grace_s: float = 5.0
     stall_s: float = STALL_S
     record: bool = True
+    figures: bool = True  # figure.png and a picture per criterion that did not pass (rig.figures)
+    # every frame of the run into the traces (the plant's VIO frames, rig.trace: the rig's
+    # own), so rig export --can-log holds the whole bus
+    trace_bus: bool = True
     # what a run keeps besides result.json, report.md and recording.rrd: "all" keeps the
     # full-rate traces (*.trace) and capture columns (capture/) of every run, "failing" only
     # of runs that did not pass (rig run's default; the API's is "all": callers read captures)

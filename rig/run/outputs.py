@@ -26,12 +26,13 @@ from rig import capture, outdirs, output, report
 from rig.run.result import Kept, RunResult
 from rig.scenario import Scenario
 
-FULL_RATE_FILES = ("plant.trace", "fw.trace", "capture")
+FULL_RATE_FILES = ("plant.trace", "fw.trace", "rig.trace", "capture")
 RUN_FILES = ("capture", "recording.rrd", "result.json", "report.md", "plant.trace", "fw.trace",
-             "scenario.toml")
+             "rig.trace", "figure.png", "scenario.toml")
+FIGURE_GLOB = "criterion-*.png"  # rig.figures: a picture per criterion that did not pass
 # the programs' logs and ready files (rig.supervisor, rig.link.bench): opened for writing by
-# name, so a link there must go before a program follows it
-RUN_PATTERNS = ("*.stdout.log", "*.stderr.log", "*.ready")
+# name, so a link there must go before a program follows it; the criteria's pictures
+RUN_PATTERNS = ("*.stdout.log", "*.stderr.log", "*.ready", FIGURE_GLOB)
 SHOWN_ENTRIES = 6
 
 

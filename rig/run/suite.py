@@ -49,6 +49,7 @@ def entry(sc: Scenario, r: RunResult) -> dict[str, Any]:
         "criteria": [{k: c.get(k) for k in ENTRY_CRITERION_KEYS} for c in r.criteria],
         "recording": (r.recording or {}).get("path"),
         "baseline": r.baseline,
+        "figures": [f["path"] for f in (r.figures or {}).get("files") or []],
     }
 
 

@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rig import faults
-from rig.scenario.checker import Checker, ScenarioError, read_text
+from rig.scenario.checker import Checker, Issue, ScenarioError, read_text
 from rig.scenario.checks import check_overrides, check_stuck_codes
 
 PROFILES = ("ideal", "paper", "harsh")
@@ -149,7 +149,14 @@ class Scenario:
         the criteria that apply on that profile are kept. Its overrides and stuck ADC codes
         are checked on that profile (``ScenarioError``)."""
         if profile not in PROFILES:
-            raise ValueError(f"unknown profile {profile!r} (one of: {', '.join(PROFILES)})")
+            import difflib
+
+            near = difflib.get_close_matches(profile, PROFILES, n=1)
+            raise ScenarioError([Issue(str(self.file), None, f"{self.name}@{profile}",
+                                       f"unknown profile {profile!r} (one of: "
+                                       f"{', '.join(PROFILES)})"
+                                       + (f"; did you mean {self.name}@{near[0]}?" if near
+                                          else ""))])
         if self.overrides and profile != self.profile:
             c = Checker(self.file, self._text())
             check_overrides(c, profile, self.overrides)

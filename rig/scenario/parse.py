@@ -9,7 +9,15 @@ from pathlib import Path
 from typing import Any
 
 from rig import faults, metrics, profiles, protocols
-from rig.scenario.checker import Checker, Issue, ScenarioError, parse_toml, read_text
+from rig.scenario.checker import (
+    Checker,
+    Issue,
+    ScenarioError,
+    finite,
+    parse_toml,
+    read_text,
+    shown,
+)
 from rig.scenario.checks import check_firmware, check_overrides
 from rig.scenario.model import (
     PROFILES,
@@ -33,6 +41,8 @@ BETTER_SIDES = ("lower", "higher", "either")
 # [run] seeds: a verdict over seeds needs a few to have a spread, and stays affordable
 MIN_SEEDS = 3
 MAX_SEEDS = 32
+
+MAX_REPEAT = 100_000  # cycles of a periodic speed segment (the duration is bounded too)
 
 
 TOP_KEYS = (
@@ -62,8 +72,9 @@ def _segment(c: Checker, raw: Any, path: Path_) -> SpeedSegment | None:
             c.err((*path, "hold"), "a triangle has no hold (use a trapezoid)")
         dwell = c.number(d, path, "dwell", 0.0, minimum=0)
         rep = d.get("repeat", 1)
-        if isinstance(rep, bool) or not isinstance(rep, int) or rep < 1:
-            c.err((*path, "repeat"), f"must be an integer >= 1, not {rep!r}")
+        if isinstance(rep, bool) or not isinstance(rep, int) or not 1 <= rep <= MAX_REPEAT:
+            c.err((*path, "repeat"), f"must be an integer >= 1 (at most {MAX_REPEAT}), not "
+                  f"{shown(rep)}")
             rep = 1
         dur = (rise + hold + fall + dwell) * rep
         return SpeedSegment(kind, dur, peak=peak, rise=rise, hold=hold, fall=fall,
@@ -126,12 +137,13 @@ def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion 
             c.err(wp, f"must be [t0, t1] in seconds (t1 may be \"end\"), not {w!r}")
         else:
             t0, t1 = w
+            given = (t0,) if isinstance(t1, str) and t1 == "end" else (t0, t1)
             if isinstance(t1, str) and t1 == "end":
-                t1 = duration
+                t1 = duration  # (an invalid duration is reported as such)
             ok = True
-            for i, v in enumerate((t0, t1)):
-                if isinstance(v, bool) or not isinstance(v, int | float):
-                    c.err((*wp, i), f"must be a number of seconds, not {v!r}")
+            for i, v in enumerate(given):
+                if finite(v) is None:
+                    c.err((*wp, i), f"must be a finite number of seconds, not {shown(v)}")
                     ok = False
             if ok:
                 if not 0 <= t0 < t1:
