@@ -37,7 +37,7 @@ class Gate:
     def command(self, suite: str, out: Path) -> list[str]:
         cmd = [sys.executable, "-m", "rig", "run", suite, "--bus", "inproc", "--jobs",
                str(self.jobs), "--baseline", self.baseline, "--fail-fast", "--no-record",
-               "--quiet", "--out", str(out)]
+               "--no-figures", "--quiet", "--out", str(out)]
         if self.seed is not None:
             cmd += ["--seed", str(self.seed)]
         return cmd
