@@ -46,9 +46,9 @@ def _mb(n: int) -> str:
 
 
 def cmd_clean(args: argparse.Namespace) -> int:
-    from rig import outdirs
+    from rig import outputs
 
-    root: Path = args.root or outdirs.default_root()
+    root: Path = args.root or outputs.default_root()
     if args.keep_last < 0 or (args.older_than is not None and args.older_than < 0):
         print("rig clean: --keep-last and --older-than take numbers >= 0", file=sys.stderr)
         return 2
@@ -58,8 +58,8 @@ def cmd_clean(args: argparse.Namespace) -> int:
     if not root.is_dir():
         print(f"rig clean: {root} is not a folder", file=sys.stderr)
         return 3
-    runs = list(outdirs.find_runs(root))
-    chosen = outdirs.select(runs, keep_last=args.keep_last, older_than_days=args.older_than,
+    runs = list(outputs.find_runs(root))
+    chosen = outputs.select(runs, keep_last=args.keep_last, older_than_days=args.older_than,
                             include_named=args.all)
     gone = {r.path for r in chosen}
     print(f"{'':2}{'RUN':<48} {'KIND':<8} {'WHEN':<16} {'SIZE':>12}  NOTE")
@@ -85,16 +85,16 @@ def cmd_clean(args: argparse.Namespace) -> int:
         print("nothing removed: add --yes to remove the runs marked x")
         return 0
     for r in chosen:
-        outdirs.remove(r, root)
+        outputs.remove(r, root)
     print(f"removed {len(chosen)} runs ({_mb(freed)})")
     return 0
 
 
 def notice(root: Path) -> str | None:
     """A one-line hint when the output root has grown (after rig run), else None."""
-    from rig import outdirs
+    from rig import outputs
 
-    runs = [r for r in outdirs.find_runs(root) if r.auto_named]
+    runs = [r for r in outputs.find_runs(root) if r.auto_named]
     size = sum(r.bytes for r in runs)
     if size < NOTICE_BYTES and len(runs) <= NOTICE_RUNS:
         return None

@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def cmd_compare(args: argparse.Namespace) -> int:
     import json
 
-    from rig import compare
+    from rig.regression import compare
 
     try:
         a, b = compare.load_side(args.a), compare.load_side(args.b)
@@ -51,14 +51,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     summary = compare.summary_line(rows)
     print(f"{head}\n{summary}\n\n{table}")
     if args.out is not None:
-        from rig import output
+        from rig import outputs
 
-        output.prepare(args.out)
+        outputs.prepare(args.out)
         pngs = compare.plots(rows, args.out, "A", "B")
         md = [f"# {head}", "", summary, "", table, ""]
         md += [f"![{p.stem}]({p.name})" for p in pngs]
-        output.write_text(args.out / "compare.md", "\n".join(md) + "\n")
-        output.write_text(args.out / "compare.json",
+        outputs.write_text(args.out / "compare.md", "\n".join(md) + "\n")
+        outputs.write_text(args.out / "compare.json",
                           json.dumps({"a": a.label, "b": b.label,
                                       "rows": compare.to_json(rows)}, indent=1))
         print(f"\n-> {args.out}/compare.md ({len(pngs)} plots)", file=sys.stderr)

@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from rig import export
+    from rig.data import export
 
     run_dir: Path = args.run_dir
     if args.mf4 is None and args.can_log is None:

@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from rig.loadbench_server import ServeOptions, serve
+    from rig.loadbench.server import ServeOptions, serve
 
     if args.host != "127.0.0.1":
         print("rig loadbench serve: the virtual load bench binds 127.0.0.1 only",
@@ -64,12 +64,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def cmd_read(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from rig import bench_description
-    from rig.load_bench import LoadBench, LoadBenchError
+    from rig.bench import description
+    from rig.loadbench.client import LoadBench, LoadBenchError
 
     try:
-        desc = bench_description.load(args.bench)
-    except bench_description.BenchDescriptionError as exc:
+        desc = description.load(args.bench)
+    except description.BenchDescriptionError as exc:
         print(f"rig loadbench read: {exc}", file=sys.stderr)
         return EXIT_USAGE
     spec = desc.modbus if args.port is None else replace(desc.modbus, port=args.port)

@@ -69,7 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from rig import metrics, runner, scenario
+    from rig import scenario
+    from rig.data import metrics
+    from rig.run import runner
     from rig.supervisor import Terminated, terminate_as_exception
     from rig.sweep import engine, spec
     from rig.sweep import point as sweep_point

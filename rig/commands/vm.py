@@ -6,7 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from rig import cliargs, vm
+from rig import cliargs
+from rig.bus import vm
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -1,19 +1,21 @@
 """After a run: what went wrong besides the criteria (programs that did not stop cleanly,
 nodes beyond the bus's reach, a restarted ADC sequence), the merged capture and its loss
-report, and the verdicts on the data the run produced (``rig.verdict``)."""
+report, and the verdicts on the data the run produced (``rig.results.verdict``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from rig import baseline, capture, profiles
-from rig.link.drive import accel_max
+from rig.bench import profiles
+from rig.data import capture
+from rig.link.drive_master import accel_max
+from rig.regression import baseline
+from rig.results.result import Failure, RunResult
+from rig.results.verdict import AGAINST, Coverage, evaluate_one, outcome
 from rig.run import traffic
 from rig.run.execution import TS, Execution
 from rig.run.plan import Plan
-from rig.run.result import Failure, RunResult
 from rig.scenario import Scenario
-from rig.verdict import AGAINST, Coverage, evaluate_one, outcome
 
 MAX_POST_FAILURE_PERIODS = 50_000  # after a crash, merge/record only short traces (fast)
 
@@ -70,7 +72,7 @@ def program_failure(run: Execution, failure: Failure | None, on_bus: bool) -> Fa
 def merge_capture(sc: Scenario, plan: Plan, out: Path, run: Execution, realtime: bool,
                   failure: Failure | None, interrupted: bool,
                   ) -> tuple[capture.Capture | None, capture.LossReport | None, Failure | None]:
-    """The traces merged into the capture (``rig.capture``): the capture, its loss report
+    """The traces merged into the capture (``rig.data.capture``): the capture, its loss report
     and what failed when the traces are missing, unreadable or have holes."""
     plant_trace, fw_trace = out / "plant.trace", out / "fw.trace"
     traces_exist = plant_trace.exists() and fw_trace.exists()
@@ -117,7 +119,7 @@ def merge_capture(sc: Scenario, plan: Plan, out: Path, run: Execution, realtime:
 def coverage(plan: Plan, cap: capture.Capture | None, loss: capture.LossReport | None,
              periods_done: int, realtime: bool, interrupted: bool,
              failure: Failure | None) -> Coverage:
-    """What data the run produced, for the verdicts (rig.verdict): the periods the capture
+    """What data the run produced, for the verdicts (rig.results.verdict): the periods the capture
     holds without a hole and whether the run reached its planned end."""
     reached = not interrupted and periods_done >= plan.n_periods
     why = "" if failure is None else f"{failure.kind}: {failure.message[:200]}"
@@ -155,7 +157,7 @@ def judge(result: RunResult, sc: Scenario, cap: capture.Capture | None, cov: Cov
 
 
 def judge_baseline(result: RunResult, sc: Scenario, mode: str, realtime: bool) -> None:
-    """Each criterion's value against the committed baseline (``rig.baseline``), into
+    """Each criterion's value against the committed baseline (``rig.regression.baseline``), into
     ``result``: a regressed, changed or stale one fails the run; with ``mode`` "require" a
     run without a baseline fails too. Real-time runs are not compared (their timing is the
     wall clock's, not the seed's)."""

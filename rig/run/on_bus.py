@@ -13,21 +13,22 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from rig import bus as rigbus
-from rig import drive_link
-from rig.link import bench
+from rig.bench import virtual
+from rig.bench.configuration import BenchConfiguration
+from rig.link.bench_commands import BenchCommands
 from rig.link.bus import BusLink, ForeignNodes, ForeignTraffic, LinkError
 from rig.link.clock import GrantClock, LockstepClock, PlantProgress, WallClock
-from rig.link.drive import DriveMaster
-from rig.progress import Progress
+from rig.link.drive_master import DriveMaster
+from rig.link.frame_faults import FrameFaults
+from rig.results.result import RunResult
 from rig.run import pacing, traffic
-from rig.run.bench_commands import BenchCommands
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import TS, Execution
 from rig.run.monitor import Monitor
 from rig.run.options import RunOptions
 from rig.run.plan import Plan
-from rig.run.programs import bench_programs, versions
-from rig.run.result import RunResult
+from rig.run.progress import Progress
+from rig.run.versions import versions
 from rig.scenario import Scenario
 
 if TYPE_CHECKING:  # the live view (rerun) is imported only for --live
@@ -38,21 +39,22 @@ SWITCH_INTERVAL_S = 0.0005
 LOCKSTEP_DRAIN_S = 0.05  # the firmware finishes the last period before the stop signal
 
 
-def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
-               run: Execution) -> None:
-    """Runs the scenario on the bus, filling ``run``."""
+def run_on_bus(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
+               result: RunResult, run: Execution) -> None:
+    """Runs the scenario on the bus, on the virtual bench configured as ``config``, filling
+    ``run``."""
     try:
         transport, channel = rigbus.select_transport(opts.bus, opts.channel)
-        programs = bench_programs(sc, opts)
+        programs = _programs(config, opts)
         argv = programs.argv(transport, channel, result.out_dir)
     except FileNotFoundError as exc:
         raise EnvironmentProblem(str(exc)) from exc
     result.bus, result.channel = transport, channel
-    result.versions = versions(argv[bench.PLANT][0], argv[bench.FIRMWARE][0])
-    result.command_lines = {"plant": argv[bench.PLANT], "firmware": argv[bench.FIRMWARE]}
+    result.versions = versions(argv[virtual.PLANT][0], argv[virtual.FIRMWARE][0])
+    result.command_lines = {"plant": argv[virtual.PLANT], "firmware": argv[virtual.FIRMWARE]}
     try:
         link = BusLink.open(transport, channel,
-                            frame_faults=drive_link.DriveLink(plan.link_windows),
+                            frame_faults=FrameFaults(plan.link_windows),
                             trace=result.out_dir / "rig.trace" if opts.trace_bus else None)
     except LinkError as exc:
         raise EnvironmentProblem(str(exc)) from exc
@@ -106,9 +108,19 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
                 live.close()
 
 
+def _programs(config: BenchConfiguration, opts: RunOptions) -> virtual.BenchPrograms:
+    """plant_rt and fw_host configured as ``config``: traces always, paired from period 0 in
+    lockstep (the plant's first ADC frame is its start-up period 0, so stray frames on the
+    channel cannot become the firmware's first period)."""
+    return virtual.BenchPrograms(
+        config, lockstep=not opts.realtime, trace=True, trace_vio=opts.trace_bus,
+        paired_from_start=not opts.realtime, extra_plant_args=tuple(opts.extra_plant_args),
+        extra_fw_args=tuple(opts.extra_fw_args))
+
+
 def _live_view(sc: Scenario, opts: RunOptions, link: BusLink, monitor: Monitor,
                progress: PlantProgress) -> LiveFeed | None:
-    from rig import recording
+    from rig.results import recording
     from rig.run.live import LiveFeed
 
     try:
@@ -120,18 +132,18 @@ def _live_view(sc: Scenario, opts: RunOptions, link: BusLink, monitor: Monitor,
     return LiveFeed(view, link, monitor, progress)
 
 
-def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.BenchPrograms,
+def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: virtual.BenchPrograms,
                   link: BusLink, run: Execution, live: LiveFeed | None) -> None:
     monitor, progress = run.monitor, run.progress
     assert monitor is not None and progress is not None
     prog = Progress(sc.name, sc.duration, enabled=opts.progress)
     timeout = opts.timeout_s or sc.timeout_s or (
         sc.duration + 30.0 if opts.realtime else 60.0 + 300.0 * sc.duration)
-    virtual = bench.VirtualBench(programs, opts.out, grace_s=opts.grace_s)
-    with virtual.sup:
+    virtual_bench = virtual.VirtualBench(programs, opts.out, grace_s=opts.grace_s)
+    with virtual_bench.sup:
         run.start_preload()  # while the programs start (the rig waits for them)
-        virtual.start(link.transport, link.channel, ready_timeout_s=sc.ready_timeout_s,
-                      env=opts.env)
+        virtual_bench.start(link.transport, link.channel, ready_timeout_s=sc.ready_timeout_s,
+                            env=opts.env)
         run.t0 = time.monotonic()
         deadline = run.t0 + timeout
         drive, bench_cmds = DriveMaster(link), BenchCommands(link)
@@ -156,14 +168,14 @@ def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.Be
                                f"(grant to {clock.granted})")
             raise RunError("timeout", "real-time run time-out")
 
-        for hook in (virtual.check, check_deadline, show_progress):
+        for hook in (virtual_bench.check, check_deadline, show_progress):
             clock.on_idle(hook)
         grace = opts.grace_s
         try:
             if isinstance(clock, LockstepClock):
                 run.periods_done = pacing.lockstep(sc, plan, clock, drive, bench_cmds, run,
                                                    lambda _until: show_progress())
-                virtual.sup.sleep(LOCKSTEP_DRAIN_S)
+                virtual_bench.sup.sleep(LOCKSTEP_DRAIN_S)
             else:
                 run.periods_done = pacing.realtime(sc, plan, clock, drive, bench_cmds,
                                                    progress, opts.stall_s, run)
@@ -172,7 +184,7 @@ def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.Be
             raise
         finally:
             prog.finish()
-            run.stops = virtual.stop(grace_s=grace)
+            run.stops = virtual_bench.stop(grace_s=grace)
             if isinstance(clock, LockstepClock):
                 run.grant_resends = clock.resends
         run.counters["rig.tx_frames"] = float(link.tx)

@@ -13,10 +13,10 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from rig import capture
+from rig.data import capture
+from rig.link.bench_commands import BenchCommands, LoadSetting
 from rig.link.clock import GrantClock, PlantProgress, WallClock
-from rig.link.drive import DriveMaster
-from rig.run.bench_commands import BenchCommands, LoadSetting
+from rig.link.drive_master import DriveMaster
 from rig.run.errors import RunError
 from rig.run.execution import Execution
 from rig.run.plan import Plan, initial_drive

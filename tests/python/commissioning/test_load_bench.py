@@ -24,14 +24,9 @@ import pytest
 
 from rig import bus as rigbus
 from rig import protocols
-from rig.bench_description import ModbusSpec
+from rig.bench.description import ModbusSpec
 from rig.commissioning.session import BenchSession
-from rig.load_bench import (
-    LoadBench,
-    LoadBenchError,
-    ModbusExceptionError,
-    register_map,
-)
+from rig.loadbench.client import LoadBench, LoadBenchError, ModbusExceptionError, register_map
 
 ILLEGAL_FUNCTION, ILLEGAL_DATA_ADDRESS, ILLEGAL_DATA_VALUE, SERVER_DEVICE_FAILURE = 1, 2, 3, 4
 

@@ -15,7 +15,7 @@ import pytest
 from test_load_bench import Server, start_server
 
 from rig import protocols
-from rig.loadbench_server import ServeOptions, serve
+from rig.loadbench.server import ServeOptions, serve
 
 
 @pytest.fixture

@@ -1,5 +1,6 @@
-"""Baselines (rig.baseline): the band over seeds, the classification of a run's values, the
-file round trip, what a record refuses, and a run judged against a baseline end to end."""
+"""Baselines (rig.regression.baseline): the band over seeds, the classification of a run's
+values, the file round trip, what a record refuses, and a run judged against a baseline end
+to end."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from rig import baseline, cli, scenario
-from rig.baseline import (
+from rig import cli, scenario
+from rig.regression import baseline
+from rig.regression.baseline import (
     CHANGED,
     EITHER,
     HIGHER,

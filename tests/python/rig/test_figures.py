@@ -1,6 +1,6 @@
-"""A run's pictures (rig.figures): written into its folder, embedded in report.md, linked from
-a suite's report; a criterion that did not pass gets a picture showing its window and its
-limit; the envelope that keeps them cheap never drops a peak."""
+"""A run's pictures (rig.results.figures): written into its folder, embedded in report.md,
+linked from a suite's report; a criterion that did not pass gets a picture showing its window
+and its limit; the envelope that keeps them cheap never drops a peak."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 from matplotlib.patches import Polygon, Rectangle
 
-from rig import capture, cli, figures
+from rig import cli
+from rig.data import capture
+from rig.results import figures
 
 SMOKE = Path(__file__).resolve().parents[3] / "rig" / "scenarios" / "smoke.toml"
 TIGHT = """

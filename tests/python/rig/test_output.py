@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import output
+from rig import outputs
 from rig.cli import main as rig_main
 
 
@@ -34,31 +34,31 @@ def test_rig_run_refuses_an_output_path_it_cannot_use(
 def test_a_read_only_folder_is_refused(tmp_path: Path) -> None:
     ro = tmp_path / "ro"
     ro.mkdir(mode=0o555)
-    with pytest.raises(output.OutputError, match="cannot write"):
-        output.prepare(ro)
+    with pytest.raises(outputs.OutputError, match="cannot write"):
+        outputs.prepare(ro)
 
 
 def test_not_enough_room_is_refused(tmp_path: Path) -> None:
-    with pytest.raises(output.OutputError, match="MB free"):
-        output.prepare(tmp_path, periods=10**15)
+    with pytest.raises(outputs.OutputError, match="MB free"):
+        outputs.prepare(tmp_path, periods=10**15)
 
 
 WRITER = r"""
 import resource, signal, sys
 from pathlib import Path
-from rig import output
+from rig import outputs
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000))  # a disk that fills at 1000 bytes
 try:
-    output.write_text(Path(sys.argv[1]), "x" * 5000)
-except output.OutputError as exc:
+    outputs.write_text(Path(sys.argv[1]), "x" * 5000)
+except outputs.OutputError as exc:
     print("refused:", exc)
 """
 
 
 def test_a_full_disk_leaves_the_previous_result_whole(tmp_path: Path) -> None:
     result = tmp_path / "result.json"
-    output.write_text(result, '{"complete": true}')
+    outputs.write_text(result, '{"complete": true}')
     done = subprocess.run([sys.executable, "-c", WRITER, str(result)], capture_output=True,
                           text=True, timeout=60, check=False)
     assert done.returncode == 0, done.stderr

@@ -12,8 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rig import cli, metrics, recording
+from rig import cli
 from rig import scenario as sc
+from rig.data import metrics
+from rig.results import recording
 
 FULL_RATE = ("plant.trace", "fw.trace", "rig.trace", "capture")
 

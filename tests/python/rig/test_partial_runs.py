@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from rig import capture
+from rig.data import capture
 
 DURATION = 3.0
 SCENARIO = f"""\

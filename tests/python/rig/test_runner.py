@@ -19,10 +19,11 @@ import psutil
 import pytest
 import rerun as rr
 
-from rig import recording, runner, verdict
 from rig import scenario as sc
+from rig.results import recording, verdict
+from rig.results.result import RunResult
+from rig.run import runner
 from rig.run.plan import Plan
-from rig.run.result import RunResult
 from rig.run.suite import evaluate_comparison
 
 TINY = """\
@@ -352,7 +353,7 @@ def test_scenario_over_socketcan(with_fakes: Path, tmp_path: Path) -> None:
 
 
 def test_xfail_xpass_and_report_outcomes() -> None:
-    from rig import report
+    from rig.results import report
 
     counters = {"rig.x": 3.0}
     fail = sc.Criterion("a", "rig.x", (0.0, 1.0), 1.0)

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from rig import cli, scenario, stats
+from rig import cli, scenario
+from rig.regression import stats
 from rig.run import multi_seed
 from rig.run.suite import evaluate_comparison
 from rig.scenario import Comparison
@@ -172,11 +173,11 @@ def test_the_seed_dithers_the_start_angle(tmp_path: Path) -> None:
     """Seed 1 is the scenario as written; another seed moves the start by (seed - 1)
     thousandths of a degree on top of the scenario's own start angle, and the set-up a
     baseline is keyed on does not change with it."""
-    from rig import baseline
-    from rig.run.programs import plant_sets
+    from rig.regression import baseline
+    from rig.run.single import bench_configuration
 
     sc = scenario.load_scenario(write(tmp_path, "dither"))
     assert sc.with_seed(1).start_theta_deg == sc.initial_theta_deg
     assert sc.with_seed(4).start_theta_deg == pytest.approx(sc.initial_theta_deg + 0.003)
-    assert "initial.theta_e_deg=0.003" in " ".join(plant_sets(sc.with_seed(4)))
+    assert "initial.theta_e_deg=0.003" in " ".join(bench_configuration(sc.with_seed(4)).plant_sets)
     assert baseline.setup_digest(sc.with_seed(4)) == baseline.setup_digest(sc)
