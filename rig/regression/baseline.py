@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from rig.regression import stats
+from rig.results.result import RunResult
 from rig.scenario import SEED_KEY, Scenario
 from rig.scenario.model import side_of
 
@@ -538,3 +539,32 @@ def index(folder: Path | None = None) -> Index:
 
 def now() -> str:
     return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+
+
+def judge_result(result: RunResult, sc: Scenario, mode: str, realtime: bool) -> None:
+    """Each criterion's value of a run against the committed baseline, into ``result``: a
+    regressed, changed or stale one fails the run; with ``mode`` "require" a run without a
+    baseline fails too. Real-time runs are not compared (their timing is the wall clock's,
+    not the seed's)."""
+    if mode == "off":
+        return
+    key = entry_key(sc.name, sc.profile)
+    if realtime:
+        result.baseline = {"skipped": "real-time runs are not compared with the baseline"}
+        return
+    try:
+        found = index().for_key(key)
+    except BaselineError as exc:
+        result.baseline = {"passed": False, "error": str(exc)}
+        result.passed = False
+        result.status = "failed" if result.status == "passed" else result.status
+        return
+    if found is None:
+        result.baseline = {"passed": mode != "require", "missing": key,
+                           "note": f"no baseline holds {key}"}
+    else:
+        result.baseline = found.judge(key, setup_digest(sc), sc.seed, result.criteria)
+    if not result.baseline["passed"]:
+        result.passed = False
+        if result.status == "passed":
+            result.status = "failed"

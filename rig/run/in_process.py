@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from rig import _paths
 from rig.bench import sil
@@ -16,12 +18,11 @@ from rig.link.clock import InprocClock
 from rig.link.drive_master import DriveMaster
 from rig.link.frame_faults import FrameFaults
 from rig.results.result import RunResult
-from rig.run import pacing
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import TS, Execution
 from rig.run.options import RunOptions
+from rig.run.pacing import PacedBench
 from rig.run.plan import Plan
-from rig.run.progress import Progress
 from rig.run.versions import sha, versions
 from rig.scenario import Scenario
 
@@ -40,9 +41,11 @@ class _GrantsTraced:
         return self.bench.run_until(run_until)
 
 
-def run_in_process(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
-                   result: RunResult, run: Execution) -> None:
-    """Runs the scenario on the in-process bench configured as ``config``, filling ``run``."""
+@contextmanager
+def sil_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
+              result: RunResult, run: Execution) -> Iterator[PacedBench]:
+    """The in-process bench configured as ``config``, ready to be paced through the plan;
+    what it counted goes into ``run`` when it closes."""
     out = result.out_dir
     if opts.realtime:
         raise RunError("usage", "--realtime needs the bus: the in-process bench runs in "
@@ -62,7 +65,6 @@ def run_in_process(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: R
     if opts.live:
         print("rig: no live view on the in-process bench (no telemetry frames); running "
               "without it", file=sys.stderr)
-    prog = Progress(sc.name, sc.duration, enabled=opts.progress)
     timeout = opts.timeout_s or sc.timeout_s or 60.0 + 300.0 * sc.duration
     try:
         bench = sil.SilBench(config.profile_file, config.plant_sets, config.fw_sets,
@@ -90,12 +92,10 @@ def run_in_process(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: R
         clock.on_idle(check_deadline)
         cpu0 = time.process_time()
         try:
-            run.periods_done = pacing.lockstep(
-                sc, plan, clock, DriveMaster(link), BenchCommands(link), run,
-                lambda until: prog.update(until * TS, None, None))
+            yield PacedBench(clock, DriveMaster(link), BenchCommands(link),
+                             lambda: (clock.granted * TS, None, None))
             run.cpu_s = time.process_time() - cpu0
         finally:
-            prog.finish()
             bench_counters = bench.counters()
             for name in ("plant", "firmware"):
                 run.add_counters(name, bench_counters.get(name, {}))

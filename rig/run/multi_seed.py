@@ -17,10 +17,10 @@ from dataclasses import replace
 from typing import Any
 
 from rig import outputs
+from rig.regression import baseline
 from rig.regression.baseline import EITHER, HIGHER, LOWER, better_side
 from rig.results.result import Failure, RunResult, Timing, write_result
 from rig.results.verdict import NOT_EVALUATED, outcome_of
-from rig.run import evaluation
 from rig.run.options import RunOptions
 from rig.run.single import run_single
 from rig.scenario import Scenario
@@ -122,7 +122,7 @@ def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
         else:
             result.status = "passed" if ok else "failed"
             result.passed = ok
-        evaluation.judge_baseline(result, sc, opts.baseline, opts.realtime)
+        baseline.judge_result(result, sc, opts.baseline, opts.realtime)
     else:
         result.status = "interrupted" if interrupted is not None else "failed"
         result.failure = failed.failure if failed is not None else None

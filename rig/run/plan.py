@@ -61,10 +61,14 @@ class Plan:
     fault_cmds: dict[int, list[dict[str, float | int]]] = field(default_factory=dict)
     # the faults on the rig's own frames (rig.link.frame_faults)
     link_windows: list[frame_faults.Window] = field(default_factory=list)
+    # the drive's command and limits before the scenario's first event
+    initial_cmd: DriveCommand = field(default_factory=DriveCommand)
+    initial_limits: DriveLimits = field(default_factory=DriveLimits)
 
     @classmethod
     def build(cls, sc: Scenario) -> Plan:
         n = round(sc.duration / TS)
+        cmd0, limits0 = initial_drive(sc)
         step = accel_max()
         drive: dict[int, list[DriveChange]] = {}
 
@@ -98,7 +102,7 @@ class Plan:
         for w in link_windows:
             bps |= {w.start, w.end}
         plan = cls(n, drive, loads, [], max(1, round(sc.grant_max_s / TS)), fault_cmds,
-                   link_windows)
+                   link_windows, cmd0, limits0)
         while True:
             # a frame the rig holds back arrives exactly before its due period: make every
             # due period a grant start (due periods of those starts too, up to a fixed point)

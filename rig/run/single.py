@@ -28,15 +28,14 @@ from rig.data import capture
 from rig.drive import commissioned
 from rig.link.bus import LinkError
 from rig.link.clock import BenchStall
+from rig.regression import baseline
 from rig.results.result import Failure, RunResult, Timing, write_result
-from rig.results.verdict import Coverage
-from rig.run import evaluation
+from rig.run import evaluation, in_process, on_bus, pacing
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import Execution
-from rig.run.in_process import run_in_process
-from rig.run.on_bus import run_on_bus
 from rig.run.options import RunOptions
 from rig.run.plan import Plan
+from rig.run.progress import Progress
 from rig.run.record import write_recording
 from rig.scenario import Scenario
 from rig.supervisor import ChildFailed, Terminated, signals_deferred
@@ -75,9 +74,12 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
     try:
         config = bench_configuration(sc)
         if opts.bus == sil.INPROC:
-            run_in_process(sc, plan, config, opts, result, run)
+            bench = in_process.sil_bench(sc, plan, config, opts, result, run)
         else:
-            run_on_bus(sc, plan, config, opts, result, run)
+            bench = on_bus.virtual_bench(sc, plan, config, opts, result, run)
+        line = Progress(sc.name, sc.duration, enabled=opts.progress)
+        with bench as paced:
+            run.periods_done = pacing.pace(plan, paced, run, line)
     except ChildFailed as exc:
         failure = Failure("crash", f"{exc.name}: {exc.what}", exc.log_tail, exc.name)
     except RunError as exc:
@@ -92,28 +94,23 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
         interrupted = exc
         failure = Failure("interrupted", f"interrupted ({type(exc).__name__})")
     wall = run.wall()
-    cap: capture.Capture | None = None
+    found = evaluation.Evaluated(failure)
     try:
-        failure = evaluation.program_failure(run, failure, on_bus=opts.bus != sil.INPROC)
-        cap, loss, failure = evaluation.merge_capture(sc, plan, out, run, opts.realtime,
-                                                      failure, interrupted is not None)
-        if loss is not None:
-            result.capture_loss = {**loss.to_json(), "summary": loss.summary()}
-        result.counters = run.counters
-        coverage = evaluation.coverage(plan, cap, loss, run.periods_done, opts.realtime,
-                                       interrupted is not None, failure)
-        reads = evaluation.judge(result, sc, cap, coverage, failure)
-        evaluation.judge_baseline(result, sc, opts.baseline, opts.realtime)
+        evaluation.evaluate(found, result, sc, plan, run, opts, interrupted is not None)
+        baseline.judge_result(result, sc, opts.baseline, opts.realtime)
         result.timing = run.timing(wall)
         result.finished = _now()
+        cap = found.capture
         if cap is not None and cap.n and opts.record:
-            result.recording = write_recording(result, cap, run, reads)
+            result.recording = write_recording(result, cap, run, found.reads)
         if cap is not None and cap.n and opts.figures:
             result.figures = write_figures(out, cap, result)
     except (KeyboardInterrupt, Terminated) as exc:
         # interrupted while the results were worked out: the result says so, whole
         cap, interrupted = None, interrupted or exc
-        _judge_interrupted(result, sc, plan, run, wall, failure, exc)
+        evaluation.judge_interrupted(result, sc, plan, run, found.failure, exc)
+        result.timing = run.timing(wall)
+        result.finished = _now()
     with signals_deferred():  # result.json and report.md are written whole
         result.kept = outputs.prune(out, keep_full=opts.keep == "all" or not result.passed,
                                     keep=opts.keep)
@@ -122,22 +119,6 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
     if interrupted is not None:
         raise interrupted
     return result
-
-
-def _judge_interrupted(result: RunResult, sc: Scenario, plan: Plan, run: Execution,
-                       wall: float, failure: Failure | None, exc: BaseException) -> None:
-    """The verdict of a run interrupted after its programs stopped (merging, judging or
-    recording): nothing is judged, and the failure says where it stopped."""
-    before = f" (after {failure.kind}: {failure.message[:200]})" if failure is not None else ""
-    why = (f"interrupted ({type(exc).__name__}) while the results were worked out, before "
-           f"any criterion was judged{before}")
-    stopped = Failure("interrupted", why)
-    result.counters = run.counters
-    evaluation.judge(result, sc, None, Coverage(plan.n_periods, None, None, False, why),
-                     stopped)
-    result.recording = None
-    result.timing = run.timing(wall)
-    result.finished = _now()
 
 
 def figures_modules() -> tuple[str, ...]:

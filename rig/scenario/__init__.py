@@ -8,7 +8,7 @@ validates a file and reports every schema error with the file, the line and the 
 modes, flux-weakening modes, load modes) come from the DBC choices, not from this package.
 
 The modules: ``model`` (the scenario and suite as the rig runs them), ``parse`` (a scenario
-file's fields, checked), ``suite`` (suite files), ``checker`` and ``checks`` (schema errors
+file's fields, checked), ``suite`` (suite files), ``schema`` and ``checks`` (schema errors
 and what the plant and firmware accept), ``positions`` (the line of a key, for the errors),
 ``files`` and ``lookup`` (where scenarios and suites are, by name or path).
 """
