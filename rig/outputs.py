@@ -234,10 +234,7 @@ class Kept:
     note: str | None = None
 
     def to_json(self) -> dict[str, Any]:
-        out = asdict(self)
-        if self.note is None:
-            del out["note"]
-        return out
+        return {k: v for k, v in asdict(self).items() if k != "note" or v is not None}
 
 
 def prune(out: Path, *, keep_full: bool, keep: str) -> Kept:

@@ -1,8 +1,8 @@
-"""``rig bench bus``: the C-to-C round trip and frame rate of every available transport.
-
-Two C nodes (``hilbus_tool echo`` and ``ping``) on one channel: the round trip with one frame
-in flight and the frames per second with eight, classic and FD, with sleeping receivers and
-with receivers that busy-poll (``HILBUS_SPIN_US``) before they sleep."""
+"""C-to-C ping-pong (hilbus_tool echo/ping) on every available transport: round trip
+min/median/p99 in µs with one frame in flight, and frames per second with a window of 8
+frames in flight; each with sleeping receivers and with receivers that busy-poll up to
+--spin-us before sleeping. vcan is measured only where the kernel has CAN (run `rig vm --
+rig bench bus` to compare both on one kernel)."""
 
 from __future__ import annotations
 
@@ -20,13 +20,6 @@ from rig import _paths, cliargs
 from rig import bus as rigbus
 
 HELP = "C-to-C ping-pong round trip and frame rate per transport"
-DESCRIPTION = (
-    "C-to-C ping-pong (hilbus_tool echo/ping) on every available transport: "
-    "round trip min/median/p99 in µs with one frame in flight, and frames per second "
-    "with a window of 8 frames in flight; each with sleeping receivers and with "
-    "receivers that busy-poll up to --spin-us before sleeping. vcan is measured only "
-    "where the kernel has CAN "
-    "(run `rig vm -- rig bench bus` to compare both on one kernel).")
 
 
 def add_arguments(b: argparse.ArgumentParser) -> None:

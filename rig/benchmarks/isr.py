@@ -1,11 +1,7 @@
-"""``rig bench isr``: what one call of the firmware's ISR (``fw_core_isr()``) costs.
-
-On the host: ``sil_bench`` (the in-process bench as a program: the core against the real
-plant, RUN state at 1000 r/min) times the call, and callgrind counts its instructions (one
-dump per call; the 1 kHz tasks run on a fixed period residue, so calls are grouped by period
-mod 10 to tell the 10 kHz path from the 1 kHz path). With ``--target cortex-m4f``: the
-instructions per call on the emulated Cortex-M4F by path (``rig.benchmarks.isr_m4``), beside
-the host's callgrind figure."""
+"""Times fw_core_isr() on the host (sil_bench: the core against the real plant in one
+process, RUN state at 1000 r/min) and counts instructions per call with callgrind (one dump
+per call; the 1 kHz tasks run on a fixed period residue, so calls are grouped by period mod
+10 to tell the 10 kHz path from the 1 kHz path)."""
 
 from __future__ import annotations
 
@@ -22,11 +18,6 @@ from rig import _paths, cliargs
 from rig.benchmarks.plant import PROFILES
 
 HELP = "firmware ISR cost per period: ns on this host, instructions (callgrind)"
-DESCRIPTION = (
-    "Times fw_core_isr() on the host (sil_bench: the core against the real "
-    "plant in one process, RUN state at 1000 r/min) and counts instructions per call with "
-    "callgrind (one dump per call; the 1 kHz tasks run on a fixed period residue, so "
-    "calls are grouped by period mod 10 to tell the 10 kHz path from the 1 kHz path).")
 
 
 def add_arguments(i: argparse.ArgumentParser) -> None:

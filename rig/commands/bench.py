@@ -18,11 +18,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("bench", help="benchmarks (one JSON object on stdout)",
                        description="Benchmarks; each prints one JSON object.")
     bsub = p.add_subparsers(dest="bench_command", metavar="TARGET", required=True)
-    b = bsub.add_parser("bus", help=bus.HELP, description=bus.DESCRIPTION)
+    b = bsub.add_parser("bus", help=bus.HELP, description=bus.__doc__)
     bus.add_arguments(b)
     cliargs.command(b, _printed(bus.bench_bus))
 
-    i = bsub.add_parser("isr", help=isr.HELP, description=isr.DESCRIPTION)
+    i = bsub.add_parser("isr", help=isr.HELP, description=isr.__doc__)
     isr.add_arguments(i)
     cliargs.command(i, _printed(isr.bench_isr))
 

@@ -277,28 +277,32 @@ def _register(
     return deco
 
 
-def _pos_stats(w: Window) -> ErrorStats:
-    return error_stats(w.get("pos_err_deg"))
+def _column_metric(name: str, unit: str, description: str, column: str, stat: str) -> None:
+    """Registers a metric that is one statistic of one capture column over the window."""
+
+    def metric(w: Window, p: Mapping[str, float]) -> float:
+        return _stat(w.get(column), stat)
+
+    _register(name, unit, description)(metric)
 
 
-@_register("pos_err_max_deg", "deg", "max |position error| (electrical, wrapped to ±180°)")
-def _pos_max(w: Window, p: Mapping[str, float]) -> float:
-    return _pos_stats(w).max_abs
+def _error_metric(name: str, unit: str, description: str, column: str, statistic: str) -> None:
+    """Registers a metric that is one of the error statistics (``ErrorStats``) of one capture
+    column over the window."""
+
+    def metric(w: Window, p: Mapping[str, float]) -> float:
+        return float(getattr(error_stats(w.get(column)), statistic))
+
+    _register(name, unit, description)(metric)
 
 
-@_register("pos_err_rms_deg", "deg", "RMS position error (electrical)")
-def _pos_rms(w: Window, p: Mapping[str, float]) -> float:
-    return _pos_stats(w).rms
-
-
-@_register("pos_err_mean_deg", "deg", "mean (signed) position error (electrical)")
-def _pos_mean(w: Window, p: Mapping[str, float]) -> float:
-    return _pos_stats(w).mean
-
-
-@_register("pos_err_p99_deg", "deg", "99th percentile of |position error| (electrical)")
-def _pos_p99(w: Window, p: Mapping[str, float]) -> float:
-    return _pos_stats(w).p99_abs
+_error_metric("pos_err_max_deg", "deg", "max |position error| (electrical, wrapped to ±180°)",
+              "pos_err_deg", "max_abs")
+_error_metric("pos_err_rms_deg", "deg", "RMS position error (electrical)", "pos_err_deg", "rms")
+_error_metric("pos_err_mean_deg", "deg", "mean (signed) position error (electrical)",
+              "pos_err_deg", "mean")
+_error_metric("pos_err_p99_deg", "deg", "99th percentile of |position error| (electrical)",
+              "pos_err_deg", "p99_abs")
 
 
 @_register(
@@ -321,9 +325,8 @@ def _pol_periods(w: Window, p: Mapping[str, float]) -> float:
     return float(polarity_losses(w.get("pos_err_deg"), p["threshold_deg"])[1])
 
 
-@_register("speed_err_max_rpm", "r/min", "max |estimated - true speed| (mechanical)")
-def _spd_err_max(w: Window, p: Mapping[str, float]) -> float:
-    return error_stats(w.get("speed_err_rpm")).max_abs
+_error_metric("speed_err_max_rpm", "r/min", "max |estimated - true speed| (mechanical)",
+              "speed_err_rpm", "max_abs")
 
 
 # the firmware's speed loop and telemetry run every 10th period (1 kHz; drive.dbc)
@@ -343,14 +346,8 @@ def _spd_err_1khz(w: Window, p: Mapping[str, float]) -> float:
     return error_stats(block_means(w.get("speed_err_rpm"), SPEED_LOOP_PERIODS)).max_abs
 
 
-@_register("speed_err_rms_rpm", "r/min", "RMS estimated - true speed")
-def _spd_err_rms(w: Window, p: Mapping[str, float]) -> float:
-    return error_stats(w.get("speed_err_rpm")).rms
-
-
-@_register("speed_err_mean_rpm", "r/min", "mean estimated - true speed")
-def _spd_err_mean(w: Window, p: Mapping[str, float]) -> float:
-    return error_stats(w.get("speed_err_rpm")).mean
+_error_metric("speed_err_rms_rpm", "r/min", "RMS estimated - true speed", "speed_err_rpm", "rms")
+_error_metric("speed_err_mean_rpm", "r/min", "mean estimated - true speed", "speed_err_rpm", "mean")
 
 
 @_register("speed_track_err_max_rpm", "r/min", "max |true speed - scenario speed reference|")
@@ -374,19 +371,9 @@ def _settle(w: Window, p: Mapping[str, float]) -> float:
     return settling_time(t, v - ref, w.t0, p["band_rpm"])
 
 
-@_register("speed_mean_rpm", "r/min", "mean true speed")
-def _spd_mean(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("speed_true_rpm"), "mean")
-
-
-@_register("speed_min_rpm", "r/min", "minimum true speed")
-def _spd_min(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("speed_true_rpm"), "min")
-
-
-@_register("speed_max_rpm", "r/min", "maximum true speed")
-def _spd_max(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("speed_true_rpm"), "max")
+_column_metric("speed_mean_rpm", "r/min", "mean true speed", "speed_true_rpm", "mean")
+_column_metric("speed_min_rpm", "r/min", "minimum true speed", "speed_true_rpm", "min")
+_column_metric("speed_max_rpm", "r/min", "maximum true speed", "speed_true_rpm", "max")
 
 
 _DIP_PARAMS = {"baseline_s": 0.05, "band_pct": 2.0, "band_rpm": 0.0}
@@ -450,9 +437,8 @@ def _lq_mean(w: Window, p: Mapping[str, float]) -> float:
     return 1e3 * _stat(w.get("fw.lq_hat"), "mean")
 
 
-@_register("lambda_hat_mean_wb", "Wb", "mean estimated PM flux linkage (flux magnitude)")
-def _lam_mean(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("fw.lambda_hat"), "mean")
+_column_metric("lambda_hat_mean_wb", "Wb", "mean estimated PM flux linkage (flux magnitude)",
+               "fw.lambda_hat", "mean")
 
 
 @_register("flux_circularity_pct", "%", "std/mean of the estimated flux vector's radius")
@@ -466,29 +452,12 @@ def _lam_ratio(w: Window, p: Mapping[str, float]) -> float:
     return float(x.min() / x.max()) if x.size and x.max() > 0 else float("nan")
 
 
-@_register("i_mag_max_a", "A", "max true current magnitude sqrt(id² + iq²)")
-def _imax(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("i_mag"), "max")
-
-
-@_register("i_mag_rms_a", "A", "RMS true current magnitude")
-def _irms(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("i_mag"), "rms")
-
-
-@_register("v_mag_max_v", "V", "max commanded voltage magnitude sqrt(vd² + vq²)")
-def _vmax(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("v_mag"), "max")
-
-
-@_register("id_mean_a", "A", "mean true d-axis current")
-def _id_mean(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("truth.id"), "mean")
-
-
-@_register("iq_mean_a", "A", "mean true q-axis current")
-def _iq_mean(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("truth.iq"), "mean")
+_column_metric("i_mag_max_a", "A", "max true current magnitude sqrt(id² + iq²)", "i_mag", "max")
+_column_metric("i_mag_rms_a", "A", "RMS true current magnitude", "i_mag", "rms")
+_column_metric("v_mag_max_v", "V", "max commanded voltage magnitude sqrt(vd² + vq²)",
+               "v_mag", "max")
+_column_metric("id_mean_a", "A", "mean true d-axis current", "truth.id", "mean")
+_column_metric("iq_mean_a", "A", "mean true q-axis current", "truth.iq", "mean")
 
 
 @_register("te_err_max_nm", "N*m", "max |estimated - true electromagnetic torque|")
@@ -501,9 +470,8 @@ def _te_mean(w: Window, p: Mapping[str, float]) -> float:
     return error_stats(w.get("fw.te_hat") - w.get("truth.te")).mean
 
 
-@_register("fw_active_fraction", "", "fraction of periods with flux weakening active")
-def _fw_frac(w: Window, p: Mapping[str, float]) -> float:
-    return _stat(w.get("fw.fw_active"), "mean")
+_column_metric("fw_active_fraction", "", "fraction of periods with flux weakening active",
+               "fw.fw_active", "mean")
 
 
 @_register("slopes_ok_fraction", "", "fraction of periods where both active vectors were measured")

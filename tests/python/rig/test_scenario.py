@@ -138,16 +138,24 @@ BAD_CASES = [
 ]
 
 
-@pytest.mark.parametrize("text, line, field, fragment", BAD_CASES)
-def test_schema_errors_name_file_line_and_field(tmp_path: Path, text: str, line: int,
-                                                field: str, fragment: str) -> None:
-    path = _write(tmp_path, text)
+def schema_error(tmp: Path, text: str, line: int, field: str,
+                 fragment: str) -> sc.ScenarioError:
+    """The error loading ``text`` raises, which names the file, ``line`` and ``field`` and
+    says ``fragment``."""
+    path = _write(tmp, text)
     with pytest.raises(sc.ScenarioError) as info:
         sc.load_scenario(path)
     msg = str(info.value)
     assert f"{path}:{line}: {field}: " in msg, msg
-    assert fragment in msg
-    assert len(info.value.issues) == 1, msg
+    assert fragment in msg, msg
+    return info.value
+
+
+@pytest.mark.parametrize("text, line, field, fragment", BAD_CASES)
+def test_schema_errors_name_file_line_and_field(tmp_path: Path, text: str, line: int,
+                                                field: str, fragment: str) -> None:
+    error = schema_error(tmp_path, text, line, field, fragment)
+    assert len(error.issues) == 1, str(error)
 
 
 def test_all_problems_are_reported_at_once(tmp_path: Path) -> None:
