@@ -70,7 +70,7 @@ def ping_pong(transport: str, channel: str, count: int, fd: bool, window: int,
             echo.wait(timeout=5)
 
 
-def bench_bus(args: argparse.Namespace) -> dict[str, Any]:
+def measure(args: argparse.Namespace) -> dict[str, Any]:
     if args.channel.startswith("vcan") is False and rigbus.kernel_has_can():
         channel = "vcanbench"
     else:

@@ -42,14 +42,14 @@ def sil_bench_argv(profile: str, periods: int) -> list[str]:
     return [str(_paths.binary("sil_bench")), "--profile", str(path), "--periods", str(periods)]
 
 
-def bench_isr(args: argparse.Namespace) -> dict[str, Any]:
+def measure(args: argparse.Namespace) -> dict[str, Any]:
     if args.target == "cortex-m4f":
-        from rig.benchmarks.isr import bench_isr_m4
+        # the emulator (unicorn, 70 ms to import) only for this target, not on every rig start
+        from rig.benchmarks import isr_m4
 
         cg = (callgrind_isr(sil_bench_argv(args.profile, args.callgrind_periods),
                             args.callgrind_periods) if args.callgrind_periods > 0 else None)
-        print(json.dumps(bench_isr_m4(args.scale, args.whole_runs, cg)))
-        return 0
+        return isr_m4.measure(args.scale, args.whole_runs, cg)
     argv = sil_bench_argv(args.profile, args.periods)
     timed = subprocess.run([*argv, "--time-isr"], capture_output=True, text=True, check=True)
     report: dict[str, Any] = {"benchmark": "isr", "host_timing": json.loads(timed.stdout)}

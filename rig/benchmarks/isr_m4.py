@@ -17,7 +17,7 @@ from typing import Any
 from rig.target_m4 import emulator, run, scenarios
 
 
-def bench_isr_m4(scale: float, full: bool, callgrind: dict[str, Any] | None) -> dict[str, Any]:
+def measure(scale: float, full: bool, callgrind: dict[str, Any] | None) -> dict[str, Any]:
     comps = []
     with tempfile.TemporaryDirectory() as tmp:
         for case in scenarios.CASES:

@@ -178,7 +178,7 @@ def realtime_run(transport: str, channel: str, profile: str, seconds: float,
     }
 
 
-def bench_plant(args: argparse.Namespace) -> dict[str, Any]:
+def measure(args: argparse.Namespace) -> dict[str, Any]:
     report: dict[str, Any] = {"benchmark": "plant", "host_cpus": os.cpu_count(),
                               "in_vm": os.environ.get("HIL_IN_VM") == "1",
                               "profile": args.profile}

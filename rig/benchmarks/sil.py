@@ -85,7 +85,7 @@ def sil_bench_program(profile: str) -> dict[str, Any]:
     return {k: data[k] for k in keys}
 
 
-def bench_sil(args: argparse.Namespace) -> dict[str, Any]:
+def measure(args: argparse.Namespace) -> dict[str, Any]:
     sc = scenario.load(args.scenario)
     if not isinstance(sc, scenario.Scenario):
         raise SystemExit(f"rig bench sil: {args.scenario} is a suite, not a scenario")

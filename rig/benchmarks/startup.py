@@ -104,7 +104,7 @@ def _stats(values: list[float]) -> dict[str, float]:
             "max": round(max(values), 4)}
 
 
-def bench_startup(args: argparse.Namespace) -> dict[str, Any]:
+def measure(args: argparse.Namespace) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="rig-bench-startup-") as tmp:
         def argv(k: int) -> list[str]:
             return ["run", args.scenario, "--bus", "inproc", "--no-record", "--quiet",

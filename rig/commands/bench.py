@@ -20,36 +20,36 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     bsub = p.add_subparsers(dest="bench_command", metavar="TARGET", required=True)
     b = bsub.add_parser("bus", help=bus.HELP, description=bus.__doc__)
     bus.add_arguments(b)
-    cliargs.command(b, _printed(bus.bench_bus))
+    cliargs.command(b, _printed(bus.measure))
 
     i = bsub.add_parser("isr", help=isr.HELP, description=isr.__doc__)
     isr.add_arguments(i)
-    cliargs.command(i, _printed(isr.bench_isr))
+    cliargs.command(i, _printed(isr.measure))
 
     raw = argparse.RawDescriptionHelpFormatter
     pl = bsub.add_parser(
         "plant", help="plant compute per period, lockstep periods/s, real-time jitter",
         description=plant.__doc__, formatter_class=raw)
     plant.add_arguments(pl)
-    cliargs.command(pl, _bench_plant)
+    cliargs.command(pl, _plant)
 
     si = bsub.add_parser(
         "sil", help="closed loop in one process (--bus inproc) against the bus, same run",
         description=sil.__doc__, formatter_class=raw)
     sil.add_arguments(si)
-    cliargs.command(si, _printed(sil.bench_sil))
+    cliargs.command(si, _printed(sil.measure))
 
     su = bsub.add_parser(
         "startup", help="CPU and wall time of a scenario's start in a new process",
         description=startup.__doc__, formatter_class=raw)
     startup.add_arguments(su)
-    cliargs.command(su, _printed(startup.bench_startup))
+    cliargs.command(su, _printed(startup.measure))
 
     ga = bsub.add_parser(
         "gate", help="the regression gate's wall and CPU time (target: 3 min on 2 cores)",
         description=gate.__doc__, formatter_class=raw)
     gate.add_arguments(ga)
-    cliargs.command(ga, _printed(gate.bench_gate))
+    cliargs.command(ga, _printed(gate.measure))
 
 
 def _printed(measure: Callable[[argparse.Namespace], dict[str, Any]]
@@ -61,6 +61,6 @@ def _printed(measure: Callable[[argparse.Namespace], dict[str, Any]]
     return command
 
 
-def _bench_plant(args: argparse.Namespace) -> int:
-    plant.bench_plant(args)  # prints its JSON object
+def _plant(args: argparse.Namespace) -> int:
+    plant.measure(args)  # prints its JSON object
     return 0

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from test_load_bench import Server, start_server
+from test_loadbench import Server, start_server
 
 from rig import protocols
 from rig.loadbench.server import ServeOptions, serve
