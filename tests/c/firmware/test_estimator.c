@@ -2,6 +2,8 @@
  * docs/estimator.md §2, in all six sectors and both polarity branches, then
  * with back-EMF, resistance and rotation between the windows (section 4.5). Expected values
  * come from the model parameters, not from the estimator. */
+#include <string.h>
+
 #include "fw_internal.h"
 #include "fw_test.h"
 
@@ -279,6 +281,39 @@ static void flux_settling(void)
     CHECK(settled >= expect - 1 && settled <= expect + 1, "settled after %ld periods, not %ld", settled, expect);
 }
 
+/* Online Ld/Lq (param_estimator.c): a two-vector estimate inside param_l_min/max_ratio of the
+ * nominal enters the filters; one with an Lq outside them (a slope disturbed by a transient)
+ * is refused whole: the filters and the learnt Lq curve do not move. */
+static void paramest_range(void)
+{
+    const real_t ld = 0.015f, lq = 0.032f, l_lo = 0.2f * ld, l_hi = 5.0f * lq;
+    fw_param_est_t pe;
+    fw_est_out_t est;
+    int k;
+    struct {
+        double ld, lq;
+        int taken;
+    } cases[] = {{0.015, 0.030, 1}, {0.015, 0.9 * 5.0 * 0.032, 1}, {0.015, 3.0 * 5.0 * 0.032, 0},
+                 {0.015, 0.5 * 0.2 * 0.015, 0}, {3.0 * 5.0 * 0.032, 0.032, 0}};
+    for (k = 0; k < (int)(sizeof cases / sizeof cases[0]); k++) {
+        real_t g0 = (real_t)(0.5 * (1.0 / cases[k].ld + 1.0 / cases[k].lq));
+        real_t g1 = (real_t)(0.5 * (1.0 / cases[k].ld - 1.0 / cases[k].lq));
+        int32_t before;
+        fw_paramest_reset(&pe, ld, lq, 4.5f);
+        before = pe.n_updates;
+        memset(&est, 0, sizeof est);
+        est.n_active = 2;
+        est.ok = 1;
+        est.gamma0 = g0;
+        est.g = fw_c(g1, 0.0f); /* theta = 0: d along alpha */
+        est.gamma1 = fw_fabs(g1);
+        fw_paramest_update(&pe, &est, 0.0f, 1.0f, 0.01f, l_lo, l_hi);
+        CHECK((pe.n_updates != before) == cases[k].taken,
+              "Ld %.4f Lq %.4f H: %s", cases[k].ld, cases[k].lq,
+              cases[k].taken ? "refused" : "taken into the filters");
+    }
+}
+
 static void flux_model(void)
 {
     double err, lf;
@@ -305,6 +340,7 @@ int main(void)
     static_model();
     flux_model();
     flux_settling();
+    paramest_range();
     single_vector();
     rotating_model();
     branch_selection();
