@@ -336,7 +336,8 @@ def _seeds(c: Checker, raw: Any) -> tuple[int, ...]:
         return ()
     if not MIN_SEEDS <= len(seeds) <= MAX_SEEDS or len(set(seeds)) != len(seeds) or \
             any(not 0 <= x < 2**31 for x in seeds):
-        c.err(where, f"must give {MIN_SEEDS} to {MAX_SEEDS} distinct seeds in 0 .. 2^31 - 1")
+        c.err(where, f"must be a count of {MIN_SEEDS} to {MAX_SEEDS} seeds or a list of as many "
+              "distinct seeds in 0 .. 2^31 - 1")
         return ()
     return tuple(seeds)
 

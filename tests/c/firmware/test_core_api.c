@@ -375,6 +375,25 @@ static void out_of_range_codes(void)
         (void)fw_protection_samples(&a, (int32_t)1 << 23, 1e-6f, 10.0f, &peak);
         CHECK(peak > 0.0f, "peak %g", (double)peak);
     }
+    /* the phase no sensor measures: with an isolated neutral ic = -ia - ib, so 5 A out of
+     * phases a and b is 10 A back through c, over a 9.5 A trip that neither measured phase
+     * reaches; 5 A out of a and back through b leaves c at zero */
+    {
+        fw_adc_t a;
+        real_t peak = 0.0f;
+        const int32_t half = (int32_t)1 << 15;
+        const real_t lsb = 10.0f / (real_t)half; /* a 16-bit converter over +-10 A */
+        memset(&a, 0, sizeof a);
+        a.n_soc = 1;
+        a.ia[0] = half + (int32_t)(5.0f / lsb);
+        a.ib[0] = half + (int32_t)(5.0f / lsb);
+        CHECK(fw_protection_samples(&a, half, lsb, 9.5f, &peak) == FW_FAULT_OVERCURRENT &&
+                  fabsf(peak - 10.0f) < 0.01f, "ia = ib = 5 A: peak %g A, phase c not watched",
+              (double)peak);
+        a.ib[0] = half - (int32_t)(5.0f / lsb);
+        CHECK(fw_protection_samples(&a, half, lsb, 9.5f, &peak) == FW_FAULT_NONE &&
+                  fabsf(peak - 5.0f) < 0.01f, "ia = -ib = 5 A: peak %g A", (double)peak);
+    }
 }
 
 static void idle_outputs_off(void)
