@@ -36,7 +36,21 @@ void fw_outer_step(fw_core_t *c)
 
     fw_paramest_apparent(&c->pe, c->iq);
     fw_outer_select_parameters(c);
-    c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, target, p[FW_IDX_ACCEL_RPM_S] * ts);
+    if (c->start_recover) {
+        /* back from the speed a load start left the shaft at, to the speed it had at the
+         * enable, at least as fast as start_recover_rpm_s (a scenario's ramp of a few r/min
+         * per second would hold the shaft at that speed for seconds) */
+        real_t a = fw_max(p[FW_IDX_ACCEL_RPM_S], p[FW_IDX_START_RECOVER_RPM_S]);
+        real_t to = fw_clamp(target, fw_min(c->start_speed_rpm, c->speed_ref_ramped),
+                             fw_max(c->start_speed_rpm, c->speed_ref_ramped));
+        c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, to, a * ts);
+        if (c->speed_ref_ramped == to) {
+            c->start_recover = 0;
+        }
+    } else {
+        c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, target,
+                                                 p[FW_IDX_ACCEL_RPM_S] * ts);
+    }
     /* voltage feedback: integrate the excess of |v| over the flux-weakening voltage */
     if (c->cmd.fw_mode != FW_FWMODE_ID_ZERO) {
         c->fluxweak_did += p[FW_IDX_FW_FB_KI] * ts * (vmax_fw - c->v_mag_f);
@@ -57,6 +71,9 @@ void fw_outer_step(fw_core_t *c)
         real_t g1_nom = FW_REAL(0.5) * (FW_REAL(1.0) / p[FW_IDX_LD_H] - FW_REAL(1.0) / p[FW_IDX_LQ_H]);
         iq_sal = fw_min(iq_lim, fw_paramest_saliency_iq_limit(&c->pe, p[FW_IDX_SALIENCY_MIN] * g1_nom,
                                                         i_max));
+    }
+    if (c->start_gov > 0) {
+        iq_sal = fw_min(iq_sal, c->iq_gov);
     }
     c->iq_sal_lim = iq_sal;
     /* the demand may exceed the saliency limit: the torque beyond it comes from more

@@ -31,7 +31,19 @@
  *    only if d_hat points to the north pole; otherwise the rotor turns backwards. The core
  *    applies +iq then -iq (accelerate, brake) and looks at the sign of the angle travelled.
  *
- * pol_method 0 runs 1 and falls back to 2 when 1 is inconclusive.
+ * 3. Back-EMF (any profile, whenever the rotor turns: an overhauling load at enable, a shaft
+ *    still turning, the motion check itself): the flux linkage of the magnet is
+ *    lambda_m exp(j theta) in the true frame. Over a window the volt-seconds less rs i less
+ *    the change of the current's own flux L(theta_hat) i (a function of 2 theta: the same in
+ *    either frame) is the change of the magnet's flux, lambda_m (exp(j theta1) - exp(j theta0))
+ *    when theta_hat points to the north pole and the negative of it when it points south.
+ *    Projected on the chord of the tracked angle it gives +-lambda_m; once the chord spans
+ *    pol_emf_min_deg and the projection lies within half of +-lambda_m it decides, whichever
+ *    test is running. Voltage-model errors integrate as dv t against lambda_m times the angle
+ *    turned; the errors along the current (rs, dead time, the saturation test's d current)
+ *    are at right angles to the chord while the angle is small.
+ *
+ * pol_method 0 runs 1 and falls back to 2 when 1 is inconclusive; 3 decides in any method.
  */
 #include "fw_internal.h"
 
@@ -51,11 +63,22 @@ enum {
 #define POL_K_SIGMA FW_REAL(4.0)
 /* +/- pairs of holds at most (a noisy measurement averages longer before it gives up) */
 #define POL_MAX_PAIRS 4
+/* back-EMF test: the raw angle's slope against the back-EMF's angle is +1 on the north pole,
+ * -1 on the south pole; decided within POL_EMF_TOL of one of them with a standard error
+ * below POL_EMF_SE_MAX (then the other lies 6 standard errors away), from POL_EMF_MIN_N
+ * raw estimates on */
+#define POL_EMF_TOL FW_REAL(0.5)
+#define POL_EMF_SE_MAX FW_REAL(0.25)
+#define POL_EMF_MIN_N 10
+/* periods of tracking before the window starts (the tracker's convergence, 60 Hz: a reset
+ * takes one raw estimate, 10-20 deg off on harsh at standstill) */
+#define POL_EMF_WAIT 20
 
 void fw_polarity_start(fw_polarity_t *pol)
 {
     pol->phase = POL_SETTLE;
     pol->count = 0;
+    pol->periods = 0;
     pol->id_pos = FW_REAL(0.0);
     pol->id_neg = FW_REAL(0.0);
     pol->l_pos = FW_REAL(0.0);
@@ -68,6 +91,16 @@ void fw_polarity_start(fw_polarity_t *pol)
     pol->si[0] = pol->si[1] = FW_REAL(0.0);
     pol->n[0] = pol->n[1] = 0;
     pol->pairs = 0;
+    pol->emf_on = 0;
+    pol->emf_wait = 0;
+    pol->emf_psi_i = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    pol->emf_phi = pol->emf_phi_min = pol->emf_phi_max = FW_REAL(0.0);
+    pol->emf_raw = pol->emf_raw0 = FW_REAL(0.0);
+    pol->emf_m = 0;
+    pol->emf_sp = pol->emf_spp = pol->emf_sr = pol->emf_spr = pol->emf_srr = FW_REAL(0.0);
+    pol->emf_s0 = pol->emf_s1 = pol->emf_s2 = pol->emf_sy = pol->emf_sny = FW_REAL(0.0);
+    pol->emf_slope = FW_REAL(0.0);
+    pol->emf_slope_se = FW_REAL(0.0);
     pol->theta_start = FW_REAL(0.0);
     pol->moved = FW_REAL(0.0);
     pol->method_used = 0;
@@ -83,7 +116,7 @@ static void next_phase(fw_polarity_t *pol, int16_t phase)
 
 static void start_motion(fw_polarity_t *pol, const fw_core_t *c)
 {
-    pol->method_used = 2;
+    pol->method_used = FW_POL_METHOD_MOTION;
     pol->theta_start = c->trk.theta_unwrapped;
     next_phase(pol, POL_MOTION_ACC);
 }
@@ -162,6 +195,122 @@ static int16_t verdict(fw_polarity_t *pol, const real_t *p)
     return 0;
 }
 
+/* the flux of current i in the frame whose d axis is u = exp(j theta): Ld along u, Lq across */
+static fw_cplx_t current_flux(fw_cplx_t u, fw_cplx_t i, real_t ld, real_t lq)
+{
+    fw_cplx_t idq = fw_cmul(i, fw_cconj(u));
+    return fw_cmul(u, fw_c(ld * idq.re, lq * idq.im));
+}
+
+/* back-EMF test, once per period with data (test 3 above): 1 the frame points to the north
+ * pole, -1 to the south pole, 0 not decided yet */
+static int16_t emf_step(fw_polarity_t *pol, const fw_core_t *c)
+{
+    const real_t *p = c->p;
+    real_t span_min = p[FW_IDX_POL_EMF_MIN_DEG] * (FW_M_PI / FW_REAL(180.0));
+    fw_cplx_t u1, psi_i1, du;
+    real_t n, e_q, s_pp, s_pr, s_rr, slope, rss, se;
+    if (!(p[FW_IDX_POL_EMF_MIN_DEG] > FW_REAL(0.0)) || !c->trk.init) {
+        return 0;
+    }
+    if (pol->emf_wait < POL_EMF_WAIT) {
+        pol->emf_wait++; /* the tracked frame first converges (its q axis projects the EMF) */
+        return 0;
+    }
+    /* the current's own flux at the end of this period, in the tracked frame */
+    u1 = fw_cexpj(fw_tracker_predict(&c->trk, FW_P_TICKS));
+    psi_i1 = current_flux(u1, c->i_end, p[FW_IDX_LD_H], p[FW_IDX_LQ_H]);
+    if (!pol->emf_on) {
+        pol->emf_on = 1;
+        pol->emf_psi_i = psi_i1;
+        pol->emf_phi = pol->emf_phi_min = pol->emf_phi_max = FW_REAL(0.0);
+        pol->emf_raw = FW_REAL(0.0);
+        pol->emf_m = 0;
+        pol->emf_sp = pol->emf_spp = pol->emf_sr = pol->emf_spr = pol->emf_srr = FW_REAL(0.0);
+        pol->emf_s0 = pol->emf_s1 = pol->emf_s2 = pol->emf_sy = pol->emf_sny = FW_REAL(0.0);
+        return 0;
+    }
+    /* this period's magnet flux change across the tracked d axis at mid-period: the q
+     * back-EMF, lambda_m omega in a frame on the north pole, its negative on the south pole */
+    du = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_IDX_RS_OHM])), FW_TS);
+    du = fw_csub(du, fw_csub(psi_i1, pol->emf_psi_i));
+    pol->emf_psi_i = psi_i1;
+    e_q = fw_cmul(du, fw_cexpj(-fw_tracker_predict(&c->trk, FW_H_TICKS))).im / FW_TS;
+    /* its straight line over the window's periods (the shaft's speed and acceleration) */
+    pol->emf_s0 += FW_REAL(1.0);
+    n = pol->emf_s0;
+    pol->emf_s1 += n;
+    pol->emf_s2 += n * n;
+    pol->emf_sy += e_q;
+    pol->emf_sny += n * e_q;
+    /* the angle it says the rotor has turned, with the frame's sign: +-(theta - theta0) */
+    pol->emf_phi += e_q * FW_TS / p[FW_IDX_LAMBDA_M_WB];
+    pol->emf_phi_min = fw_min(pol->emf_phi_min, pol->emf_phi);
+    pol->emf_phi_max = fw_max(pol->emf_phi_max, pol->emf_phi);
+    if (!c->est.ok) {
+        return 0;
+    }
+    /* the raw slope angle against it, on the branch the tracker chose (its prediction plus
+     * the innovation; differences of raw estimates wrapped by pi slipped by pi on harsh,
+     * where one scatters by up to 35 deg at zero current), relative to the window start */
+    {
+        real_t raw_u = c->trk.theta_unwrapped + (FW_REAL(1.0) - c->trk.l1) * c->trk.last_err;
+        if (pol->emf_m == 0) {
+            pol->emf_raw0 = raw_u;
+        }
+        pol->emf_raw = raw_u - pol->emf_raw0;
+    }
+    pol->emf_m++;
+    pol->emf_sp += pol->emf_phi;
+    pol->emf_spp += pol->emf_phi * pol->emf_phi;
+    pol->emf_sr += pol->emf_raw;
+    pol->emf_spr += pol->emf_phi * pol->emf_raw;
+    pol->emf_srr += pol->emf_raw * pol->emf_raw;
+    if (pol->emf_m < POL_EMF_MIN_N || pol->emf_phi_max - pol->emf_phi_min < span_min) {
+        return 0;
+    }
+    n = (real_t)pol->emf_m;
+    s_pp = pol->emf_spp - pol->emf_sp * pol->emf_sp / n;
+    s_pr = pol->emf_spr - pol->emf_sp * pol->emf_sr / n;
+    s_rr = pol->emf_srr - pol->emf_sr * pol->emf_sr / n;
+    if (!(s_pp > FW_REAL(0.0))) {
+        return 0;
+    }
+    slope = s_pr / s_pp;
+    rss = fw_max(s_rr - slope * s_pr, FW_REAL(0.0));
+    se = fw_sqrt(rss / ((n - FW_REAL(2.0)) * s_pp));
+    pol->emf_slope = slope;
+    pol->emf_slope_se = se;
+    if (se > POL_EMF_SE_MAX) {
+        return 0;
+    }
+    if (fw_fabs(slope - FW_REAL(1.0)) < POL_EMF_TOL) {
+        return 1;
+    }
+    if (fw_fabs(slope + FW_REAL(1.0)) < POL_EMF_TOL) {
+        return -1;
+    }
+    return 0;
+}
+
+int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
+                           real_t *omega_now, real_t *accel)
+{
+    real_t n = pol->emf_s0;
+    real_t det = n * pol->emf_s2 - pol->emf_s1 * pol->emf_s1;
+    real_t b0, b1, k;
+    if (!pol->emf_on || n < FW_REAL(10.0) || !(det > FW_REAL(0.0)) || pol->result != 1) {
+        return 0;
+    }
+    b1 = (n * pol->emf_sny - pol->emf_s1 * pol->emf_sy) / det;
+    b0 = (pol->emf_sy - b1 * pol->emf_s1) / n;
+    k = (pol->flipped ? -FW_REAL(1.0) : FW_REAL(1.0)) / lambda_m;
+    *omega_start = k * b0;
+    *omega_now = k * (b0 + b1 * (n + FW_REAL(0.5)));
+    *accel = k * b1 / FW_TS;
+    return 1;
+}
+
 int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                     fw_polarity_out_t *out)
 {
@@ -185,7 +334,19 @@ int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t 
         n_ramp = 1;
     }
     pol->count++;
+    pol->periods++;
     /* the measurements come from the core's per-period results (adc == 0: none this period) */
+    /* (not while the motion check runs: the rotor turns because the check turns it, and the
+     * check decides by the angle it travelled) */
+    if (adc != 0 && pol->phase < POL_MOTION_ACC) {
+        int16_t emf = emf_step(pol, c);
+        if (emf != 0) {
+            pol->method_used = FW_POL_METHOD_EMF;
+            pol->flipped = (int16_t)(emf < 0);
+            pol->result = 1;
+            return pol->result;
+        }
+    }
 
     switch (pol->phase) {
     case POL_SETTLE:
@@ -200,7 +361,7 @@ int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t 
             if (method == 2) {
                 start_motion(pol, c);
             } else {
-                pol->method_used = 1;
+                pol->method_used = FW_POL_METHOD_SATURATION;
                 pol->g_ref = FW_REAL(1.0) / p[FW_IDX_LD_H];
                 next_phase(pol, POL_BIAS_P);
                 pol->count = 1;
