@@ -177,6 +177,18 @@ typedef struct {
     /* the q back-EMF of each period in the tracked frame, +-lambda_m omega: its straight line
      * over the window's periods n = 1, 2, ... (sums of 1, n, n^2, e, n e) */
     real_t emf_s0, emf_s1, emf_s2, emf_sy, emf_sny;
+    /* the catch (polarity_detect.c): a shaft turning fast at the enable */
+    int16_t catch_on;           /* 1 while the catch measures */
+    int16_t catch_n;            /* back-EMF vectors measured */
+    fw_cplx_t catch_e;          /* the last one (alpha-beta, mean over its period), V */
+    fw_cplx_t catch_e2;         /* the one before it */
+    real_t catch_d2;            /* sum of |e_k - e_k-2|^2, V^2 */
+    real_t catch_ang;           /* its angle continued across periods, rad */
+    real_t catch_s1, catch_s2, catch_sp, catch_skp, catch_spp; /* sums of k, k^2, a, k a, a^2 */
+    real_t catch_mag;           /* sum of |e_k|, V */
+    fw_cplx_t catch_i;          /* current at the end of the last period, A */
+    real_t catch_omega;         /* electrical rad/s (decided) */
+    real_t catch_theta;         /* rad, the magnet's angle at the end of the deciding period */
     real_t theta_start;  /* unwrapped angle at the start of the motion check */
     real_t moved;        /* rad */
     int16_t method_used; /* 1 saturation, 2 motion, 3 back-EMF */
@@ -243,6 +255,7 @@ struct fw_core {
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
     int16_t start_recover;       /* 1: the speed ramp brings the shaft back to start_speed_rpm */
     int32_t start_gov;           /* periods left in which |iq| follows the measured saliency */
+    int16_t start_fw_hold;       /* periods left in which flux weakening's feedback holds */
     real_t g1_fast;              /* 1/H, Gamma1 along d_hat of the two-vector estimates, ~1 ms filter */
     real_t iq_gov;               /* A, q-current limit of the saliency governor */
     real_t start_speed_rpm;      /* the shaft's speed at the enable (the start-up measured it) */

@@ -172,10 +172,12 @@ uint16_t fw_protection_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);
 /* ---- polarity_detect.c -------------------------------------------------------------------- */
 typedef struct {
     real_t id, iq;     /* current references along the estimated frame, A */
+    fw_cplx_t v_ff;    /* alpha-beta voltage added to the current loop's (the catch), V */
 } fw_polarity_out_t;
 #define FW_POL_METHOD_SATURATION 1
 #define FW_POL_METHOD_MOTION 2
 #define FW_POL_METHOD_EMF 3 /* the back-EMF test: the shaft was turning */
+#define FW_POL_METHOD_CATCH 4 /* the catch: the shaft turned fast, its back-EMF gave the angle */
 void fw_polarity_start(fw_polarity_t *pol);
 /* After a decision: the shaft's electrical speed at the start of the back-EMF window (the
  * enable), now (the end of the last period) and its acceleration, from the straight line

@@ -19,6 +19,8 @@
 #define FW_START_GOV_ALPHA FW_REAL(0.2)
 #define FW_START_GOV_HEADROOM_A FW_REAL(0.5)
 #define FW_START_GOV_STEP_A FW_REAL(0.001)
+/* periods after a catch in which the flux-weakening feedback holds while the currents settle */
+#define FW_START_FW_HOLD 50
 #define FW_FULL_LEARNT_UPDATES 150 /* Lq bin updates before FULL mode stops measuring there */
 /* the current loop's response (400 Hz design bandwidth) per period, for the torque model */
 #define FW_TE_MODEL_ALPHA ((real_t)0.222)
@@ -52,6 +54,7 @@ static void reset_estimation(fw_core_t *c)
     c->flux_pos_active = 0;
     c->start_recover = 0;
     c->start_gov = 0;
+    c->start_fw_hold = 0;
     c->est_valid = 0;
     c->est_fail_run = 0;
     c->sensor_bad = 0;
@@ -473,6 +476,39 @@ static void start_after_motion(fw_core_t *c)
     c->iq_gov = fw_min(fw_fabs(c->pi_spd.x) + FW_START_GOV_HEADROOM_A, i_max);
 }
 
+/* RUN after the catch (a shaft turning fast at the enable, polarity_detect.c): the tracker
+ * starts from the magnet's angle and speed the back-EMF gave, the speed loop at that speed,
+ * and the flux estimator from the flux they give, settled (above full_mod_min_rpm FULL
+ * modulation and the flux hand-over need it at once: the back-EMF exceeds the measurable
+ * voltage range from ~2000 r/min) */
+static void start_after_catch(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    real_t pp = p[FW_IDX_POLE_PAIRS];
+    real_t w = c->pol.catch_omega;
+    fw_cplx_t u = fw_cexpj(c->pol.catch_theta);
+    fw_cplx_t idq = fw_cmul(c->i_end, fw_cconj(u));
+    fw_cplx_t psi = fw_cmul(u, fw_c(p[FW_IDX_LAMBDA_M_WB] + c->pe.ld_app * idq.re,
+                                    c->pe.lq_app * idq.im));
+    fw_tracker_reset(&c->trk, c->pol.catch_theta, w, (uint16_t)(FW_P_TICKS - 1));
+    fw_flux_seed(&c->flux, psi, w, p[FW_IDX_FLUX_LPF_RATIO],
+                 fw_min(p[FW_IDX_FLUX_MIN_RPM], p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM]) * pp /
+                     FW_RPM_PER_RADS,
+                 fw_max(p[FW_IDX_FLUX_SETTLE_TC], p[FW_IDX_POL_LOSS_SETTLE_TC]));
+    c->theta_hat = c->pol.catch_theta;
+    if (c->cmd.ctrl_mode == FW_CTRL_SPEED) {
+        /* the torque that holds a coasting shaft at its speed: its friction */
+        c->pi_spd.x = fw_clamp(p[FW_IDX_FRICTION_NMS] * w / pp /
+                                   (FW_REAL(1.5) * pp * p[FW_IDX_LAMBDA_M_WB]),
+                               -p[FW_IDX_I_MAX_A], p[FW_IDX_I_MAX_A]);
+    }
+    c->speed_f_rpm = FW_RPM(w, pp);
+    c->speed_ref_ramped = c->speed_f_rpm;
+    c->start_speed_rpm = c->speed_f_rpm;
+    c->start_fw_hold = FW_START_FW_HOLD;
+    update_full_mod(c);
+}
+
 /* the q-current limit of the start's saliency governor (start_after_motion), per period */
 static void start_governor(fw_core_t *c, int16_t data_ok)
 {
@@ -817,6 +853,9 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             if (c->pol.method_used == FW_POL_METHOD_EMF) {
                 start_after_motion(c);
                 fw_outer_step(c); /* the load's current now, not at the next 1 kHz tick */
+            } else if (c->pol.method_used == FW_POL_METHOD_CATCH) {
+                start_after_catch(c);
+                fw_outer_step(c);
             } else {
                 fw_outer_select_parameters(c);
             }
@@ -826,11 +865,14 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         fw_outer_select_parameters(c);
         c->id_ref = pol_out.id;
         c->iq_ref = pol_out.iq;
-        output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+        output_voltage(c, fw_cadd(current_loop(c, data_ok), pol_out.v_ff), k + 1u, pwm);
         break;
     }
     case FW_STATE_RUN:
         start_governor(c, data_ok);
+        if (c->start_fw_hold > 0) {
+            c->start_fw_hold--;
+        }
         polarity_lost_check(c);
         if (c->state != FW_STATE_RUN) {
             output_off(c, k + 1u, pwm);

@@ -43,7 +43,18 @@
  *    turned; the errors along the current (rs, dead time, the saturation test's d current)
  *    are at right angles to the chord while the angle is small.
  *
- * pol_method 0 runs 1 and falls back to 2 when 1 is inconclusive; 3 decides in any method.
+ * 4. Catch (a shaft turning fast at the enable): from the second period on the back-EMF vector
+ *    of each period comes from its volt-seconds, e = v - rs i - L(theta_raw) di/dt (the
+ *    current's flux is the same in either frame), and is fed forward into the next period so
+ *    that the current stays small (with zero volts it rose by 0.9 A per period at 3000 r/min:
+ *    136 V over 15 mH). It turns at the rotor's speed, omega Ts per period, and points along
+ *    j omega lambda_m exp(j theta): its angle less sign(omega) pi/2 is the magnet's angle,
+ *    polarity included. Decided once the turn over the periods is clear of the vectors' noise
+ *    and |e| / lambda_m agrees with it; given up after POL_CATCH_MAX periods (a slow shaft:
+ *    the tests above decide).
+ *
+ * pol_method 0 runs 1 and falls back to 2 when 1 is inconclusive; 3 and 4 decide in any
+ * method.
  */
 #include "fw_internal.h"
 
@@ -70,6 +81,24 @@ enum {
 #define POL_EMF_TOL FW_REAL(0.5)
 #define POL_EMF_SE_MAX FW_REAL(0.25)
 #define POL_EMF_MIN_N 10
+/* catch: the vector's angle must turn at a slope POL_CATCH_K_SIGMA standard errors clear of
+ * zero over at least POL_CATCH_MIN_N vectors and agree with |e| / lambda_m within
+ * POL_CATCH_AGREE of it, at most POL_CATCH_MAX periods (the vector scatters by ~0.2 rad per
+ * period on harsh at 2000 r/min: the dead time of a near-zero current) */
+#define POL_CATCH_K_SIGMA FW_REAL(5.0)
+#define POL_CATCH_MIN_N 6
+#define POL_CATCH_AGREE FW_REAL(0.5)
+#define POL_CATCH_MAX 60
+/* ... and fed forward where its mean magnitude exceeds POL_CATCH_FF_MIN_V or POL_CATCH_FF_K
+ * times its scatter per component (a vector of noise alone has a mean magnitude of 1.25 of
+ * it; on harsh at standstill the vectors scatter by tens of volts, the dead time of a
+ * near-zero current, and fed forward they shook the start-up) */
+#define POL_CATCH_FF_MIN_V FW_REAL(60.0)
+#define POL_CATCH_FF_K FW_REAL(3.0)
+/* ... and never below POL_CATCH_FF_FLOOR_V: the voltage model's own errors at standstill (rs,
+ * dead time under the saturation test's 3 A) are a few volts, quiet enough for the test
+ * above (~250 r/min of back-EMF on the paper machine) */
+#define POL_CATCH_FF_FLOOR_V FW_REAL(12.0)
 /* periods of tracking before the window starts (the tracker's convergence, 60 Hz: a reset
  * takes one raw estimate, 10-20 deg off on harsh at standstill) */
 #define POL_EMF_WAIT 20
@@ -101,6 +130,20 @@ void fw_polarity_start(fw_polarity_t *pol)
     pol->emf_s0 = pol->emf_s1 = pol->emf_s2 = pol->emf_sy = pol->emf_sny = FW_REAL(0.0);
     pol->emf_slope = FW_REAL(0.0);
     pol->emf_slope_se = FW_REAL(0.0);
+    pol->catch_on = 1;
+    /* the period the enable sees has the gates off, and the first one with them on starts
+     * from a current measured in the off period (pulses through the diodes at high speed):
+     * neither counts */
+    pol->catch_n = -2;
+    pol->catch_e = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    pol->catch_ang = FW_REAL(0.0);
+    pol->catch_e2 = pol->catch_e;
+    pol->catch_d2 = FW_REAL(0.0);
+    pol->catch_s1 = pol->catch_s2 = pol->catch_sp = pol->catch_skp = pol->catch_spp = FW_REAL(0.0);
+    pol->catch_mag = FW_REAL(0.0);
+    pol->catch_i = pol->catch_e;
+    pol->catch_omega = FW_REAL(0.0);
+    pol->catch_theta = FW_REAL(0.0);
     pol->theta_start = FW_REAL(0.0);
     pol->moved = FW_REAL(0.0);
     pol->method_used = 0;
@@ -293,6 +336,97 @@ static int16_t emf_step(fw_polarity_t *pol, const fw_core_t *c)
     return 0;
 }
 
+/* The catch (test 4 above), once per period with data: 1 when decided, 0 otherwise; the
+ * feed-forward for the next period in *v_ff */
+static int16_t catch_step(fw_polarity_t *pol, const fw_core_t *c, fw_cplx_t *v_ff)
+{
+    const real_t *p = c->p;
+    fw_cplx_t e, di, u, e_ff;
+    real_t ld = p[FW_IDX_LD_H], lq = p[FW_IDX_LQ_H];
+    real_t n, s_kk, s_kp, s_pp, slope, se, w_mag, ang;
+    *v_ff = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    if (!pol->catch_on) {
+        return 0;
+    }
+    /* the current's own flux change over the period, along the raw saliency axes (either
+     * frame: L depends on 2 theta), or the mean inductance without an estimate */
+    di = fw_csub(c->i_end, pol->catch_i);
+    if (c->est.ok) {
+        u = fw_cexpj(c->est.theta_raw);
+        di = fw_cmul(di, fw_cconj(u));
+        di = fw_cmul(u, fw_c(ld * di.re, lq * di.im));
+    } else {
+        di = fw_cscale(di, FW_REAL(0.5) * (ld + lq));
+    }
+    e = fw_csub(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_IDX_RS_OHM])),
+                fw_cscale(di, FW_REAL(1.0) / FW_TS));
+    pol->catch_i = c->i_end;
+    e_ff = fw_cscale(fw_cadd(e, pol->catch_e), FW_REAL(0.5));
+    if (pol->catch_n >= 2) {
+        /* the scatter of the vectors: same-parity differences two periods apart */
+        pol->catch_d2 += fw_cabs2(fw_csub(e, pol->catch_e2));
+    }
+    pol->catch_e2 = pol->catch_e;
+    pol->catch_e = e;
+    if (pol->catch_n < 0) {
+        pol->catch_n++;
+        return 0;
+    }
+    /* its angle, continued across periods, against the period index: a straight line whose
+     * slope is omega Ts */
+    ang = fw_atan2(e.im, e.re);
+    if (pol->catch_n == 0) {
+        pol->catch_ang = ang;
+    } else {
+        pol->catch_ang += fw_wrap_pi(ang - fw_wrap_pi(pol->catch_ang));
+    }
+    n = (real_t)pol->catch_n;
+    pol->catch_mag += fw_cabs(e);
+    pol->catch_s1 += n;
+    pol->catch_s2 += n * n;
+    pol->catch_sp += pol->catch_ang;
+    pol->catch_skp += n * pol->catch_ang;
+    pol->catch_spp += pol->catch_ang * pol->catch_ang;
+    pol->catch_n++;
+    n = (real_t)pol->catch_n;
+    w_mag = pol->catch_mag / n / p[FW_IDX_LAMBDA_M_WB];
+    s_kk = pol->catch_s2 - pol->catch_s1 * pol->catch_s1 / n;
+    s_kp = pol->catch_skp - pol->catch_s1 * pol->catch_sp / n;
+    s_pp = pol->catch_spp - pol->catch_sp * pol->catch_sp / n;
+    slope = (s_kk > FW_REAL(0.0)) ? s_kp / s_kk : FW_REAL(0.0);
+    /* the next period's mean voltage sits 1.5 periods after this one's middle; the mean of
+     * two periods (an A/B pair, svpwm.c: their volt-second errors differ) half a period
+     * before it */
+    if (pol->catch_mag >= POL_CATCH_FF_MIN_V * n ||
+        (pol->catch_n >= 4 && pol->catch_mag >= POL_CATCH_FF_FLOOR_V * n &&
+         pol->catch_mag / n >= POL_CATCH_FF_K *
+                                  fw_sqrt(pol->catch_d2 / (FW_REAL(4.0) * (n - FW_REAL(2.0)))))) {
+        real_t lead = (pol->catch_n >= POL_CATCH_MIN_N) ? FW_REAL(2.0) * slope : FW_REAL(0.0);
+        *v_ff = fw_cmul(e_ff, fw_cexpj(lead));
+    }
+    if (pol->catch_n >= POL_CATCH_MIN_N && s_kk > FW_REAL(0.0)) {
+        se = fw_sqrt(fw_max(s_pp - slope * s_kp, FW_REAL(0.0)) / ((n - FW_REAL(2.0)) * s_kk));
+        if (fw_fabs(slope) >= POL_CATCH_K_SIGMA * se &&
+            fw_fabs(fw_fabs(slope) / FW_TS - w_mag) <= POL_CATCH_AGREE * w_mag) {
+            /* e is j omega lambda exp(j theta) at mid-period: the magnet half a period on,
+             * on the fitted line */
+            real_t w = (slope > FW_REAL(0.0)) ? w_mag : -w_mag;
+            real_t th = pol->catch_sp / n + slope * (n - FW_REAL(1.0) - pol->catch_s1 / n) +
+                        FW_REAL(0.5) * w * FW_TS -
+                        ((w > FW_REAL(0.0)) ? FW_REAL(0.5) : FW_REAL(-0.5)) * FW_M_PI;
+            pol->catch_omega = w;
+            pol->catch_theta = fw_wrap_2pi(th);
+            pol->catch_on = 0;
+            return 1;
+        }
+    }
+    if (pol->catch_n >= POL_CATCH_MAX) {
+        pol->catch_on = 0; /* slow: the standstill tests decide */
+        *v_ff = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    }
+    return 0;
+}
+
 int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
                            real_t *omega_now, real_t *accel)
 {
@@ -324,6 +458,7 @@ int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t 
 
     out->id = FW_REAL(0.0);
     out->iq = FW_REAL(0.0);
+    out->v_ff = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     if (pol->result != 0) {
         return pol->result;
     }
@@ -336,6 +471,12 @@ int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t 
     pol->count++;
     pol->periods++;
     /* the measurements come from the core's per-period results (adc == 0: none this period) */
+    if (adc != 0 && catch_step(pol, c, &out->v_ff)) {
+        pol->method_used = FW_POL_METHOD_CATCH;
+        pol->flipped = 0; /* the catch's angle is the magnet's: the tracker starts from it */
+        pol->result = 1;
+        return pol->result;
+    }
     /* (not while the motion check runs: the rotor turns because the check turns it, and the
      * check decides by the angle it travelled) */
     if (adc != 0 && pol->phase < POL_MOTION_ACC) {
