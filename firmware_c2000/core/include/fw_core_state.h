@@ -180,13 +180,22 @@ typedef struct {
     /* the catch (polarity_detect.c): a shaft turning fast at the enable */
     int16_t catch_on;           /* 1 while the catch measures */
     int16_t catch_n;            /* back-EMF vectors measured */
-    fw_cplx_t catch_e;          /* the last one (alpha-beta, mean over its period), V */
-    fw_cplx_t catch_e2;         /* the one before it */
-    real_t catch_d2;            /* sum of |e_k - e_k-2|^2, V^2 */
-    real_t catch_ang;           /* its angle continued across periods, rad */
-    real_t catch_s1, catch_s2, catch_sp, catch_skp, catch_spp; /* sums of k, k^2, a, k a, a^2 */
-    real_t catch_mag;           /* sum of |e_k|, V */
+    int16_t catch_k;            /* periods since the enable */
+    int16_t catch_rn;           /* raw angles among them */
+    real_t catch_rlast;         /* the last, continued modulo pi, rad */
+    real_t catch_rj, catch_rjj, catch_rt, catch_rjt, catch_rtt; /* sums of k, k^2, r, k r, r^2 */
+    real_t catch_wax;           /* the axes' turn per period last used, rad */
     fw_cplx_t catch_i;          /* current at the end of the last period, A */
+    /* the vectors with the saliency axes turning forwards [0] and backwards [1] */
+    struct {
+        fw_cplx_t e;            /* the last one (alpha-beta, mean over its period), V */
+        fw_cplx_t e2;           /* the one before it */
+        real_t d2;              /* sum of |e_k - e_k-2|^2, V^2 */
+        real_t ang;             /* its angle continued across periods, rad */
+        real_t s1, s2, sp, skp, spp; /* sums of k, k^2, a, k a, a^2 */
+        real_t mag;             /* sum of |e_k|, V */
+    } catch_h[2];
+    real_t catch_w;             /* electrical rad/s, the vector's turn so far */
     real_t catch_omega;         /* electrical rad/s (decided) */
     real_t catch_theta;         /* rad, the magnet's angle at the end of the deciding period */
     real_t theta_start;  /* unwrapped angle at the start of the motion check */

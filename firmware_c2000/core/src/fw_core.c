@@ -17,7 +17,7 @@
 /* start's saliency governor (start_after_motion): filter per two-vector estimate (~1 ms),
  * headroom above the load's current, step of the limit per period (10/20 A/s down/up) */
 #define FW_START_GOV_ALPHA FW_REAL(0.2)
-#define FW_START_GOV_HEADROOM_A FW_REAL(0.5)
+#define FW_START_GOV_HEADROOM_A FW_REAL(0.25)
 #define FW_START_GOV_STEP_A FW_REAL(0.001)
 /* periods after a catch in which the flux-weakening feedback holds while the currents settle */
 #define FW_START_FW_HOLD 50
