@@ -50,6 +50,11 @@ def _find(sub: str, name: str) -> Path:
     )
 
 
+def repo_dir() -> Path:
+    """The source checkout the package runs from (its git work tree, for provenance)."""
+    return _REPO
+
+
 def binary(name: str) -> Path:
     """Path of a compiled program (``plant_rt``, ``fw_host``, ...)."""
     return _find("_bin", name)

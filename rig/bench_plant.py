@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rig import _paths, protocols
+from rig import _paths, cliargs, protocols
 from rig import bus as rigbus
 
 PROFILES = ("ideal", "paper", "harsh")
@@ -45,14 +45,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rt-spin-us", type=int, default=0, metavar="US",
                         help="real time: plant_rt --rt-spin-us (poll instead of sleeping for the "
                         "last US microseconds before each period; default 0)")
+    cliargs.add_shared(parser, "bus", choices=("socketcan", "unixcan"),
+                       help="only this transport (default: every available one)")
     parser.add_argument("--transport", action="append", choices=("socketcan", "unixcan"),
-                        help="only this transport (repeatable; default: every available one)")
-    parser.add_argument("--channel", default="vcanbench",
-                        help="channel (SocketCAN: a vcan interface, created when possible)")
+                        help="only this transport (repeatable, for both: --transport "
+                        "socketcan --transport unixcan)")
+    cliargs.add_shared(parser, "channel", default="vcanbench",
+                       help="channel (SocketCAN: a vcan interface, created when possible)")
 
 
 def _transports(args: argparse.Namespace) -> list[str]:
-    wanted = args.transport or ["socketcan", "unixcan"]
+    chosen = [*(args.transport or []), *([args.bus] if args.bus else [])]
+    wanted = chosen or ["socketcan", "unixcan"]
     found: list[str] = []
     if "socketcan" in wanted:
         if rigbus.kernel_has_can():
@@ -61,7 +65,7 @@ def _transports(args: argparse.Namespace) -> list[str]:
                 found.append("socketcan")
             except RuntimeError as exc:
                 print(f"rig bench plant: socketcan skipped: {exc}", file=sys.stderr)
-        elif args.transport:
+        elif chosen:
             print("rig bench plant: socketcan skipped: this kernel has no CAN", file=sys.stderr)
     if "unixcan" in wanted:
         found.append("unixcan")

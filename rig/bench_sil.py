@@ -32,7 +32,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from rig import capture, runner, scenario
+from rig import capture, cliargs, runner, scenario
 
 MOTULATOR_0_5_SIM_S_PER_WALL_S = 0.03
 DEFAULT_SCENARIO = "table2_1000rpm_1nm"
@@ -41,16 +41,19 @@ DEFAULT_SCENARIO = "table2_1000rpm_1nm"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default=DEFAULT_SCENARIO,
                    help=f"scenario to run on both paths (default {DEFAULT_SCENARIO})")
-    p.add_argument("--bus", default=None, help="transport of the bus path (default: auto)")
-    p.add_argument("--channel", default="benchsil", help="bus channel of the bus path")
-    p.add_argument("--repeat", type=int, default=1,
+    cliargs.add_shared(p, "bus", choices=cliargs.BUS_TRANSPORTS,
+                       help="transport of the bus path (default: auto)")
+    cliargs.add_shared(p, "channel", default="benchsil", help="bus channel of the bus path")
+    p.add_argument("--repeat", type=cliargs.number(int, minimum=1), default=1,
                    help="runs per path; the fastest counts (default 1)")
-    p.add_argument("--count", type=int, default=5000, help="pings for the bus round trip")
+    p.add_argument("--count", type=cliargs.number(int, minimum=1), default=5000,
+                   help="pings for the bus round trip")
 
 
 def _run(sc: scenario.Scenario, out: Path, bus: str | None, channel: str) -> dict[str, Any]:
     r = runner.run_scenario(sc, runner.RunOptions(out=out, bus=bus, channel=channel,
-                                                  progress=False, record=False))
+                                                  progress=False, record=False,
+                                                  figures=False))
     if r.status != "passed" and not r.criteria:
         raise RuntimeError(f"{sc.name} on {bus}: {r.explain()}")
     t = r.timing

@@ -71,11 +71,18 @@ class TraceSpec:
     path: Path
     messages: Mapping[str, str]  # message name -> column prefix
     tail_tolerance: int = 0  # periods the trace may end early (the firmware's last ISR)
+    also: tuple[str, ...] = ()  # other messages it may hold (not captured, not "unknown")
+
+
+# the virtual I/O frames plant_rt --trace-vio (and the in-process bench) also trace: the ADC
+# frames it sent, the PWM frames it received
+VIO_TRACED = ("VIO_ADC_0", "VIO_ADC_1", "VIO_ADC_2", "VIO_PWM")
 
 
 def default_specs(plant_trace: Path, fw_trace: Path) -> list[TraceSpec]:
     return [
-        TraceSpec("plant", plant_trace, {"BENCH_TRUTH": "truth", "BENCH_TRUTH_MAG": "mag"}),
+        TraceSpec("plant", plant_trace, {"BENCH_TRUTH": "truth", "BENCH_TRUTH_MAG": "mag"},
+                  also=VIO_TRACED),
         TraceSpec("firmware", fw_trace, {"FW_TRACE": "fw"}, tail_tolerance=1),
     ]
 
@@ -311,7 +318,8 @@ def _scan(
     """First pass over a trace: record counts, period span, order, malformed records."""
     tf = TraceFile.open(spec.path)
     losses = {m: MessageLoss(spec.role, m) for m in spec.messages}
-    ids_known = [decoders[m].frame_id for m in spec.messages]
+    ids_known = [decoders[m].frame_id for m in spec.messages] + [
+        int(_message(m).frame_id) for m in spec.also]
     unknown = 0
     prev: dict[str, int | None] = {m: None for m in spec.messages}
     for records in tf.chunks(chunk):

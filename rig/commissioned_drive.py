@@ -63,11 +63,43 @@ def parameters(profile: str) -> dict[str, float]:
     return out
 
 
+HEADER = "# The drive as commissioning left it"  # the first line of a file render() wrote
+
+
+def is_saved_file(path: Path) -> bool:
+    """A file ``--save-params`` wrote (the only kind it replaces)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(HEADER)) == HEADER.encode()
+    except OSError:
+        return False
+
+
+def values_to_save(identified: Mapping[str, float], written: Mapping[str, float]
+                   ) -> dict[str, float]:
+    """What a commissioning run leaves for the drive: every drive parameter a step identified
+    (rs, Ld, Lq, λm, Ldq per ampere) and every one a step wrote to the drive, by the names
+    and ranges of protocols/parameters.csv (CommissionedError for a value out of range; an
+    identified quantity that is no drive parameter is not saved)."""
+    known = params.table()
+    out: dict[str, float] = {}
+    for name, value in {**identified, **written}.items():
+        try:
+            info = known.lookup(name)
+        except params.ParamError:
+            continue
+        problem = info.problem(float(value))
+        if problem is not None:
+            raise CommissionedError(problem)
+        out[name] = float(value)
+    return out
+
+
 def render(values: Mapping[str, float], profile: str, command: Sequence[str]) -> str:
     """The file ``--save-params`` writes: where the values come from, then the table."""
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d")
     lines = [
-        f"# The drive as commissioning left it on the virtual bench of the {profile} profile",
+        f"{HEADER} on the virtual bench of the {profile} profile",
         f"# ({when}), written by:",
         f"#   {' '.join(command)}",
         "# Scenario runs on this profile set these parameters on the drive after the hardware",

@@ -19,13 +19,13 @@ reports every problem with its field (``rig.scenario`` adds the file and line).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any, Protocol
 
 from rig import protocols
 from rig.capture import TS
+from rig.numbers import shown
 
 HEARTBEAT_LOSS = "heartbeat_loss"
 FRAME_KINDS = ("frame_loss", "frame_delay", "frame_corrupt")
@@ -107,7 +107,7 @@ def corruption(message: str, signal: str, xor: int) -> Corruption:
         raise ValueError(f"{message}.{signal} is not little-endian")
     if xor <= 0 or xor >= 1 << sig.length:
         raise ValueError(f"xor must be a mask of {message}.{signal}'s {sig.length} raw bits "
-                         f"(1 .. {(1 << sig.length) - 1}), not {xor}")
+                         f"(1 .. {(1 << sig.length) - 1}), not {shown(xor)}")
     byte, shift = divmod(int(sig.start), 8)
     if shift + sig.length > 32:
         raise ValueError(f"{message}.{signal} spans more than one 32-bit word")
@@ -213,10 +213,10 @@ def _integer(c: Checker, d: Mapping[str, Any], path: Path_, key: str, lo: int,
              hi: int) -> int:
     v = d.get(key)
     if isinstance(v, bool) or not isinstance(v, int):
-        c.err((*path, key), f"must be an integer, not {v!r}")
+        c.err((*path, key), f"must be an integer, not {shown(v)}")
         return lo
     if not lo <= v <= hi:
-        c.err((*path, key), f"must be in {lo} .. {hi}, not {v}")
+        c.err((*path, key), f"must be in {lo} .. {hi}, not {shown(v)}")
         return lo
     return v
 
@@ -292,7 +292,7 @@ def parse(c: Checker, raw: Any, path: Path_, duration: float,
         sig = c.string(d, path, "signal")
         xor = d["xor"]
         if isinstance(xor, bool) or not isinstance(xor, int):
-            c.err((*path, "xor"), f"must be an integer mask, not {xor!r}")
+            c.err((*path, "xor"), f"must be an integer mask, not {shown(xor)}")
         elif sig:
             try:
                 cor = corruption(fields["message"], sig, xor)
@@ -327,6 +327,6 @@ def adc_bits_of(values: Mapping[str, Any]) -> dict[str, int]:
     cur, vdc = values.get("adc.bits"), values.get("adc.vdc_bits")
     for ch in choices("channel"):
         v = vdc if ch == "vdc" else cur
-        if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
+        if isinstance(v, int | float) and not isinstance(v, bool) and 0 < v <= 64:
             out[ch] = int(v)
     return out

@@ -1,12 +1,14 @@
 """Where runs write, and which old runs ``rig clean`` may remove.
 
 ``rig run`` and ``rig sweep`` without ``--out`` write to ``$HIL_OUT`` (else ``./out``) in a new
-folder ``<name>-<YYYYmmdd-HHMMSS>``: these are the folders that pile up. ``./hil main`` and
+folder ``<name>-<YYYYmmdd-HHMMSS>`` (``-2``, ``-3``, ... when runs start in the same second:
+each run makes its own folder, atomically): these are the folders that pile up. ``./hil main`` and
 ``./hil test`` write to fixed folders (``out/paper``, ``out/ci/...``) that the next run
 replaces. A run folder holds a ``result.json`` (``hil-result/1`` or ``hil-suite/1``) or a
 ``sweep.json``.
 
-``rig clean`` never removes what a user asked to keep: a folder holding a file named ``KEEP``,
+``rig clean`` never removes what a user asked to keep: a folder holding a file named ``KEEP``
+(anywhere inside it, a suite's scenario folder too),
 a folder outside the output root, and (unless ``--all``) a folder the user named with
 ``--out``. It removes nothing without ``--yes``.
 """
@@ -14,6 +16,7 @@ a folder outside the output root, and (unless ``--all``) a folder the user named
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import json
 import os
 import re
@@ -23,9 +26,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 STAMP_FORMAT = "%Y%m%d-%H%M%S"
-AUTO_NAME = re.compile(r".+-(\d{8}-\d{6})")
+AUTO_NAME = re.compile(r".+-(\d{8}-\d{6})(?:-\d+)?")
 KEEP_MARKER = "KEEP"
 RUN_SCHEMAS = ("hil-result/1", "hil-suite/1")
+# written into a run's folder before anything else: the folder is the rig's (a run killed
+# before its result.json was written is still recognised as one)
+RUN_MARKER = ".hil-run"
 
 
 def default_root() -> Path:
@@ -33,8 +39,27 @@ def default_root() -> Path:
 
 
 def default_out(name: str) -> Path:
-    """A new folder for a run without ``--out``: ``<root>/<name>-<YYYYmmdd-HHMMSS>``."""
-    return default_root() / f"{name}-{dt.datetime.now().strftime(STAMP_FORMAT)}"
+    """A new folder for a run without ``--out``, made here: ``<root>/<name>-<YYYYmmdd-HHMMSS>``,
+    with ``-2``, ``-3``, ... when that exists already (runs started in the same second, in
+    parallel: ``mkdir`` without ``exist_ok`` makes each folder one run's alone). When the
+    folder cannot be made at all, its path is returned unmade: ``rig.output.prepare`` then
+    says why (exit 3)."""
+    root = default_root()
+    base = f"{name}-{dt.datetime.now().strftime(STAMP_FORMAT)}"
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return root / base
+    for n in itertools.count(1):
+        path = root / (base if n == 1 else f"{base}-{n}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        except OSError:
+            return path
+        return path
+    raise AssertionError("unreachable")
 
 
 @dataclass(frozen=True)
@@ -65,6 +90,25 @@ def _size(path: Path) -> int:
     return total
 
 
+def _run_schema(result: Path) -> str | None:
+    """The schema of a run's result.json (a regular file, not a link), else None."""
+    try:
+        if not result.is_file() or result.is_symlink():
+            return None
+        data = json.loads(result.read_text())
+    except (OSError, ValueError):
+        return None
+    schema = data.get("schema") if isinstance(data, dict) else None
+    return schema if schema in RUN_SCHEMAS else None
+
+
+def is_run_folder(path: Path) -> bool:
+    """A folder an earlier ``rig run`` wrote: its marker, or a run's result.json."""
+    marker = path / RUN_MARKER
+    return (marker.is_file() and not marker.is_symlink()) or (
+        _run_schema(path / "result.json") is not None)
+
+
 def _describe(path: Path) -> RunDir | None:
     result, sweep = path / "result.json", path / "sweep.json"
     kind, name, passed = "", path.name, None
@@ -87,7 +131,14 @@ def _describe(path: Path) -> RunDir | None:
     when = dt.datetime.fromtimestamp(marker.stat().st_mtime)
     full = any(path.rglob("*.trace")) or any(path.rglob("capture/meta.json"))
     return RunDir(path=path, kind=kind, name=name, when=when, bytes=_size(path), passed=passed,
-                  auto_named=m is not None, keep=(path / KEEP_MARKER).exists(), full_rate=full)
+                  auto_named=m is not None, keep=holds_keep(path), full_rate=full)
+
+
+def holds_keep(path: Path) -> bool:
+    """A ``KEEP`` file in the folder or in any folder below it (a suite's scenario folder: the
+    suite is removed as one, so a KEEP inside keeps all of it). Symbolic links are not
+    followed (``Path.rglob``)."""
+    return (path / KEEP_MARKER).exists() or any(path.rglob(KEEP_MARKER))
 
 
 def find_runs(root: Path) -> Iterator[RunDir]:
@@ -126,6 +177,6 @@ def remove(run: RunDir, root: Path) -> None:
     path, base = run.path.resolve(), root.resolve()
     if base not in path.parents:
         raise ValueError(f"{run.path} is not inside {root}")
-    if (path / KEEP_MARKER).exists():
+    if holds_keep(path):
         raise ValueError(f"{run.path} holds a {KEEP_MARKER} file")
     shutil.rmtree(path)

@@ -18,13 +18,18 @@ see each other's frames. Tests that need the programs skip (with the reason) whe
 ``plant_rt`` / ``fw_host`` are not built. Options: ``--hil-bus``, ``--hil-out``,
 ``--hil-realtime``, ``--hil-suite``. Imports of the rig itself are lazy: loading the plugin
 costs nothing in unrelated test runs.
+
+Every run a test makes is recorded as the test's properties (``record_property``: what
+``--junitxml`` writes), named ``SCENARIO/CRITERION/KEY`` with the keys ``rig run --junit``
+gives a criterion (metric, value, limit, comparison, unit, window, outcome) and
+``SCENARIO/report``; a failing test shows the reports of its runs in a section of its own.
 """
 
 from __future__ import annotations
 
 import os
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -35,6 +40,7 @@ if TYPE_CHECKING:
     from rig.scenario import Scenario
 
 DEFAULT_SUITE = "paper"
+RUNS = pytest.StashKey[list["RunResult"]]()
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -181,9 +187,35 @@ def hil_run(
             realtime=default_rt if realtime is None else realtime, progress=False,
             **options,
         )
-        return runner.run_scenario(scen, opts)
+        result = runner.run_scenario(scen, opts)
+        record(request.node, result)
+        return result
 
     yield run
+
+
+def record(item: pytest.Item, result: RunResult) -> None:
+    """The run's verdict as the test's properties, as rig run --junit names them."""
+    from rig import junit
+
+    item.stash.setdefault(RUNS, []).append(result)
+    name = result.scenario
+    item.user_properties.append((f"{name}/report", str(result.report_path)))
+    item.user_properties.append((f"{name}/status", result.status))
+    for c in result.criteria:
+        for key, value in junit.criterion_properties(c):
+            item.user_properties.append((f"{name}/{c['name']}/{key}", value))
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]
+                              ) -> Generator[None, pytest.TestReport, pytest.TestReport]:
+    report: pytest.TestReport = yield
+    runs = item.stash.get(RUNS, [])
+    if report.failed and runs:
+        lines = [f"{r.scenario}: {r.status} -> {r.report_path}" for r in runs]
+        report.sections.append(("hil runs (reports)", "\n".join(lines)))
+    return report
 
 
 @pytest.fixture

@@ -4,7 +4,7 @@
 timeline ``sim_time`` (duration, exact: ``period * 100 µs``; the period index is
 ``sim_time / 100 µs``), with a blueprint laying out the paper's figures. Two kinds of data:
 
-- the display series (θ, θ̂, position error, speeds, currents, ... and the 2-D trajectories)
+- the display series (θ, θ est, position error, speeds, currents, ... and the 2-D trajectories)
   every ``step``-th period: 1 kHz (every 10th period), coarser for long runs so that a series
   has at most ``display_max_rows`` rows;
 - the evidence: every capture column a criterion read, at the full 10 kHz over exactly the
@@ -21,8 +21,10 @@ every run keeps.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,25 +62,25 @@ class Series:
 
 
 SERIES: tuple[Series, ...] = (
-    Series("position/theta", ("theta_true_deg", "theta_hat_deg"), ("θ (true)", "θ̂")),
-    Series("position/error", ("pos_err_deg",), ("θ̂ - θ (deg el.)",)),
+    Series("position/theta", ("theta_true_deg", "theta_hat_deg"), ("θ (true)", "θ est")),
+    Series("position/error", ("pos_err_deg",), ("θ est - θ (deg el.)",)),
     Series("speed/rpm", ("speed_ref_rpm", "speed_true_rpm", "speed_hat_rpm"),
            ("reference", "true", "estimated")),
-    Series("speed/error", ("speed_err_rpm",), ("ω̂ - ω (r/min)",)),
+    Series("speed/error", ("speed_err_rpm",), ("ω est - ω (r/min)",)),
     Series("current/dq", ("truth.id", "truth.iq", "fw.id", "fw.iq", "fw.id_ref", "fw.iq_ref"),
            ("id", "iq", "id (est. frame)", "iq (est. frame)", "id ref", "iq ref")),
     Series("current/magnitude", ("i_mag",), ("|i|",)),
     Series("voltage/dq", ("fw.vd", "fw.vq", "v_mag"), ("vd", "vq", "|v|")),
     Series("params/ld", ("ld_hat_mh", "ld_inc_mh", "ld_app_mh"),
-           ("Ld̂", "Ld incremental (true)", "Ld apparent (true)")),
+           ("Ld est", "Ld incremental (true)", "Ld apparent (true)")),
     Series("params/lq", ("lq_hat_mh", "lq_inc_mh", "lq_app_mh"),
-           ("Lq̂", "Lq incremental (true)", "Lq apparent (true)")),
-    Series("params/lambda", ("fw.lambda_hat", "mag.lambda_m"), ("λ̂m", "λm (true)")),
+           ("Lq est", "Lq incremental (true)", "Lq apparent (true)")),
+    Series("params/lambda", ("fw.lambda_hat", "mag.lambda_m"), ("λm est", "λm (true)")),
     Series("flux/alpha_beta", ("flux_alpha_hat", "flux_beta_hat", "flux_alpha_true",
                                "flux_beta_true"),
            ("λα (est.)", "λβ (est.)", "λα (true)", "λβ (true)")),
     Series("torque/nm", ("truth.te", "fw.te_hat", "truth.t_shaft", "truth.tl"),
-           ("Te (true)", "T̂e", "shaft (sensor)", "load")),
+           ("Te (true)", "Te est", "shaft (sensor)", "load")),
     Series("estimator/state", ("fw.state", "fw.sector", "fw.slopes_ok", "fw.fw_active"),
            ("state", "sector", "slopes ok", "flux weakening")),
     Series("estimator/residual", ("fw.residual",), ("residual (1/H)",)),
@@ -148,7 +150,8 @@ def _get(cap: Capture, extra: Mapping[str, Arr], key: str, a: int, b: int) -> Ar
 
 
 # Views every recording's blueprint shows (the web-viewer check waits for their names).
-THETA_VIEW, ERROR_VIEW, SPEED_VIEW = "θ vs θ̂ (deg el.)", "position error (deg el.)", "speed (r/min)"
+THETA_VIEW = "θ vs θ est (deg el.)"
+ERROR_VIEW, SPEED_VIEW = "position error (deg el.)", "speed (r/min)"
 VIEW_NAMES = [THETA_VIEW, ERROR_VIEW, SPEED_VIEW]
 
 
@@ -494,10 +497,10 @@ class LiveView:
         ts = rrb.TimeSeriesView
         return rrb.Blueprint(
             rrb.Grid(
-                ts(origin="/live/position", name="θ̂ and θ (deg)"),
+                ts(origin="/live/position", name="θ est and θ (deg)"),
                 ts(origin="/live/speed", name="speed (r/min)"),
                 ts(origin="/live/current", name="id / iq (A)"),
-                ts(origin="/live/params", name="Ld̂ / Lq̂ (mH), λ̂m (Wb)"),
+                ts(origin="/live/params", name="Ld est / Lq est (mH), λm est (Wb)"),
                 ts(origin="/live/torque", name="torque (N·m)"),
                 ts(origin="/live/error", name="position error (deg)"),
             )
@@ -531,18 +534,31 @@ class LiveView:
             vs.clear()
 
     def close(self) -> None:
+        """The last rows sent, waiting at most LIVE_FLUSH_S for the viewer to take them (a
+        viewer that went away must not hold the run, nor Ctrl-C: the wait is in native code),
+        then the stream disconnected (nothing left for rerun's exit handler to wait on)."""
         self.flush()
-        self.rec.flush()
+        try:
+            self.rec.flush(timeout_sec=LIVE_FLUSH_S)
+        except Exception as exc:  # rerun raises on the time-out
+            print(f"rig: the live viewer did not take the last rows within {LIVE_FLUSH_S:g} s "
+                  f"({exc})", file=sys.stderr)
+        with contextlib.suppress(Exception):
+            self.rec.disconnect()
+
+
+LIVE_FLUSH_S = 5.0
 
 
 def spawn_live(title: str, grpc_url: str | None = None) -> rr.RecordingStream:
-    """A recording stream connected to a freshly spawned local viewer, or with ``grpc_url``
-    to a running server (the web viewer's: ``rig.webview``)."""
+    """A recording stream connected to a native viewer window (``rig.webview.start_native``:
+    127.0.0.1 only, started here unless one listens already), or with ``grpc_url`` to a
+    running server (the web viewer's: ``rig.webview.start``)."""
+    from rig import webview
+
+    url = grpc_url or webview.start_native()
     rec = rr.RecordingStream(APP_ID + "_live")
-    if grpc_url:
-        rec.connect_grpc(grpc_url)
-    else:
-        rec.spawn(connect=True)
+    rec.connect_grpc(url)
     rec.send_recording_name(title)
     return rec
 

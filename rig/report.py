@@ -52,6 +52,11 @@ def scenario_report(result: Mapping[str, Any]) -> str:
     ]
     if result.get("figure"):
         lines.append(f"| paper | {result['figure']} |")
+    pictures = (result.get("figures") or {}).get("files") or []
+    overview = [f for f in pictures if f.get("shows") == "overview"]
+    if overview:
+        lines += ["", f"![{result.get('scenario')}: position error, speed, currents and load; "
+                  f"the windows of criteria that did not pass shaded]({overview[0]['path']})"]
     injected = result.get("faults") or []
     if injected:
         lines += ["", "## Faults injected", ""]
@@ -85,6 +90,11 @@ def scenario_report(result: Mapping[str, Any]) -> str:
                 lines.append(f"| | | | expected failure: {c['xfail']} | | |")
     else:
         lines.append("(none)")
+    for f in pictures:
+        if f.get("shows") == "criterion":
+            lines += ["", f"![{f.get('criterion')}: what it read over its window, and its "
+                      f"limit]({f['path']})"]
+    lines += _baseline_section(result.get("baseline"), crits)
     cap = result.get("capture") or {}
     if cap:
         lines += [
@@ -124,6 +134,9 @@ def scenario_report(result: Mapping[str, Any]) -> str:
         else:
             lines.append("- no full-rate traces or capture")
     counters = result.get("counters") or {}
+    if "rig.listeners.start" in counters:
+        foreign = (result.get("failure") or {}).get("kind") == "foreign_traffic"
+        lines += ["", "## Bus", "", _listeners(counters, foreign)]
     if counters:
         lines += ["", "## Counters", "", "| counter | value |", "|---|---|"]
         for k in sorted(counters):
@@ -134,6 +147,54 @@ def scenario_report(result: Mapping[str, Any]) -> str:
         for k in sorted(versions):
             lines.append(f"- {k}: {_fmt(versions[k])}")
     return "\n".join(lines) + "\n"
+
+
+def _baseline_section(base: Mapping[str, Any] | None,
+                      crits: list[Mapping[str, Any]]) -> list[str]:
+    """How the run's criteria stand against the committed baseline (rig.baseline)."""
+    if not base:
+        return []
+    lines = ["", "## Against the baseline", ""]
+    if base.get("skipped") or base.get("error") or base.get("missing"):
+        verdict = "" if base.get("passed", True) else " (**fails the run**)"
+        return [*lines, f"{base.get('skipped') or base.get('error') or base.get('note')}"
+                f"{verdict}"]
+    counts = ", ".join(f"{n} {k}" for k, n in (base.get("counts") or {}).items())
+    lines += [f"`{base.get('file')}` (seeds {_seed_span(base.get('seeds'))}, recorded "
+              f"{base.get('recorded')}): {counts or 'nothing compared'}"
+              + ("" if base.get("passed") else " — **the run fails on it**"), ""]
+    moved = [c for c in crits if (c.get("baseline") or {}).get("class") not in
+             (None, "unchanged")]
+    if moved:
+        lines += ["| criterion | value | baseline | band | against it |", "|---|---|---|---|---|"]
+        for c in moved:
+            b = c["baseline"]
+            unit = c.get("unit") or ""
+            band = (f"{_fmt(b.get('lo'))} .. {_fmt(b.get('hi'))} {unit}" if "lo" in b
+                    else b.get("note", ""))
+            mark = b["class"].upper() if b["class"] in ("regressed", "changed", "stale") \
+                else b["class"]
+            lines.append(f"| {c['name']} | {_fmt(c.get('value'))} {unit} | "
+                         f"{_fmt(b.get('value'))} {unit} | {band} | {mark} |")
+    return lines
+
+
+def _seed_span(seeds: Any) -> str:
+    s = sorted(seeds or [])
+    return f"{s[0]}-{s[-1]}" if len(s) > 2 and s == list(range(s[0], s[-1] + 1)) else \
+        ", ".join(map(str, s))
+
+
+def _listeners(counters: dict[str, Any], foreign: bool) -> str:
+    """Other nodes on a unixcan channel: welcome while they only listen (rig.run.traffic)."""
+    start = int(counters["rig.listeners.start"])
+    end = int(counters.get("rig.listeners.end", start))
+    nodes = (f"- {start} other node{'' if start == 1 else 's'} on the channel at the start, "
+             f"{end} at the end")
+    if foreign:
+        return f"{nodes}; a node outside the run sent frames (see the failure)"
+    return (f"{nodes}, listening only (the frame counts add up: a node that sent would have "
+            "failed the run as foreign traffic)")
 
 
 _OUTCOME = {"pass": "pass", "fail": "**FAIL**", "xfail": "XFAIL", "xpass": "**XPASS**",
@@ -235,7 +296,8 @@ def _figures(entries: list[Mapping[str, Any]]) -> list[str]:
         if s.get("failure"):
             lines += ["", f"run failure: {s['failure']}"]
         lines += ["", f"recording: `rig view {s['dir']}`"
-                  + (f" ({s['recording']})" if s.get("recording") else ""), ""]
+                  + (f" ({s['recording']})" if s.get("recording") else "")
+                  + "".join(f"; [{p}]({s['dir']}/{p})" for p in s.get("figures") or []), ""]
     return lines
 
 
@@ -258,6 +320,31 @@ def _comparisons(comps: list[Mapping[str, Any]]) -> list[str]:
     return [*lines, ""]
 
 
+def _suite_baseline(base: Mapping[str, Any] | None) -> list[str]:
+    """The suite's criteria against their baselines: counts and what moved."""
+    if not base:
+        return []
+    counts = ", ".join(f"{n} {k}" for k, n in (base.get("counts") or {}).items())
+    lines = ["## Against the baseline", "",
+             f"{counts or 'nothing compared'}"
+             + ("" if base.get("passed") else " — **the suite fails on it**"), ""]
+    moved = base.get("moved") or []
+    if moved:
+        lines += ["| scenario | criterion | value | baseline | band | against it |",
+                  "|---|---|---|---|---|---|"]
+        for m in moved:
+            unit = m.get("unit") or ""
+            band = (f"{_fmt(m.get('lo'))} .. {_fmt(m.get('hi'))} {unit}"
+                    if m.get("lo") is not None else m.get("note", ""))
+            mark = m["class"].upper() if m["class"] in ("regressed", "changed", "stale") \
+                else m["class"]
+            lines.append(f"| [{m['scenario']}]({m['scenario']}/report.md) | {m['criterion']} | "
+                         f"{_fmt(m.get('value'))} {unit} | {_fmt(m.get('baseline'))} {unit} | "
+                         f"{band} | {mark} |")
+        lines.append("")
+    return lines
+
+
 def suite_report(summary: Mapping[str, Any]) -> str:
     verdict = "PASS" if summary.get("passed") else "FAIL"
     entries = list(summary.get("scenarios", []))
@@ -278,19 +365,21 @@ def suite_report(summary: Mapping[str, Any]) -> str:
         f"{counts['xpass']} xpass, {counts['not_evaluated']} not evaluated.",
         "",
     ]
+    lines += _suite_baseline(summary.get("baseline"))
     lines += _table2(entries)
     lines += _figures(entries)
     lines += _comparisons(list(summary.get("comparisons") or []))
     lines += [
         "## Runs",
         "",
-        "| scenario | result | failed criteria / failure | wall (s) |",
-        "|---|---|---|---|",
+        "| scenario | result | failed criteria / failure | wall (s) | pictures |",
+        "|---|---|---|---|---|",
     ]
     for s in entries:
         why = ", ".join(s.get("failed_criteria", [])) or (s.get("failure") or "")
+        pictures = ", ".join(f"[{p}]({s['dir']}/{p})" for p in s.get("figures") or [])
         lines.append(
             f"| [{s['name']}]({s['dir']}/report.md) | {'pass' if s.get('passed') else '**FAIL**'}"
-            f" ({s.get('status')}) | {why} | {_fmt(s.get('wall_s'))} |"
+            f" ({s.get('status')}) | {why} | {_fmt(s.get('wall_s'))} | {pictures} |"
         )
     return "\n".join(lines) + "\n"

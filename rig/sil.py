@@ -62,6 +62,10 @@ def library() -> C.CDLL:
         lib.sil_bench_next_period.argtypes = [C.c_void_p]
         lib.sil_bench_counters_json.restype = C.c_int
         lib.sil_bench_counters_json.argtypes = [C.c_void_p, C.c_char_p, C.c_size_t]
+        lib.sil_bench_journal_open.restype = C.c_int
+        lib.sil_bench_journal_open.argtypes = [C.c_void_p, C.c_char_p, C.POINTER(C.c_uint32),
+                                               C.POINTER(C.c_uint32), C.c_int, C.c_char_p,
+                                               C.c_size_t]
         lib.sil_bench_hardware_param.restype = C.c_char_p
         lib.sil_bench_hardware_param.argtypes = [C.c_int, C.POINTER(C.c_char_p),
                                                  C.POINTER(C.c_double)]
@@ -95,7 +99,8 @@ class SilBench:
     ``--set`` parameters, feed frames, run grants, read the counters, close."""
 
     def __init__(self, profile: Path | None, plant_sets: Sequence[str], fw_sets: Sequence[str],
-                 plant_trace: Path | None = None, fw_trace: Path | None = None) -> None:
+                 plant_trace: Path | None = None, fw_trace: Path | None = None,
+                 trace_vio: bool = False) -> None:
         self._lib = library()
         psets, self._keep_p = _strings(plant_sets)
         fsets, self._keep_f = _strings(fw_sets)
@@ -103,7 +108,7 @@ class SilBench:
         cfg = _Config(
             str(profile).encode() if profile else None, psets, len(plant_sets), fsets,
             len(fw_sets), str(plant_trace).encode() if plant_trace else None,
-            str(fw_trace).encode() if fw_trace else None, 0, 0,
+            str(fw_trace).encode() if fw_trace else None, int(trace_vio), 0,
         )
         err = C.create_string_buffer(1024)
         handle = self._lib.sil_bench_open(C.byref(cfg), err, len(err))
@@ -125,6 +130,17 @@ class SilBench:
         if r < 0:
             self.rejected.append(err.value.decode(errors="replace"))
         return r
+
+    def journal(self, path: Path, windows: Sequence[tuple[int, int]] = ()) -> None:
+        """Journals every call into the control core from now on (``core_journal.h``):
+        everything, or the ISR index windows ``(start, length)`` each with the state at its
+        start (``rig.target_m4`` replays it on another build of the core)."""
+        starts = (C.c_uint32 * max(1, len(windows)))(*[w[0] for w in windows])
+        lengths = (C.c_uint32 * max(1, len(windows)))(*[w[1] for w in windows])
+        err = C.create_string_buffer(512)
+        if self._lib.sil_bench_journal_open(self._handle(), str(path).encode(), starts, lengths,
+                                            len(windows), err, len(err)) != 0:
+            raise BenchError(err.value.decode(errors="replace"))
 
     def run_until(self, run_until: int) -> int:
         n = int(self._lib.sil_bench_run_until(self._handle(), run_until))

@@ -341,3 +341,31 @@ def terminate_as_exception() -> Iterator[None]:
     finally:
         for signum, h in previous.items():
             signal.signal(signum, h)
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP wait until the block is done, then take their course (the
+    handlers in force before it: KeyboardInterrupt, :class:`Terminated`, or the default
+    action): a result file written in the block is whole, whatever arrives meanwhile. By
+    Python handlers, not the signal mask: a signal that reaches another thread would still
+    run the main thread's handler in the middle of the block."""
+    got: list[int] = []
+    previous: dict[int, Any] = {}
+
+    def note(signum: int, frame: FrameType | None) -> None:
+        got.append(signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        try:
+            previous[sig] = signal.signal(sig, note)
+        except ValueError:  # not the main thread: nothing to defer there
+            pass
+    try:
+        yield
+    finally:
+        for signum, h in previous.items():
+            signal.signal(signum, h)
+        for signum in dict.fromkeys(got):
+            if previous.get(signum) not in (signal.SIG_IGN, None):
+                signal.raise_signal(signum)

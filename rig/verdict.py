@@ -106,6 +106,7 @@ def evaluate_one(cr: Criterion, cap: capture.Capture | None, counters: Mapping[s
         "value": None,
         "limit": cr.limit if math.isfinite(cr.limit) else None,
         "comparison": cr.comparison,
+        "better": cr.side(),
         "unit": metrics.unit_of(cr.metric),
         "params": dict(cr.params),
         "passed": False,

@@ -1,10 +1,15 @@
-"""The Rerun web viewer: recordings (or a live stream) served to a browser.
+"""The Rerun viewer processes: the web viewer (recordings or a live stream served to a
+browser) and the native viewer window of a live run.
 
 ``start()`` runs rerun-sdk's own server (``python -m rerun --serve-web``, rerun-sdk 0.41): a
 gRPC server on ``grpc_port`` that holds the recordings (files given, or whatever an SDK
 streams to it: ``grpc_url``) and the web viewer (HTML + Wasm) on ``web_port``; ``url`` opens
 the viewer connected to that server. Both listen on ``bind`` (default 127.0.0.1: this
 machine only; ``--bind 0.0.0.0`` to view from another one).
+
+``start_native()`` opens a native viewer window whose gRPC server listens on 127.0.0.1 (rerun's
+own ``spawn`` binds 0.0.0.0 and, on a machine without a display, leaves the SDK waiting for
+a viewer that never comes); it needs a display (``has_display``).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from urllib.parse import quote
 DEFAULT_WEB_PORT = 9090  # Rerun's defaults
 DEFAULT_GRPC_PORT = 9876
 START_TIMEOUT_S = 30.0
+NATIVE_SETTLE_S = 1.0  # a native viewer that fails to open its window exits within this
 
 
 class WebViewerError(RuntimeError):
@@ -100,6 +106,14 @@ def _listening(host: str, port: int) -> bool:
     return False
 
 
+def has_display() -> bool:
+    """Whether a native window can open here (X11 or Wayland; the rig runs on Linux)."""
+    return any(os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
+
+
+NO_DISPLAY = "no display here (DISPLAY and WAYLAND_DISPLAY are unset)"
+
+
 def start(files: Sequence[Path] = (), *, web_port: int = DEFAULT_WEB_PORT,
           grpc_port: int = DEFAULT_GRPC_PORT, bind: str = "127.0.0.1",
           log: Path | None = None, env: Mapping[str, str] | None = None,
@@ -112,6 +126,38 @@ def start(files: Sequence[Path] = (), *, web_port: int = DEFAULT_WEB_PORT,
     argv = [sys.executable, "-m", "rerun", "--serve-web", "--bind", bind,
             "--web-viewer-port", str(web_port), "--port", str(grpc_port),
             *[str(f) for f in files]]
+    return _launch(argv, bind, web_port, grpc_port, (web_port, grpc_port), log, env,
+                   timeout_s)
+
+
+def start_native(*, grpc_port: int = DEFAULT_GRPC_PORT, log: Path | None = None,
+                 env: Mapping[str, str] | None = None,
+                 timeout_s: float = START_TIMEOUT_S) -> str:
+    """A native viewer window for a live stream, its gRPC server on 127.0.0.1:grpc_port; the
+    URL an SDK streams to, once the server answers (a viewer already there is reused, as
+    rerun does). It outlives the run: the window is the user's to close. WebViewerError when
+    there is no display, or the viewer exits or does not listen within timeout_s."""
+    url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+    if not has_display():
+        raise WebViewerError(f"{NO_DISPLAY}: use --web")
+    if not _listening("127.0.0.1", grpc_port):
+        argv = [sys.executable, "-m", "rerun", "--bind", "127.0.0.1", "--port", str(grpc_port)]
+        viewer = _launch(argv, "127.0.0.1", 0, grpc_port, (grpc_port,), log, env, timeout_s)
+        # its server listens before its window opens: a display it cannot use ends it
+        # right after (winit), and it must not be taken for a viewer then
+        deadline = time.monotonic() + NATIVE_SETTLE_S
+        while time.monotonic() < deadline:
+            if viewer.proc.poll() is not None:
+                raise WebViewerError(f"the Rerun viewer exited with status "
+                                     f"{viewer.proc.returncode} (no usable display?)")
+            time.sleep(0.05)
+    return url
+
+
+def _launch(argv: list[str], bind: str, web_port: int, grpc_port: int, ports: Sequence[int],
+            log: Path | None, env: Mapping[str, str] | None, timeout_s: float) -> WebViewer:
+    """Starts a viewer process in a session of its own; waits (at most timeout_s) until
+    ``ports`` answer, failing at once when it exits."""
     out = open(log, "wb") if log is not None else subprocess.DEVNULL
     try:
         proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out,
@@ -122,14 +168,17 @@ def start(files: Sequence[Path] = (), *, web_port: int = DEFAULT_WEB_PORT,
             out.close()  # type: ignore[union-attr]
     viewer = WebViewer(proc, bind, web_port, grpc_port, log)
     deadline = time.monotonic() + timeout_s
-    while not (_listening(viewer.host, web_port) and _listening(viewer.host, grpc_port)):
-        if proc.poll() is not None:
-            tail = log.read_text(errors="replace")[-2000:] if log is not None else ""
-            raise WebViewerError(f"the Rerun web viewer exited with status {proc.returncode}"
-                                 + (f":\n{tail}" if tail else ""))
-        if time.monotonic() > deadline:
-            viewer.stop()
-            raise WebViewerError(f"the Rerun web viewer did not listen on ports {web_port} and "
-                                 f"{grpc_port} within {timeout_s:g} s")
-        time.sleep(0.1)
+    try:
+        while not all(_listening(viewer.host, port) for port in ports):
+            if proc.poll() is not None:
+                tail = log.read_text(errors="replace")[-2000:] if log is not None else ""
+                raise WebViewerError(f"the Rerun viewer exited with status {proc.returncode}"
+                                     + (f":\n{tail}" if tail else ""))
+            if time.monotonic() > deadline:
+                raise WebViewerError(f"the Rerun viewer did not listen on port(s) "
+                                     f"{', '.join(map(str, ports))} within {timeout_s:g} s")
+            time.sleep(0.1)
+    except BaseException:  # (Ctrl-C, SIGTERM as Terminated too): no server left behind
+        viewer.stop()
+        raise
     return viewer

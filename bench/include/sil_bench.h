@@ -97,6 +97,15 @@ double sil_bench_last_isr_ns(const sil_bench_t *b);
  * Returns the length written (snprintf semantics). */
 int sil_bench_counters_json(const sil_bench_t *b, char *buf, size_t len);
 
+/* Journal every call into the control core from now on (core_journal.h: the inputs of each
+ * fw_core_isr, fw_core_command and fw_core_set_limits with the core's outputs, the parameters
+ * that differ from their defaults, and the state at the start of each window of ISR indices
+ * [win_start, win_start + win_len); n_win 0: everything). Before the first period, so that
+ * the ISR indices count from the first call. Closed with the bench (sil_bench_close fails
+ * when a journal write failed). 0, or -1 with a reason in err. */
+int sil_bench_journal_open(sil_bench_t *b, const char *path, const uint32_t *win_start,
+                           const uint32_t *win_len, int n_win, char *err, size_t errlen);
+
 /* Fault injection: hook(ctx, adc) sees (and may change) every period's assembled ADC data
  * just before fw_core_isr(). NULL removes it. */
 typedef void (*sil_bench_adc_hook_t)(void *ctx, fw_adc_t *adc);

@@ -11,6 +11,7 @@
 #include <time.h>
 
 #include "adc_assembly.h"
+#include "core_journal.h"
 #include "drive_codec.h"
 #include "fw_core.h"
 #include "hil_bench.h"
@@ -44,6 +45,7 @@ struct sil_bench {
     sil_bench_stats_t st;
     uint64_t plant_rejects[PLANT_REJ_COUNT];
     uint64_t fw_rejects[FWH_REJ_COUNT];
+    core_journal_t *journal; /* every core call (sil_bench_journal_open), or NULL */
 };
 
 static fwh_param_list_t fw_sets; /* large: not on the stack (one bench opens at a time) */
@@ -114,6 +116,39 @@ static void fail(char *err, size_t errlen, const char *fmt, ...)
     va_end(ap);
 }
 
+/* The three calls into the core while running, each journalled when a journal is open. */
+static void core_isr(sil_bench_t *b, const fw_adc_t *adc, fw_pwm_t *pwm)
+{
+    core_journal_before(b->journal, &b->core);
+    if (b->timing) {
+        const double t0 = now_ns();
+        fw_core_isr(&b->core, adc, pwm);
+        b->last_isr_ns = now_ns() - t0;
+        b->st.isr_ns_total += b->last_isr_ns;
+    } else {
+        fw_core_isr(&b->core, adc, pwm);
+    }
+    core_journal_isr(b->journal, &b->core, adc, pwm);
+}
+
+static int16_t core_command(sil_bench_t *b, const fw_cmd_t *cmd)
+{
+    int16_t st;
+    core_journal_before(b->journal, &b->core);
+    st = fw_core_command(&b->core, cmd);
+    core_journal_command(b->journal, cmd, st);
+    return st;
+}
+
+static int16_t core_limits(sil_bench_t *b, real_t i_max, real_t speed_max, real_t accel)
+{
+    int16_t st;
+    core_journal_before(b->journal, &b->core);
+    st = fw_core_set_limits(&b->core, i_max, speed_max, accel);
+    core_journal_limits(b->journal, i_max, speed_max, accel, st);
+    return st;
+}
+
 static int open_plant(sil_bench_t *b, const sil_bench_config_t *cfg, char *err, size_t errlen)
 {
     plant_config_t pc;
@@ -147,6 +182,7 @@ static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *er
     int16_t st;
     fw_core_init(&b->core);
     fwh_adc_init(&b->adc);
+    fwh_adc_lockstep(&b->adc); /* as fw_host in lockstep: periods skip only behind a barrier */
     if (cfg->n_fw_sets + N_HARDWARE > FWH_PARAM_ITEMS_MAX) {
         fail(err, errlen, "firmware: more than %d parameters", FWH_PARAM_ITEMS_MAX - N_HARDWARE);
         return -1;
@@ -221,6 +257,9 @@ int sil_bench_close(sil_bench_t *b)
     if (b == NULL) {
         return 0;
     }
+    if (core_journal_close(b->journal) != 0) {
+        rc = -1;
+    }
     if (b->plant_trace != NULL && hiltrace_close(b->plant_trace) != 0) {
         rc = -1;
     }
@@ -256,7 +295,7 @@ static int drive_frame(sil_bench_t *b, const struct canfd_frame *f, int fd, char
             return reject_fw(b, FWH_REJ_OUT_OF_RANGE, why, err, errlen);
         }
         b->st.drive_cmds++;
-        if (fw_core_command(&b->core, &cmd) != FW_STATUS_OK) {
+        if (core_command(b, &cmd) != FW_STATUS_OK) {
             b->st.cmds_refused++; /* DRIVE_STATUS.cmd_status says so, as on the bus */
         }
         return 0;
@@ -267,7 +306,7 @@ static int drive_frame(sil_bench_t *b, const struct canfd_frame *f, int fd, char
             return reject_fw(b, FWH_REJ_OUT_OF_RANGE, why, err, errlen);
         }
         b->st.limits++;
-        if (fw_core_set_limits(&b->core, (real_t)lim.i_max_a, (real_t)lim.speed_max_rpm,
+        if (core_limits(b, (real_t)lim.i_max_a, (real_t)lim.speed_max_rpm,
                                (real_t)lim.accel_rpm_s) != FW_STATUS_OK) {
             b->st.limits_refused++;
             return reject_fw(b, FWH_REJ_REFUSED, "DRIVE_LIMITS refused by the control core",
@@ -423,7 +462,7 @@ static int firmware_adc(sil_bench_t *b, const struct canfd_frame *adc_frame,
         b->st.fw_rejected++;
     }
     for (k = 0; k < r.n_lost; k++) {
-        fw_core_isr(&b->core, NULL, &pwm);
+        core_isr(b, NULL, &pwm);
         b->st.isr_no_data++;
         fw_trace(b);
     }
@@ -442,14 +481,7 @@ static int firmware_adc(sil_bench_t *b, const struct canfd_frame *adc_frame,
     if (b->hook != NULL) {
         b->hook(b->hook_ctx, &b->last_adc);
     }
-    if (b->timing) {
-        const double t0 = now_ns();
-        fw_core_isr(&b->core, &b->last_adc, &pwm);
-        b->last_isr_ns = now_ns() - t0;
-        b->st.isr_ns_total += b->last_isr_ns;
-    } else {
-        fw_core_isr(&b->core, &b->last_adc, &pwm);
-    }
+    core_isr(b, &b->last_adc, &pwm);
     b->last_pwm = pwm;
     if (!fwh_vio_pwm_pack(&pwm, r.adc->period + 1u, pwm_frame)) {
         b->st.pwm_invalid++;
@@ -518,7 +550,9 @@ int sil_bench_step(sil_bench_t *b)
         }
     }
     if (barrier) {
-        /* the barrier: everything the firmware made of these frames is in */
+        /* the barrier (VIO_SYNC after the period's frames, as on the bus): everything the
+         * firmware made of these frames is in */
+        fwh_adc_barrier(&b->adc);
         plant_link_resolve(&b->link);
     }
     if (!plant_link_decided(&b->link)) {
@@ -557,6 +591,17 @@ void sil_bench_time_isr(sil_bench_t *b, int on)
 double sil_bench_last_isr_ns(const sil_bench_t *b)
 {
     return b->last_isr_ns;
+}
+
+int sil_bench_journal_open(sil_bench_t *b, const char *path, const uint32_t *win_start,
+                           const uint32_t *win_len, int n_win, char *err, size_t errlen)
+{
+    if (b->journal != NULL) {
+        fail(err, errlen, "journal: already open");
+        return -1;
+    }
+    b->journal = core_journal_open(path, &b->core, win_start, win_len, n_win, err, errlen);
+    return b->journal != NULL ? 0 : -1;
 }
 
 void sil_bench_set_adc_hook(sil_bench_t *b, sil_bench_adc_hook_t hook, void *ctx)

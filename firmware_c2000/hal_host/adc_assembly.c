@@ -22,6 +22,16 @@ void fwh_adc_expect_first(fwh_adc_asm_t *a, uint32_t period)
     a->first = period;
 }
 
+void fwh_adc_lockstep(fwh_adc_asm_t *a)
+{
+    a->lockstep = 1;
+}
+
+void fwh_adc_barrier(fwh_adc_asm_t *a)
+{
+    a->barriers = 1;
+}
+
 static void start(fwh_adc_asm_t *a, uint32_t period, int16_t n_soc, int repeat)
 {
     a->building = 1;
@@ -85,8 +95,11 @@ void fwh_adc_feed(fwh_adc_asm_t *a, int index, uint32_t period, int16_t n_soc, i
     } else {
         int32_t d = (int32_t)(period - a->last);
         int32_t ahead = a->building ? (int32_t)(period - a->period) : 0;
+        /* the furthest a period may lie ahead of the last ISR: one, in lockstep before the
+         * plant's first barrier (it skips none then) */
+        const uint32_t max_gap = a->lockstep && !a->barriers ? 1u : FWH_ADC_MAX_GAP;
         if (d < 0 || (d == 0 && a->building && !a->repeat) || (a->building && ahead < 0) ||
-            (uint32_t)d > FWH_ADC_MAX_GAP) {
+            (uint32_t)d > max_gap) {
             out->verdict = (d < 0 || (a->building && ahead < 0) || d == 0) ? FWH_ADC_STALE
                                                                           : FWH_ADC_FUTURE;
             if (!resync_candidate(a, index, period)) {

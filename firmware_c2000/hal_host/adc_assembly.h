@@ -17,7 +17,13 @@
  *    one ADC loss and follows it. No other run of rejected periods is ever followed (stray
  *    frames of another node, delayed duplicates): only the plant itself starts at 0;
  *  - frames whose n_soc does not agree with the period's first frame, or that n_soc does not
- *    call for (VIO_ADC_1 with n_soc <= 7), are malformed and rejected.
+ *    call for (VIO_ADC_1 with n_soc <= 7), are malformed and rejected;
+ *  - in lockstep (fwh_adc_lockstep) the plant does not run a period before PWM of it came,
+ *    so it skips none, until a frame fault makes it end every exchange with a barrier
+ *    (VIO_SYNC: fwh_adc_barrier) and go on without PWM where none came. Before the first
+ *    barrier, data that skips periods is not the plant's: future, rejected. (One stray frame
+ *    a little ahead of the plant once took the sequence over; the plant's own frames were
+ *    then stale and the lockstep stalled.)
  */
 #ifndef ADC_ASSEMBLY_H
 #define ADC_ASSEMBLY_H
@@ -49,6 +55,8 @@ typedef struct {
     int resync_count;
     int first_fixed;      /* the first period is known (fwh_adc_expect_first) */
     uint32_t first;
+    int lockstep;         /* fwh_adc_lockstep */
+    int barriers;         /* the plant has sent a barrier (fwh_adc_barrier) */
 } fwh_adc_asm_t;
 
 /* What one frame led to. The HAL acts in this order: count `incomplete` rejections, run
@@ -72,6 +80,11 @@ void fwh_adc_init(fwh_adc_asm_t *a);
  * stray frames on the bus cannot become the first period. Without it the newest period
  * seen is the first (real time: the plant runs before the firmware joins). */
 void fwh_adc_expect_first(fwh_adc_asm_t *a, uint32_t period);
+
+/* Lockstep pacing: periods are skipped only once the plant has sent a barrier (above). */
+void fwh_adc_lockstep(fwh_adc_asm_t *a);
+/* The plant's barrier (VIO_SYNC) arrived: from now on its periods may skip. */
+void fwh_adc_barrier(fwh_adc_asm_t *a);
 
 /* One received frame: index 0..2 (VIO_ADC_0..2), its period, n_soc (0..16, range-checked by
  * the caller), vdc code and the up to 7 current code pairs it carries. */

@@ -174,6 +174,7 @@ static void answer_sync(fwh_t *app, const struct canfd_frame *f, int fd)
         return;
     }
     hil_vio_vio_sync_unpack(&m, f->data, f->len);
+    fwh_adc_barrier(&app->adc); /* the plant may skip periods from now on (adc_assembly.h) */
     memset(&ack, 0, sizeof(ack));
     ack.period = m.period;
     ack.seq = m.seq;

@@ -424,7 +424,7 @@ static int run(int tfd)
 
 static void print_counters(void)
 {
-    static char buf[4096];
+    static char buf[8192];
     hil_json_t j;
     fw_status_t s;
     const fwh_counters_t *c = &app.cnt;
@@ -494,6 +494,9 @@ int main(int argc, char **argv)
     app.owner = FWH_OWNER_NONE;
     app.pty.master = -1;
     fwh_adc_init(&app.adc);
+    if (!app.opt.node.realtime) {
+        fwh_adc_lockstep(&app.adc); /* the plant skips a period only behind a barrier */
+    }
     if (app.opt.first_period >= 0) {
         fwh_adc_expect_first(&app.adc, (uint32_t)app.opt.first_period);
     }

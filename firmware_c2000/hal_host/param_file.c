@@ -182,26 +182,68 @@ int fwh_params_parse_assignment(const char *text, fwh_param_item_t *item, char *
     return 0;
 }
 
+typedef enum { LINE_OK, LINE_END, LINE_TOO_LONG, LINE_NUL, LINE_FILE_TOO_LONG } line_read_t;
+
+/* One line of the file into buf (NUL-terminated, without its newline), byte by byte: a NUL
+ * byte is named as such (with fgets it looked like an overlong line), and the whole file is
+ * bounded (FWH_PARAM_FILE_MAX bytes: --params /dev/zero looped for ever). */
+static line_read_t read_line(FILE *f, char *buf, size_t size, long *bytes)
+{
+    size_t n = 0;
+    int c;
+    while ((c = getc(f)) != EOF) {
+        if (++*bytes > FWH_PARAM_FILE_MAX) {
+            return LINE_FILE_TOO_LONG;
+        }
+        if (c == '\n') {
+            break;
+        }
+        if (c == '\0') {
+            return LINE_NUL;
+        }
+        if (n + 1 >= size) {
+            return LINE_TOO_LONG;
+        }
+        buf[n++] = (char)c;
+    }
+    if (c == EOF && n == 0) {
+        return LINE_END;
+    }
+    buf[n] = '\0';
+    return LINE_OK;
+}
+
 int fwh_params_parse_file(const char *path, fwh_param_list_t *out, char *err, size_t errlen)
 {
     FILE *f = fopen(path, "r");
-    char buf[FWH_PARAM_LINE_MAX + 3], why[160];
+    char buf[FWH_PARAM_LINE_MAX + 1], why[160];
     int line = 0, rc = 0, i;
+    long bytes = 0;
+    line_read_t got;
     out->n = 0;
     if (f == NULL) {
         snprintf(err, errlen, "%s: cannot read: %s", path, strerror(errno));
         return -1;
     }
-    while (fgets(buf, sizeof(buf), f) != NULL) {
-        size_t n = strlen(buf);
+    while ((got = read_line(f, buf, sizeof(buf), &bytes)) != LINE_END) {
         char *hash;
         const char *field;
         fwh_param_item_t item;
         line++;
-        if ((n > 0 && buf[n - 1] != '\n' && !feof(f)) ||
-            n - (n > 0 && buf[n - 1] == '\n') > FWH_PARAM_LINE_MAX) {
+        if (got == LINE_TOO_LONG) {
             snprintf(err, errlen, "%s:%d: line longer than %d characters", path, line,
                      FWH_PARAM_LINE_MAX);
+            rc = -1;
+            break;
+        }
+        if (got == LINE_NUL) {
+            snprintf(err, errlen, "%s:%d: a NUL byte (not a text file)", path, line);
+            rc = -1;
+            break;
+        }
+        if (got == LINE_FILE_TOO_LONG) {
+            snprintf(err, errlen, "%s: longer than %ld bytes (not a parameter file)", path,
+                     (long)FWH_PARAM_FILE_MAX);
             rc = -1;
             break;
         }

@@ -1,6 +1,7 @@
 /* param_file.h - the host's parameter store: a text file of "name = value" lines.
  *
- * Grammar (one assignment per line, at most FWH_PARAM_LINE_MAX characters):
+ * Grammar (one assignment per line, at most FWH_PARAM_LINE_MAX characters, no NUL byte; at
+ * most FWH_PARAM_FILE_MAX bytes in all):
  *   line       = [ws] [assignment] [ws] ["#" comment]
  *   assignment = NAME [ws] "=" [ws] NUMBER
  * NAME is a parameter name of protocols/parameters.csv (writable ones only); NUMBER is a
@@ -17,6 +18,7 @@
 #include "fw_core.h"
 
 #define FWH_PARAM_LINE_MAX 255
+#define FWH_PARAM_FILE_MAX (1L << 20) /* bytes: a file of every parameter is a few kB */
 #define FWH_PARAM_ITEMS_MAX 256
 #define FWH_PARAM_NAME_MAX 48
 

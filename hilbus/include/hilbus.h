@@ -66,6 +66,15 @@ int hilbus_fileno(const hilbus_t *bus);
 
 void hilbus_get_stats(const hilbus_t *bus, hilbus_stats_t *stats);
 
+/* Frames per 11-bit identifier (data frames of the standard format: every frame of the
+ * rig's protocols): sent = valid frames handed to hilbus_send (whatever the transport then
+ * did with them), received = frames hilbus_recv delivered. A receiver never gets more
+ * frames of an id than its senders sent: the rig compares them to find frames a node
+ * outside the run sent (docs/interfaces.md, "Foreign traffic"). */
+#define HILBUS_IDS 2048
+uint64_t hilbus_id_sent(const hilbus_t *bus, uint32_t id);
+uint64_t hilbus_id_received(const hilbus_t *bus, uint32_t id);
+
 /* Channel names are plain names: 1..HILBUS_MAX_CHANNEL of [A-Za-z0-9_.-], not starting
  * with '.' or '-' (no path, no "..", no option). */
 #define HILBUS_MAX_CHANNEL 63

@@ -98,6 +98,23 @@ int hilbus_set_filters(hilbus_t *bus, const struct can_filter *filters, int n)
     return 0;
 }
 
+/* the slot of a frame in the per-id counts, or -1 (extended, remote or error frame) */
+static int id_slot(canid_t can_id)
+{
+    if (can_id & (CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG)) return -1;
+    return (int)(can_id & CAN_SFF_MASK);
+}
+
+uint64_t hilbus_id_sent(const hilbus_t *bus, uint32_t id)
+{
+    return id < HILBUS_IDS ? bus->sent_by_id[id] : 0;
+}
+
+uint64_t hilbus_id_received(const hilbus_t *bus, uint32_t id)
+{
+    return id < HILBUS_IDS ? bus->received_by_id[id] : 0;
+}
+
 int hilbus_send(hilbus_t *bus, const struct canfd_frame *frame, int fd)
 {
     if (!valid_frame(frame, fd)) {
@@ -105,6 +122,8 @@ int hilbus_send(hilbus_t *bus, const struct canfd_frame *frame, int fd)
         bus->stats.tx_errors++;
         return -1;
     }
+    const int slot = id_slot(frame->can_id);
+    if (slot >= 0) bus->sent_by_id[slot]++; /* before the transport: a frame some peers got */
     int rc = bus->kind == HILBUS_SOCKETCAN ? hilbus_socketcan_send(bus, frame, fd)
                                           : hilbus_unixcan_send(bus, frame, fd);
     if (rc == 0) bus->stats.tx_frames++;
@@ -122,7 +141,11 @@ static int recv_once(hilbus_t *bus, struct canfd_frame *frame, int *fd)
 {
     int got = bus->kind == HILBUS_SOCKETCAN ? hilbus_socketcan_recv(bus, frame, fd)
                                             : hilbus_unixcan_recv(bus, frame, fd);
-    if (got == 1) bus->stats.rx_frames++;
+    if (got == 1) {
+        const int slot = id_slot(frame->can_id);
+        bus->stats.rx_frames++;
+        if (slot >= 0) bus->received_by_id[slot]++;
+    }
     return got;
 }
 

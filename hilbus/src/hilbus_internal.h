@@ -17,6 +17,8 @@ struct hilbus {
     enum hilbus_kind kind;
     int sock;
     hilbus_stats_t stats;
+    uint64_t sent_by_id[HILBUS_IDS];     /* hilbus_id_sent */
+    uint64_t received_by_id[HILBUS_IDS]; /* hilbus_id_received */
     int32_t spin_us;
     /* socketcan: last SO_RXQ_OVFL value the kernel reported */
     uint32_t kernel_overflows;

@@ -35,6 +35,11 @@ static int64_t ts_ns(struct timespec t) { return (int64_t)t.tv_sec * 1000000000L
 /* The directory rule (docs/interfaces.md, the same in rig/bus/unixcan.py):
  *  - base: $UNIXCAN_DIR, else $XDG_RUNTIME_DIR/unixcan (an absolute XDG_RUNTIME_DIR), else
  *    /tmp/unixcan-<uid>; the channel folder is base/<channel>, <channel> a plain name;
+ *  - the folders above the base that exist must be trusted: each a directory of root or of
+ *    this user that nobody else can write (a sticky one such as /tmp excepted, the group
+ *    with UNIXCAN_GROUP), and a symbolic link among them one of root or of this user (so
+ *    /var/run -> /run is fine, another user's link in /tmp is refused): nobody else can
+ *    move the bus folder away or put another in its place;
  *  - what is missing is created mode 0700 (0770 and group G with UNIXCAN_GROUP=G);
  *  - the base and the channel folder must be real directories (a symlink is refused),
  *    owned by this user and writable by nobody else (the group only with UNIXCAN_GROUP);
@@ -153,7 +158,53 @@ static int own_directory(const char *path, mode_t mode, int have_group, gid_t gi
     return 0;
 }
 
-/* mkdir -p for the parents of the base (mode 0700), then the base and channel checks. */
+/* One existing folder above the base (see the rule above): 0 when trusted, 1 when it does
+ * not exist (nor anything below it), -1 with a message when refused. */
+static int trusted_parent(const char *path, int have_group, gid_t gid, char *err, size_t errlen)
+{
+    struct stat st;
+    const uid_t me = geteuid();
+    if (lstat(path, &st) != 0) {
+        if (errno == ENOENT) return 1;
+        snprintf(err, errlen, "unixcan: %s: %s", path, strerror(errno));
+        return -1;
+    }
+    if (S_ISLNK(st.st_mode)) {
+        if (st.st_uid != 0 && st.st_uid != me) {
+            snprintf(err, errlen, "unixcan: %s (above the bus folder) is a symbolic link of uid %lu, "
+                                  "neither root nor this user; refused (set UNIXCAN_DIR to a "
+                                  "folder of your own)",
+                     path, (unsigned long)st.st_uid);
+            return -1;
+        }
+        if (stat(path, &st) != 0) {
+            if (errno == ENOENT) return 1; /* a dangling link: mkdir below fails and says so */
+            snprintf(err, errlen, "unixcan: %s: %s", path, strerror(errno));
+            return -1;
+        }
+    }
+    if (!S_ISDIR(st.st_mode)) {
+        snprintf(err, errlen, "unixcan: %s (above the bus folder) is not a directory", path);
+        return -1;
+    }
+    if (st.st_uid != 0 && st.st_uid != me) {
+        snprintf(err, errlen, "unixcan: %s (above the bus folder) belongs to uid %lu, neither root "
+                              "nor this user; refused (set UNIXCAN_DIR to a folder of your own)",
+                 path, (unsigned long)st.st_uid);
+        return -1;
+    }
+    if (!(st.st_mode & S_ISVTX) &&
+        ((st.st_mode & S_IWOTH) || ((st.st_mode & S_IWGRP) && !(have_group && st.st_gid == gid)))) {
+        snprintf(err, errlen, "unixcan: %s (above the bus folder) is writable by other users "
+                              "(mode %03o); refused (set UNIXCAN_DIR to a folder of your own)",
+                 path, (unsigned)(st.st_mode & 0777));
+        return -1;
+    }
+    return 0;
+}
+
+/* The trusted parents checked, mkdir -p for the missing ones (mode 0700), then the base and
+ * channel checks. */
 static int make_bus_dir(struct hilbus *bus, const char *base, char *err, size_t errlen)
 {
     gid_t gid = 0;
@@ -167,9 +218,15 @@ static int make_bus_dir(struct hilbus *bus, const char *base, char *err, size_t 
         return -1;
     }
     memcpy(tmp, base, len + 1);
+    int missing = 0; /* a folder above is missing: what is below it is made here, 0700 */
     for (char *p = tmp + 1; *p; p++) {
         if (*p == '/') {
             *p = '\0';
+            if (!missing) {
+                const int t = trusted_parent(tmp, have_group, gid, err, errlen);
+                if (t < 0) return -1;
+                missing = t;
+            }
             if (mkdir(tmp, 0700) != 0 && errno != EEXIST) {
                 snprintf(err, errlen, "unixcan: cannot create %s: %s", tmp, strerror(errno));
                 return -1;

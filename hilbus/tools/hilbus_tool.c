@@ -26,7 +26,7 @@ static void usage(FILE *out)
             "  recv   print frames:      [--filter ID:MASK]... [--count N] [--timeout-ms T]\n"
             "  echo   answer pings:      frames with id 0x7A0 are sent back as 0x7A1\n"
             "  ping   round-trip timing: [--count N] [--fd] [--window W] [--timeout-ms T]\n"
-            "  dir    open the bus and print its unixcan folder: {\"dir\": PATH}\n"
+            "  dir    open the bus and print its unixcan folder: {\"dir\": PATH, \"max_peers\": N}\n"
             "common:  --bus socketcan|unixcan|auto (default auto)  --channel NAME (default vcan0)\n"
             "         --ready-file PATH (written once the bus is open)\n"
             "Output: one JSON object per line on stdout; errors on stderr, exit 1.\n");
@@ -220,7 +220,7 @@ int main(int argc, char **argv)
             fprintf(stderr, "hilbus_tool: dir: not a unixcan bus\n");
             rc = 1;
         } else {
-            printf("{\"dir\": \"%s/%s\"}\n", base, channel);
+            printf("{\"dir\": \"%s/%s\", \"max_peers\": %d}\n", base, channel, HILBUS_MAX_PEERS);
         }
     } else if (strcmp(mode, "send") == 0) {
         struct canfd_frame f;

@@ -4,6 +4,7 @@
 
 #include <errno.h>
 #include <sched.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
@@ -192,6 +193,33 @@ void hil_node_json_begin(hil_json_t *j, const hil_node_opts_t *o, const hilbus_t
     hil_json_str(j, "transport", bus != NULL ? hilbus_transport(bus) : "none");
 }
 
+/* "key": {"<id>": frames, ...} for the ids with frames (decimal, ascending), at most
+ * HIL_NODE_JSON_IDS of them; the frames of any further ids as "other" (a flood of ids must
+ * not truncate the line the rig reads). */
+#define HIL_NODE_JSON_IDS 48
+static void id_counts(hil_json_t *j, const char *key, const hilbus_t *bus,
+                      uint64_t (*count)(const hilbus_t *, uint32_t))
+{
+    char name[16];
+    uint64_t other = 0;
+    int shown = 0;
+    uint32_t id;
+    hil_json_open(j, key);
+    for (id = 0; id < HILBUS_IDS; id++) {
+        const uint64_t n = count(bus, id);
+        if (n == 0) continue;
+        if (shown < HIL_NODE_JSON_IDS) {
+            snprintf(name, sizeof(name), "%u", (unsigned)id);
+            hil_json_u64(j, name, n);
+            shown++;
+        } else {
+            other += n;
+        }
+    }
+    if (other > 0) hil_json_u64(j, "other", other);
+    hil_json_close(j);
+}
+
 void hil_node_json_bus(hil_json_t *j, const hilbus_t *bus, uint64_t non_data_frames)
 {
     hilbus_stats_t bs;
@@ -209,4 +237,8 @@ void hil_node_json_bus(hil_json_t *j, const hilbus_t *bus, uint64_t non_data_fra
     hil_json_u64(j, "non_data_frames", non_data_frames);
     hil_json_u64(j, "foreign_entries", bs.foreign_entries);
     hil_json_u64(j, "peers_beyond_limit", bs.peers_beyond_limit);
+    if (bus != NULL) {
+        id_counts(j, "tx_ids", bus, hilbus_id_sent);
+        id_counts(j, "rx_ids", bus, hilbus_id_received);
+    }
 }

@@ -680,6 +680,25 @@ static void integrate_interval(plant_t *p, double t, double t_end, soc_queue_t *
     }
 }
 
+/* A phase that opens loses its current at once: the stator current loses its component
+ * along that phase's axis, so each other phase gains half the cut current and may change
+ * sign (i_c = +0.04 A becomes -0.33 A when i_b = -0.75 A is cut). The other legs' conduction
+ * labels are set again from the currents that are left; with the labels of before, a leg
+ * whose current had just changed sign "reached zero" one step later and every current was
+ * set to zero. apply_gates then resolves the modes for the open leg's new gate state. */
+static void cut_open_phases(plant_t *p)
+{
+    int k;
+    plant_machine_project(&p->mach, &p->x);
+    plant_machine_rhs(&p->mach, &p->x, &p->d);
+    for (k = 0; k < 3; ++k) {
+        if (p->mach.mode[k] != LEG_ZERO) {
+            const double i = p->d.i_ph[k];
+            p->mach.mode[k] = i > 0.0 ? LEG_POS : (i < 0.0 ? LEG_NEG : LEG_ZERO);
+        }
+    }
+}
+
 /* New gate states at time t: ringing on hard edges and consistent conduction modes. */
 static void apply_gates(plant_t *p, const int gate[3], double t)
 {
@@ -729,11 +748,16 @@ int plant_step(plant_t *p, const plant_pwm_cmd_t *cmd, plant_samples_t *samples,
     }
     plant_inverter_schedule(cmd, p->dead_ticks, &p->gmem, legs);
     if (p->flt.open_mask | p->flt.gate_off_mask) {
+        int cut = 0;
         plant_faults_legs(&p->flt, legs);
         for (k = 0; k < 3; ++k) {
             if (((p->flt.open_mask >> k) & 1u) && p->mach.mode[k] != LEG_ZERO) {
-                p->mach.mode[k] = LEG_ZERO; /* its current is cut (apply_gates projects it) */
+                p->mach.mode[k] = LEG_ZERO; /* its current is cut */
+                cut = 1;
             }
+        }
+        if (cut) {
+            cut_open_phases(p);
         }
     }
 

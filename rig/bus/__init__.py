@@ -7,6 +7,7 @@ created), else unixcan.
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
@@ -90,3 +91,22 @@ def open_bus(bus: str | None = None, channel: str | None = None, **kwargs: Any) 
     if transport == "socketcan":
         return can.Bus(interface="socketcan", channel=chan, fd=True, **kwargs)
     return can.Bus(interface="unixcan", channel=chan, **kwargs)
+
+
+_max_peers: list[int] = []
+
+
+def unixcan_max_peers(channel: str) -> int:
+    """The most other nodes a unixcan node of the C programs sends to (HILBUS_MAX_PEERS in
+    hilbus.h, as ``hilbus_tool dir`` reports it on ``channel``: the header is the one place
+    it is set). Asked once per process."""
+    from rig import _paths
+
+    if not _max_peers:
+        done = subprocess.run([str(_paths.binary("hilbus_tool")), "dir", "--bus", "unixcan",
+                               "--channel", channel], capture_output=True, text=True,
+                              timeout=30, check=False)
+        if done.returncode != 0:
+            raise RuntimeError(f"hilbus_tool dir: {done.stderr.strip()}")
+        _max_peers.append(int(json.loads(done.stdout)["max_peers"]))
+    return _max_peers[0]

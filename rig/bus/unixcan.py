@@ -9,7 +9,12 @@ work on it.
 The kernel queues only a few datagrams per receiving socket (``net.unix.max_dgram_qlen``), so
 a reader thread drains the socket into a bounded buffer at once; a frame that finds the
 buffer full is counted in ``stats["rx_overflows"]``, and a frame a peer could not deliver to
-us is counted by that peer as a transmit drop. Nothing is lost silently.
+us is counted by that peer as a transmit drop. Nothing is lost silently: ``shutdown`` logs a
+warning (logger ``can.unixcan``, on stderr by default, also under ``can.player`` and
+``can.logger``) with the drops and overflows of the node's life.
+
+``rx_ids`` counts every frame that reached the node by identifier, the filtered ones too (the
+rig compares what nodes received with what the run's nodes sent: ``rig.run.traffic``).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import collections
 import errno
 import grp
 import itertools
+import logging
 import os
 import re
 import select
@@ -53,6 +59,7 @@ _RECENT_CHANGE_S = 0.1
 # full after that is marked congested and costs no more waiting until it accepts a frame.
 _FULL_PEER_GRACE_S = 0.002
 _serial = itertools.count()
+log = logging.getLogger("can.unixcan")
 
 
 _CHANNEL_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,62}")
@@ -129,9 +136,49 @@ def _own_directory(path: Path, mode: int, group: int | None, tighten: bool) -> N
             "refused (chmod go-w it, or set UNIXCAN_DIR to a folder of your own)")
 
 
+def _trusted_parent(path: Path, group: int | None) -> bool:
+    """One existing folder above the base (the rule in hilbus/src/unixcan.c): a directory of
+    root or of this user that nobody else can write (a sticky one such as /tmp excepted, the
+    bus's group with UNIXCAN_GROUP); a symbolic link among them must be root's or this
+    user's. True when it exists and is trusted, False when it does not exist; refused with
+    UnixCanDirError."""
+    me = os.geteuid()
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    except OSError as exc:
+        raise UnixCanDirError(f"unixcan: {path}: {exc.strerror}") from exc
+    if stat.S_ISLNK(st.st_mode):
+        if st.st_uid not in (0, me):
+            raise UnixCanDirError(
+                f"unixcan: {path} (above the bus folder) is a symbolic link of uid {st.st_uid}, "
+                "neither root nor this user; refused (set UNIXCAN_DIR to a folder of your own)")
+        try:
+            st = os.stat(path)
+        except FileNotFoundError:
+            return False  # a dangling link: making the folder fails and says so
+        except OSError as exc:
+            raise UnixCanDirError(f"unixcan: {path}: {exc.strerror}") from exc
+    if not stat.S_ISDIR(st.st_mode):
+        raise UnixCanDirError(f"unixcan: {path} (above the bus folder) is not a directory")
+    if st.st_uid not in (0, me):
+        raise UnixCanDirError(
+            f"unixcan: {path} (above the bus folder) belongs to uid {st.st_uid}, neither root "
+            "nor this user; refused (set UNIXCAN_DIR to a folder of your own)")
+    group_ok = group is not None and st.st_gid == group
+    if not st.st_mode & stat.S_ISVTX and (
+            st.st_mode & stat.S_IWOTH or (st.st_mode & stat.S_IWGRP and not group_ok)):
+        raise UnixCanDirError(
+            f"unixcan: {path} (above the bus folder) is writable by other users (mode "
+            f"{stat.S_IMODE(st.st_mode):03o}); refused (set UNIXCAN_DIR to a folder of your own)")
+    return True
+
+
 def channel_dir(channel: str) -> Path:
     """The channel's folder, created and checked by the directory rule (docs/interfaces.md):
-    missing folders are made 0700 (0770 of ``UNIXCAN_GROUP``); the base and the channel
+    the folders above the base that exist must be trusted (``_trusted_parent``); missing
+    folders are made 0700 (0770 of ``UNIXCAN_GROUP``); the base and the channel
     folder must be real directories of this user that nobody else can write; the channel
     folder's mode is set to 0700 (0770)."""
     if not channel_name_ok(channel):
@@ -141,12 +188,19 @@ def channel_dir(channel: str) -> Path:
     group = bus_group()
     mode = 0o770 if group is not None else 0o700
     base = base_dir()
+    missing = False  # a folder above is missing: what is below it is made here, 0700
     for parent in reversed(base.parents):
-        if not parent.exists():
+        if parent == parent.parent:
+            continue  # the root, or the start of a relative path
+        if not missing:
+            missing = not _trusted_parent(parent, group)
+        if missing:
             try:
                 parent.mkdir(mode=0o700)
             except FileExistsError:
                 pass
+            except OSError as exc:
+                raise UnixCanDirError(f"unixcan: cannot create {parent}: {exc.strerror}") from exc
     _own_directory(base, mode, group, tighten=False)
     folder = base / channel
     _own_directory(folder, mode, group, tighten=True)
@@ -287,6 +341,7 @@ class UnixCanBus(can.BusABC):
         self.stats = {"tx_frames": 0, "tx_drops": 0, "tx_errors": 0, "rx_frames": 0,
                       "rx_overflows": 0, "rx_filtered": 0, "peers_removed": 0,
                       "rx_malformed": 0, "foreign_entries": 0}
+        self.rx_ids: collections.Counter[int] = collections.Counter()  # by raw can_id
         self._accept: Callable[[int], bool] | None = None
         self._rx: collections.deque[can.Message] = collections.deque()
         self._rx_limit = receive_buffer
@@ -410,8 +465,9 @@ class UnixCanBus(can.BusABC):
                 # Filter on the raw id before building a Message: a node that listens to a
                 # few IDs must not pay for every frame of the bus (it has to keep up with
                 # the 10 kHz virtual I/O traffic it ignores).
+                (raw_id,) = _ID.unpack_from(datagram)
+                self.rx_ids[raw_id] += 1
                 if accept is not None:
-                    (raw_id,) = _ID.unpack_from(datagram)
                     if not accept(raw_id):
                         self.stats["rx_filtered"] += 1
                         continue
@@ -480,6 +536,13 @@ class UnixCanBus(can.BusABC):
         os.close(self._wake_r)
         os.close(self._wake_w)
         self._path.unlink(missing_ok=True)
+        st = self.stats
+        if st["tx_drops"] or st["rx_overflows"]:
+            # a replay (can.player) or a log (can.logger) must not lose frames without a word
+            log.warning("unixcan channel %s: %d deliveries of the %d frames sent were "
+                        "dropped (a receiver's queue stayed full for %g ms), %d received "
+                        "frames overflowed this node's buffer", self.channel, st["tx_drops"],
+                        st["tx_frames"], _FULL_PEER_GRACE_S * 1e3, st["rx_overflows"])
         super().shutdown()
 
     @staticmethod

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rig import _paths, bench_plant, bench_sil
+from rig import _paths, bench_gate, bench_plant, bench_sil, bench_startup, cliargs
 from rig import bus as rigbus
 
 
@@ -31,11 +31,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "where the kernel has CAN "
         "(run `rig vm -- rig bench bus` to compare both on one kernel).",
     )
-    b.add_argument("--count", type=int, default=20000, help="pings per measurement")
-    b.add_argument("--channel", default="benchbus", help="channel name to use")
-    b.add_argument("--spin-us", type=int, default=100,
+    b.add_argument("--count", type=cliargs.number(int, minimum=1), default=20000,
+                   help="pings per measurement")
+    cliargs.add_shared(b, "channel", default="benchbus", help="channel name to use")
+    b.add_argument("--spin-us", type=cliargs.number(int, minimum=0), default=100,
                    help="busy-poll budget of the 'spin' measurement (HILBUS_SPIN_US)")
-    b.set_defaults(func=_bench_bus)
+    cliargs.command(b, _bench_bus)
 
     i = bsub.add_parser(
         "isr", help="firmware ISR cost per period: ns on this host, instructions (callgrind)",
@@ -44,23 +45,44 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "callgrind (one dump per call; the 1 kHz tasks run on a fixed period residue, so "
         "calls are grouped by period mod 10 to tell the 10 kHz path from the 1 kHz path).",
     )
-    i.add_argument("--periods", type=int, default=20000, help="RUN-state periods timed")
-    i.add_argument("--callgrind-periods", type=int, default=400,
+    i.add_argument("--periods", type=cliargs.number(int, minimum=1), default=20000,
+                   help="RUN-state periods timed")
+    i.add_argument("--callgrind-periods", type=cliargs.number(int, minimum=0), default=400,
                    help="RUN-state periods under callgrind (0: skip callgrind)")
-    i.add_argument("--profile", default="paper", help="plant fidelity profile")
-    i.set_defaults(func=_bench_isr)
+    i.add_argument("--profile", default="paper", choices=bench_plant.PROFILES,
+                   help="plant fidelity profile")
+    i.add_argument("--target", choices=("host", "cortex-m4f"), default="host",
+                   help="cortex-m4f: instructions per call on the emulated Cortex-M4F by path "
+                   "(rig.target_m4.bench), beside the host's callgrind figure")
+    i.add_argument("--scale", type=cliargs.number(above=0.0), default=4.0,
+                   help="cortex-m4f: each measured stretch this many times the CI test's")
+    i.add_argument("--whole-runs", action="store_true",
+                   help="cortex-m4f: the cases' whole runs (minutes)")
+    cliargs.command(i, _bench_isr)
 
     pl = bsub.add_parser(
         "plant", help="plant compute per period, lockstep periods/s, real-time jitter",
         description=bench_plant.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     bench_plant.add_arguments(pl)
-    pl.set_defaults(func=_bench_plant)
+    cliargs.command(pl, _bench_plant)
 
     si = bsub.add_parser(
         "sil", help="closed loop in one process (--bus inproc) against the bus, same run",
         description=bench_sil.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     bench_sil.add_arguments(si)
-    si.set_defaults(func=_bench_sil)
+    cliargs.command(si, _bench_sil)
+
+    su = bsub.add_parser(
+        "startup", help="CPU and wall time of a scenario's start in a new process",
+        description=bench_startup.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    bench_startup.add_arguments(su)
+    cliargs.command(su, _bench_startup)
+
+    ga = bsub.add_parser(
+        "gate", help="the regression gate's wall and CPU time (target: 3 min on 2 cores)",
+        description=bench_gate.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    bench_gate.add_arguments(ga)
+    cliargs.command(ga, _bench_gate)
 
 
 def _bench_plant(args: argparse.Namespace) -> int:
@@ -68,8 +90,18 @@ def _bench_plant(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_gate(args: argparse.Namespace) -> int:
+    print(json.dumps(bench_gate.bench_gate(args)))
+    return 0
+
+
 def _bench_sil(args: argparse.Namespace) -> int:
     print(json.dumps(bench_sil.bench_sil(args)))
+    return 0
+
+
+def _bench_startup(args: argparse.Namespace) -> int:
+    print(json.dumps(bench_startup.bench_startup(args)))
     return 0
 
 
@@ -148,6 +180,13 @@ def sil_bench_argv(profile: str, periods: int) -> list[str]:
 
 
 def _bench_isr(args: argparse.Namespace) -> int:
+    if args.target == "cortex-m4f":
+        from rig.target_m4.bench import bench_isr_m4
+
+        cg = (callgrind_isr(sil_bench_argv(args.profile, args.callgrind_periods),
+                            args.callgrind_periods) if args.callgrind_periods > 0 else None)
+        print(json.dumps(bench_isr_m4(args.scale, args.whole_runs, cg)))
+        return 0
     argv = sil_bench_argv(args.profile, args.periods)
     timed = subprocess.run([*argv, "--time-isr"], capture_output=True, text=True, check=True)
     report: dict[str, Any] = {"benchmark": "isr", "host_timing": json.loads(timed.stdout)}

@@ -6,8 +6,7 @@ import argparse
 import json
 import sys
 
-from rig import bus as rigbus
-from rig.bus import unixcan
+from rig import cliargs
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -16,47 +15,67 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     bsub = p.add_subparsers(dest="bus_command", metavar="ACTION", required=True)
 
     up = bsub.add_parser("up", help="create a CAN FD vcan interface (root) or a unixcan channel",
-                         description="Create CHANNEL: a vcan interface with CAN FD MTU when the "
-                         "kernel has CAN and you are root, else a unixcan channel folder.")
-    up.add_argument("channel", nargs="?", default=rigbus.DEFAULT_CHANNEL)
-    up.add_argument("--bus", choices=rigbus.TRANSPORTS, default=None,
-                    help="transport (default: HIL_BUS or auto)")
-    up.set_defaults(func=_up)
+                         description="Create the channel: a vcan interface with CAN FD MTU when "
+                         "the kernel has CAN and you are root, else a unixcan channel folder.")
+    _channel_options(up, "the channel to create (default: $HIL_CHANNEL, else vcan0)")
+    cliargs.command(up, _up)
 
     st = bsub.add_parser("status", help="which transport the rig would use, as JSON",
                          description="Print the transport selection and what the kernel offers.")
-    st.add_argument("channel", nargs="?", default=None)
-    st.add_argument("--bus", choices=rigbus.TRANSPORTS, default=None)
-    st.set_defaults(func=_status)
+    _channel_options(st, "the channel to look at (default: $HIL_CHANNEL, else vcan0)")
+    cliargs.command(st, _status)
+
+
+def _channel_options(p: argparse.ArgumentParser, what: str) -> None:
+    cliargs.add_shared(p, "channel", env="HIL_CHANNEL", help=what)
+    p.add_argument("channel_arg", nargs="?", type=cliargs.channel, default=None,
+                   metavar="CHANNEL", help="the same as --channel (older spelling)")
+    cliargs.add_shared(p, "bus", choices=cliargs.BUS_TRANSPORTS,
+                       help="transport (default: $HIL_BUS, else auto)")
+
+
+def _channel(args: argparse.Namespace) -> str | None:
+    if args.channel_arg and args.channel and args.channel_arg != args.channel:
+        print(f"rig bus: error: two channels: {args.channel_arg} and --channel "
+              f"{args.channel}", file=sys.stderr)
+        raise SystemExit(2)
+    return args.channel_arg or args.channel
 
 
 def _up(args: argparse.Namespace) -> int:
+    from rig import bus as rigbus
+    from rig.bus import unixcan
+
     transport = args.bus or "auto"
+    channel = _channel(args) or rigbus.select_transport(transport, None)[1]
     if transport in ("auto", "socketcan") and rigbus.kernel_has_can():
         try:
-            rigbus.vcan_up(args.channel)
+            rigbus.vcan_up(channel)
         except RuntimeError as exc:
             if transport == "socketcan":
                 print(f"rig bus up: {exc}", file=sys.stderr)
                 return 1
         else:
-            print(f"socketcan {args.channel} up (CAN FD MTU 72)")
+            print(f"socketcan {channel} up (CAN FD MTU 72)")
             return 0
     elif transport == "socketcan":
         print("rig bus up: this kernel has no CAN support; use --bus unixcan or `rig vm`",
               file=sys.stderr)
         return 1
     try:
-        folder = unixcan.channel_dir(args.channel)
+        folder = unixcan.channel_dir(channel)
     except OSError as exc:
         print(f"rig bus up: {exc}", file=sys.stderr)
         return 3
-    print(f"unixcan {args.channel} ready ({folder})")
+    print(f"unixcan {channel} ready ({folder})")
     return 0
 
 
 def _status(args: argparse.Namespace) -> int:
-    transport, channel = rigbus.select_transport(args.bus, args.channel)
+    from rig import bus as rigbus
+    from rig.bus import unixcan
+
+    transport, channel = rigbus.select_transport(args.bus, _channel(args))
     print(json.dumps({
         "selected": transport,
         "channel": channel,

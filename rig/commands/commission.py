@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig import cliargs
+
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 EPILOG = """\
@@ -39,19 +41,21 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("step", nargs="+", metavar="STEP",
                    help="a step (listed below) or 'all'; several allowed")
-    p.add_argument("--bench", required=True, metavar="FILE|NAME",
-                   help="bench description (a file, or a shipped name: virtual)")
+    cliargs.add_shared(p, "bench", required=True,
+                       help="bench description (a file, or a shipped name: virtual)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a field of the bench description (repeatable)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="run folder (default: ./out/commission-NAME-TIME)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    cliargs.add_shared(p, "out", type=Path,
+                       help="run folder (default: ./out/commission-NAME-TIME)")
+    cliargs.add_shared(p, "quiet", help="no progress lines")
     p.add_argument("--save-params", type=Path, default=None, metavar="FILE",
                    help="after a passing run, write the drive parameters the steps identified "
-                   "and wrote to the drive (e.g. xsat_ldq_per_a) as a TOML [firmware] table; "
-                   "rig/commissioned/PROFILE.toml is what scenario runs on that virtual bench "
-                   "use")
-    p.set_defaults(func=cmd_commission)
+                   "(rs_ohm, ld_h, lq_h, lambda_m_wb, xsat_ldq_per_a) or wrote to the drive "
+                   "as a TOML [firmware] table, whole or not at all; rig/commissioned/"
+                   "PROFILE.toml is what scenario runs on that virtual bench use. FILE is "
+                   "checked before the run: it may not be a symbolic link, and an existing "
+                   "FILE is replaced only if --save-params wrote it")
+    cliargs.command(p, cmd_commission)
 
 
 def cmd_commission(args: argparse.Namespace) -> int:
@@ -64,6 +68,11 @@ def cmd_commission(args: argparse.Namespace) -> int:
     except (bench_description.BenchDescriptionError, ValueError) as exc:
         print(f"rig commission: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    if args.save_params is not None:
+        problem = _save_target_problem(args.save_params)
+        if problem is not None:
+            print(f"rig commission: --save-params: {problem}", file=sys.stderr)
+            return EXIT_USAGE
     out = args.out or runner.default_run_dir(desc)
 
     def say(msg: str) -> None:
@@ -93,24 +102,53 @@ def cmd_commission(args: argparse.Namespace) -> int:
     return EXIT_PASS if run.passed else EXIT_FAIL
 
 
-def _save_params(path: Path, data: dict, desc) -> bool:  # type: ignore[no-untyped-def,type-arg]
-    """Writes what the run wrote to the drive; False (with the reason) when it cannot."""
+def _save_target_problem(path: Path) -> str | None:
+    """Why --save-params cannot write ``path`` (checked before the run, so a long run is not
+    lost to it at the end), or None."""
     from rig import commissioned_drive
 
-    written = data.get("written") or {}
+    if path.is_symlink():
+        return f"{path} is a symbolic link; refused (nothing is written through a link)"
+    if path.exists():
+        if not path.is_file():
+            return f"{path} is not a regular file"
+        if not commissioned_drive.is_saved_file(path):
+            return (f"{path} exists and was not written by --save-params; refused (remove it "
+                    "or choose another FILE)")
+    if not path.parent.is_dir():
+        return f"{path.parent} is not a folder"
+    return None
+
+
+def _save_params(path: Path, data: dict, desc) -> bool:  # type: ignore[no-untyped-def,type-arg]
+    """Writes the drive parameters the run identified or wrote to the drive, whole or not at
+    all; False (with the reason) when it cannot."""
+    from rig import commissioned_drive, output
+
     if not data.get("passed"):
         print(f"rig commission: --save-params: the run did not pass; {path} not written",
               file=sys.stderr)
         return False
-    if not written:
-        print(f"rig commission: --save-params: no step wrote a drive parameter (xsat does); "
+    try:
+        values = commissioned_drive.values_to_save(data.get("identified") or {},
+                                                   data.get("written") or {})
+    except commissioned_drive.CommissionedError as exc:
+        print(f"rig commission: --save-params: {exc}; {path} not written", file=sys.stderr)
+        return False
+    if not values:
+        print(f"rig commission: --save-params: no step identified or wrote a drive parameter; "
               f"{path} not written", file=sys.stderr)
+        return False
+    problem = _save_target_problem(path)  # (again: the run took a while)
+    if problem is not None:
+        print(f"rig commission: --save-params: {problem}", file=sys.stderr)
         return False
     profile = desc.virtual.profile if desc.virtual is not None else desc.name
     try:
-        path.write_text(commissioned_drive.render(written, profile, ["rig", *sys.argv[1:]]))
+        output.write_text(path, commissioned_drive.render(values, profile,
+                                                          ["rig", *sys.argv[1:]]))
     except OSError as exc:
         print(f"rig commission: --save-params: {exc}", file=sys.stderr)
         return False
-    print(f"drive parameters -> {path}")
+    print(f"drive parameters ({', '.join(sorted(values))}) -> {path}")
     return True

@@ -7,6 +7,8 @@ import contextlib
 import sys
 from collections.abc import Iterable, Iterator
 
+from rig import cliargs
+
 EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 
 EPILOG = """\
@@ -26,17 +28,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "a serial device, a pseudo-terminal (fw_host --pty-link) or a pyserial URL "
         "(rfc2217://host:port, socket://host:port).",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    where = p.add_mutually_exclusive_group(required=True)
-    where.add_argument("--port", metavar="PORT|URL", help="device, pty path or pyserial URL")
-    where.add_argument("--bench", metavar="FILE",
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--port", metavar="PORT|URL",
+                       help="device, pty path or pyserial URL (this or --bench)")
+    cliargs.add_shared(p, "bench", container=where,
                        help="take the console port from a bench description")
     p.add_argument("--command", "-c", action="append", default=[], metavar="LINE",
                    help="send this line (repeatable); without it lines come from stdin")
-    p.add_argument("--timeout", type=float, default=None, metavar="S",
-                   help="reply time-out (default: the bench's, else 2 s)")
+    cliargs.add_shared(p, "timeout", help="reply time-out, s (default: the bench's, else 2 s)")
     p.add_argument("--keep-going", action="store_true",
                    help="scripted: go on after an ERR reply")
-    p.set_defaults(func=cmd_console)
+    cliargs.command(p, cmd_console)
 
 
 def _port(args: argparse.Namespace) -> tuple[str, float]:
@@ -56,6 +58,10 @@ def cmd_console(args: argparse.Namespace) -> int:
     from rig.bench_description import BenchDescriptionError
     from rig.console import ConsoleClient, ConsoleLinkError
 
+    if bool(args.port) == bool(args.bench):
+        print("rig console: error: give the console as --port PORT|URL or --bench FILE "
+              "(one of them)", file=sys.stderr)
+        return EXIT_USAGE
     try:
         port, timeout = _port(args)
     except BenchDescriptionError as exc:

@@ -6,19 +6,25 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig import cliargs
+
 EPILOG = """\
 --mf4 [FILE]        the capture (every PWM period: the plant's truth, the firmware's trace and
-                    the rig's derived columns) as ASAM MDF 4.10, channel names and units from
-                    the DBC (default FILE: DIR/<scenario>.mf4); asammdf's GUI, CANape,
-                    MDF viewers
---can-log FILE      every frame of the traces: FILE.blf (Vector BLF), FILE.asc (Vector ASCII)
-                    or FILE.log (candump -L); channel 0 the plant's trace, channel 1 the
-                    firmware's; SavvyCAN, CANalyzer, python-can, can-utils
+                    the rig's derived columns) as ASAM MDF 4.10, channels named MESSAGE.signal
+                    with units, comments and value tables from the DBC, and the run's frames
+                    as a CAN bus-logging group (default FILE: DIR/<scenario>.mf4; a folder:
+                    FOLDER/<scenario>.mf4); asammdf's GUI, CANape, MDF viewers
+--can-log FILE      every frame of the run: FILE.blf (Vector BLF), FILE.asc (Vector ASCII)
+                    or FILE.log (candump -L); channel 0 the plant's (VIO_ADC, VIO_PWM, its
+                    truth), 1 the firmware's FW_TRACE, 2 the rig's (DRIVE_*, BENCH_*, TLM_*);
+                    SavvyCAN, CANalyzer, python-can (can.player), cantools, can-utils
 
 Both need the full-rate data (DIR/*.trace and DIR/capture/): a run that did not pass keeps
 it, a passing run only with `rig run --keep-all`.
 
-exit status: 0 written; 2 usage, or DIR lacks the full-rate data; 3 a file cannot be written.
+exit status: 0 written; 2 usage, or DIR lacks the full-rate data, or it is damaged (a trace
+cut short, a file that is not the rig's), or FILE is not a file name of its kind; 3 a file
+cannot be written. Nothing is left behind when a file cannot be written.
 """
 
 
@@ -35,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="write the capture as MDF 4.10 (default FILE: DIR/<scenario>.mf4)")
     p.add_argument("--can-log", type=Path, default=None, metavar="FILE",
                    help="write the traced frames to FILE (.blf, .asc or .log)")
-    p.set_defaults(func=cmd_export)
+    cliargs.command(p, cmd_export)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -51,10 +57,13 @@ def cmd_export(args: argparse.Namespace) -> int:
         return 2
     try:
         if args.mf4 is not None:
-            dest = run_dir / f"{_scenario(run_dir)}.mf4" if args.mf4 is True else args.mf4
+            dest = run_dir if args.mf4 is True else args.mf4
+            if dest.is_dir():  # a folder: the file in it, named after the scenario
+                dest = dest / f"{_scenario(run_dir)}.mf4"
             info = export.write_mf4(run_dir, dest)
             print(f"rig export: {info['channels']} channels in {info['groups']} groups, "
-                  f"{info['samples']} samples each -> {dest} ({info['bytes'] / 1e6:.1f} MB)")
+                  f"{info['samples']} samples each, and {info['frames']} frames -> {dest} "
+                  f"({info['bytes'] / 1e6:.1f} MB)")
         if args.can_log is not None:
             info = export.write_can_log(run_dir, args.can_log)
             print(f"rig export: {info['frames']} frames -> {args.can_log} "

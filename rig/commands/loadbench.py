@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from rig import cliargs
+
 EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 
 
@@ -23,20 +25,24 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "LOAD_CMD frames on the bus, BENCH_TRUTH (speed, shaft torque) becomes input "
         "registers; watchdog, exception codes and scaling as the register map says. Runs "
         "until SIGTERM / Ctrl-C and leaves the load machine off.")
-    s.add_argument("--bus", choices=("auto", "socketcan", "unixcan"), default=None)
-    s.add_argument("--channel", default=None)
+    cliargs.add_shared(s, "bus", choices=cliargs.BUS_TRANSPORTS,
+                       help="transport (default: $HIL_BUS, else auto)")
+    cliargs.add_shared(s, "channel", env="HIL_CHANNEL",
+                       help="bus channel (default: $HIL_CHANNEL, else vcan0)")
     s.add_argument("--host", default="127.0.0.1",
                    help="address to bind (127.0.0.1 only: the virtual bench is local)")
-    s.add_argument("--port", type=int, default=5020, help="TCP port (0: any free one)")
-    s.add_argument("--watchdog-ms", type=int, default=None,
+    s.add_argument("--port", type=cliargs.number(int, minimum=0, maximum=65535), default=5020,
+                   help="TCP port (0: any free one)")
+    s.add_argument("--watchdog-ms", type=cliargs.number(int, minimum=0), default=None,
                    help="initial watchdog time-out (default: the map's)")
     s.add_argument("--ready-file", type=Path, default=None,
                    help="written (JSON: host, port, pid) once the server listens")
-    s.set_defaults(func=cmd_serve)
+    cliargs.command(s, cmd_serve)
     r = ls.add_parser("read", help="print every holding and input register of a load bench")
-    r.add_argument("--bench", required=True, metavar="FILE", help="bench description")
-    r.add_argument("--port", type=int, default=None, help="override the bench's TCP port")
-    r.set_defaults(func=cmd_read)
+    cliargs.add_shared(r, "bench", required=True, help="bench description")
+    r.add_argument("--port", type=cliargs.port, default=None,
+                   help="override the bench's TCP port")
+    cliargs.command(r, cmd_read)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from rig import cliargs
+
 EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 
 
@@ -16,21 +18,28 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "range-checked here and by the drive and then read back.",
         epilog="exit status: 0 done; 1 refused or not read back; 2 usage; 3 no answer or no "
         "bus.")
-    p.add_argument("--bench", metavar="FILE", help="take the bus from a bench description")
-    p.add_argument("--bus", choices=("auto", "socketcan", "unixcan"), default=None)
-    p.add_argument("--channel", default=None)
-    p.add_argument("--timeout", type=float, default=1.0, metavar="S",
-                   help="time-out per request (default 1 s)")
+    _link_options(p)
     ps = p.add_subparsers(dest="param_command", metavar="ACTION", required=True)
     g = ps.add_parser("get", help="read one parameter")
     g.add_argument("name", metavar="NAME|ID")
     s = ps.add_parser("set", help="write one parameter (range-checked, read back)")
     s.add_argument("name", metavar="NAME|ID")
-    s.add_argument("value", type=float)
-    ps.add_parser("list", help="every parameter with its value, unit and range")
-    ps.add_parser("save", help="drive: write the parameters to its store")
-    ps.add_parser("load", help="drive: re-read its store")
-    p.set_defaults(func=cmd_param)
+    s.add_argument("value", type=cliargs.number())
+    actions = [g, s, ps.add_parser("list", help="every parameter with its value, unit and range"),
+               ps.add_parser("save", help="drive: write the parameters to its store"),
+               ps.add_parser("load", help="drive: re-read its store")]
+    for action in actions:  # the link's options also after the action: rig param list --bus X
+        _link_options(action)
+        cliargs.command(action, cmd_param)
+
+
+def _link_options(p: argparse.ArgumentParser) -> None:
+    cliargs.add_shared(p, "bench", help="take the bus from a bench description")
+    cliargs.add_shared(p, "bus", choices=cliargs.BUS_TRANSPORTS,
+                       help="transport (default: the bench's, else $HIL_BUS, else auto)")
+    cliargs.add_shared(p, "channel", env="HIL_CHANNEL",
+                       help="bus channel (default: the bench's, else $HIL_CHANNEL, else vcan0)")
+    cliargs.add_shared(p, "timeout", default=1.0, help="time-out per request, s (default 1)")
 
 
 def cmd_param(args: argparse.Namespace) -> int:

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import subprocess
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from rig import cliargs
 
 if TYPE_CHECKING:
     from rig.run.result import RunResult
@@ -16,9 +19,11 @@ EPILOG_RUN = """\
 exit status: 0 every criterion passed; 1 a criterion failed or was not evaluated (its
 window was not captured), or the run failed (crash, stall, time-out, capture loss); 2 usage
 or scenario schema error; 3 the run could not start here (programs not built, bus
-unavailable); 130 interrupted.
+unavailable, an output folder that is not a run's), or foreign traffic on its channel (a node
+outside the run sent frames; nodes that only listen are welcome); 130 interrupted.
 
-output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md,
+output: DIR/result.json (verdict, criteria, counters, versions), DIR/report.md (with
+DIR/figure.png and a DIR/criterion-N.png per criterion that did not pass),
 DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture
 column a criterion read at the full 10 kHz over the rows it read) and the programs' logs.
 A scenario that does not pass also keeps DIR/*.trace (every frame) and DIR/capture/ (the
@@ -38,14 +43,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("target", metavar="SCENARIO|SUITE",
                    help="a scenario or suite name (see `rig list`) or a path to its TOML file")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default: $HIL_OUT or ./out, plus name and time)")
-    p.add_argument("--bus", choices=("auto", "socketcan", "unixcan", "inproc"), default=None,
-                   help="transport (default: $HIL_BUS, else auto: SocketCAN when available); "
-                   "inproc: plant and firmware core in this process, no bus (rig.sil; "
-                   "lockstep only)")
-    p.add_argument("--channel", default=None,
-                   help="bus channel (default: $HIL_CHANNEL, else vcan0)")
+    cliargs.add_shared(p, "out", type=Path,
+                       help="output folder (default: $HIL_OUT or ./out, plus name and time)")
+    cliargs.add_shared(p, "bus", choices=cliargs.BUS_WITH_INPROC,
+                       help="transport (default: $HIL_BUS, else auto: SocketCAN when "
+                       "available); inproc: plant and firmware core in this process, no bus "
+                       "(rig.sil; lockstep only)")
+    cliargs.add_shared(p, "channel", env="HIL_CHANNEL",
+                       help="bus channel (default: $HIL_CHANNEL, else vcan0)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the plant on the wall clock instead of lockstep")
     p.add_argument("--live", action="store_true",
@@ -53,20 +58,41 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--web", action="store_true",
                    help="with --live: stream to the Rerun web viewer instead (its address is "
                    "printed; it stops with the run: afterwards `rig view --web DIR`)")
-    p.add_argument("--web-port", type=int, default=None, metavar="PORT",
+    p.add_argument("--web-port", type=cliargs.port, default=None, metavar="PORT",
                    help="with --live --web: the web viewer's HTTP port (default 9090)")
-    p.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+    p.add_argument("--grpc-port", type=cliargs.port, default=None, metavar="PORT",
                    help="with --live --web: the gRPC server's port (default 9876)")
-    p.add_argument("--timeout", type=float, default=None, metavar="S",
-                   help="wall-clock limit per scenario (default: from the scenario)")
+    cliargs.add_shared(p, "timeout",
+                       help="wall-clock limit per scenario, s (default: from the scenario)")
     p.add_argument("--no-record", action="store_true",
                    help="skip writing recording.rrd (the verdict does not depend on it)")
+    p.add_argument("--no-figures", action="store_true",
+                   help="skip drawing figure.png and the pictures of the criteria that did not "
+                   "pass (shown in report.md)")
     p.add_argument("--keep-all", action="store_true",
                    help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
                    "passing scenarios too (default: only of scenarios that did not pass; "
                    "`rig export` needs them)")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
-    p.set_defaults(func=cmd_run)
+    p.add_argument("--seed", type=cliargs.number(int, minimum=0, maximum=2**31 - 1), default=None,
+                   metavar="N",
+                   help="the plant's noise seed for every scenario (default: the profile's, "
+                   "1); the baselines hold seeds 1-8")
+    p.add_argument("--jobs", "-j", type=cliargs.number(int, minimum=1, maximum=64), default=1,
+                   metavar="N",
+                   help="a suite in process (--bus inproc): run N scenarios at once, one "
+                   "worker process each (default 1)")
+    p.add_argument("--baseline", choices=("auto", "require", "off"), default="auto",
+                   help="compare every criterion with the committed baseline "
+                   "(rig/baselines/): auto where one exists (default), require: a scenario "
+                   "without one fails, off: the limits only")
+    p.add_argument("--fail-fast", action="store_true",
+                   help="a suite: start no further scenario once one did not pass")
+    p.add_argument("--junit", type=Path, default=None, metavar="FILE",
+                   help="also write the verdicts as JUnit XML for CI systems: a testcase per "
+                   "criterion (metric, value, limit as properties, the report attached) and "
+                   "one for the run itself")
+    cliargs.add_shared(p, "quiet", help="no progress line")
+    cliargs.command(p, cmd_run)
 
     ls = sub.add_parser(
         "list", help="list scenarios and suites (name, profile, duration, description)",
@@ -77,7 +103,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     ls.add_argument("--metrics", action="store_true",
                     help="list the metrics criteria can use instead")
     ls.add_argument("--json", action="store_true", help="machine-readable output")
-    ls.set_defaults(func=cmd_list)
+    cliargs.command(ls, cmd_list)
 
     v = sub.add_parser(
         "view", help="open a run's recording.rrd in the Rerun viewer",
@@ -88,16 +114,34 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     v.add_argument("--web", action="store_true",
                    help="serve the recording(s) to the Rerun web viewer and print its address "
                    "(open it in a browser; Ctrl-C stops)")
-    v.add_argument("--web-port", type=int, default=None, metavar="PORT",
+    v.add_argument("--web-port", type=cliargs.port, default=None, metavar="PORT",
                    help="the web viewer's HTTP port (default 9090)")
-    v.add_argument("--grpc-port", type=int, default=None, metavar="PORT",
+    v.add_argument("--grpc-port", type=cliargs.port, default=None, metavar="PORT",
                    help="the port of the gRPC server that holds the data (default 9876)")
     v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
-                   help="address both listen on (default 127.0.0.1: this machine only)")
+                   help="address the viewer's servers listen on (default 127.0.0.1: this "
+                   "machine only)")
     v.add_argument("--screenshot", type=Path, default=None, metavar="PNG",
                    help="with --web: open the viewer in headless Chromium, save a screenshot "
                    "once the blueprint is drawn, and exit (1 if the viewer reported an error)")
-    v.set_defaults(func=cmd_view)
+    cliargs.command(v, cmd_view)
+
+
+def _bus_of(args: argparse.Namespace) -> str:
+    import os
+
+    return str(args.bus or os.environ.get("HIL_BUS") or "auto")
+
+
+def with_seed(target: Any, seed: int) -> Any:
+    """A scenario or suite with the plant's noise drawn from ``seed`` in every run."""
+    from dataclasses import replace
+
+    from rig import scenario
+
+    if isinstance(target, scenario.Suite):
+        return replace(target, scenarios=tuple(s.with_seed(seed) for s in target.scenarios))
+    return target.with_seed(seed)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -111,7 +155,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     except scenario.ScenarioError as exc:
         print(f"rig run: invalid scenario:\n{exc}", file=sys.stderr)
         return runner.EXIT_USAGE
+    if args.seed is not None:
+        target = with_seed(target, args.seed)
     scenarios = target.scenarios if isinstance(target, scenario.Suite) else (target,)
+    if args.jobs > 1 and _bus_of(args) != "inproc":
+        print("rig run: --jobs runs a suite on the in-process bench (--bus inproc); on a bus "
+              "the scenarios share its channel one at a time", file=sys.stderr)
+        return runner.EXIT_USAGE
     if args.realtime and args.bus == "inproc":
         print("rig run: --realtime needs a bus (the in-process bench runs in lockstep only)",
               file=sys.stderr)
@@ -124,10 +174,16 @@ def cmd_run(args: argparse.Namespace) -> int:
             return runner.EXIT_USAGE
     out = args.out or runner.default_out(target.name)
     try:
-        return _run(args, target, out)
+        status = _run(args, target, out)
+        if args.junit is not None:
+            status = _write_junit(args.junit, out, target.name, status)
+        return status
     finally:
         if args.out is None:  # runs named by time pile up: say so when they have
             from rig.commands.clean import notice
+
+            with contextlib.suppress(OSError):
+                out.rmdir()  # the folder made for a run that did not start (only if empty)
 
             hint = notice(out.parent)
             if hint:
@@ -141,6 +197,10 @@ def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
         print("rig run: --web goes with --live (a finished run: rig view --web DIR)",
               file=sys.stderr)
         return runner.EXIT_USAGE
+    if args.live and not args.web and args.bus != "inproc" and not webview.has_display():
+        print(f"rig run: {webview.NO_DISPLAY}: the live view goes to the web viewer",
+              file=sys.stderr)
+        args.web = True
     if not args.web:
         return _run_with(args, target, out, None)
     try:
@@ -163,7 +223,9 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     opts = runner.RunOptions(
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
         live_url=live_url, progress=not args.quiet, timeout_s=args.timeout,
-        record=not args.no_record, keep="all" if args.keep_all else "failing",
+        record=not args.no_record, figures=not args.no_figures,
+        keep="all" if args.keep_all else "failing",
+        jobs=args.jobs, fail_fast=args.fail_fast, baseline=args.baseline,
     )
     try:
         with terminate_as_exception():
@@ -190,6 +252,34 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     return runner.exit_code(result.passed, result.status)
 
 
+def _write_junit(dest: Path, out: Path, name: str, status: int) -> int:
+    """The JUnit file of what the run (or suite) wrote into ``out``; exit 3 when it cannot be
+    written (the run's own status otherwise)."""
+    from rig import junit, output
+
+    try:
+        data = json.loads((out / "result.json").read_text())
+    except (OSError, ValueError):
+        return status  # the run wrote nothing (it could not start): nothing to report
+    if data.get("schema") == "hil-suite/1":
+        runs = []
+        for entry in data.get("scenarios") or []:
+            try:
+                runs.append(json.loads((out / entry["dir"] / "result.json").read_text()))
+            except (OSError, ValueError, KeyError):
+                continue
+        comparisons = data.get("comparisons") or []
+    else:
+        runs, comparisons = [data], []
+    try:
+        junit.write(dest, runs, name, comparisons, suite_dir=out)
+    except output.OutputError as exc:
+        print(f"rig run: --junit: {exc}", file=sys.stderr)
+        return max(status, 3)
+    print(f"  -> {dest} (JUnit XML)", file=sys.stderr)
+    return status
+
+
 def _print_verdict(result: RunResult) -> None:
     verdict = "PASS" if result.passed else "FAIL"
     print(f"{result.scenario}: {verdict} ({result.status})", file=sys.stderr)
@@ -198,6 +288,12 @@ def _print_verdict(result: RunResult) -> None:
         print(f"  {failure.kind}: {failure.message}", file=sys.stderr)
         for line in failure.log_tail.splitlines()[-15:]:
             print(f"    | {line}", file=sys.stderr)
+    base = result.baseline or {}
+    if base.get("error") or (base.get("missing") and not base.get("passed")):
+        print(f"  BASELINE: {base.get('error') or base.get('note')}", file=sys.stderr)
+    elif base.get("counts") and not base.get("passed"):
+        print(f"  BASELINE: {_counts(base['counts'])} against {base.get('file')}",
+              file=sys.stderr)
     for c in result.criteria:
         mark = {"pass": "ok   ", "fail": "FAIL ", "xfail": "XFAIL", "xpass": "XPASS",
                 "not_evaluated": "NOT EVALUATED"}.get(
@@ -207,11 +303,30 @@ def _print_verdict(result: RunResult) -> None:
         limit = c.get("limit")
         bound = "reported" if limit is None else f"{c['comparison']} {limit:g}"
         print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
-              f"({bound}) over {c['window']}", file=sys.stderr)
+              f"({bound}) over {c['window']}{_baseline_mark(c)}", file=sys.stderr)
         if c.get("outcome") == "not_evaluated" or (value is None and c.get("note")):
-            print(f"        {c.get('note')}", file=sys.stderr)
+            note = str(c.get("note"))
+            if failure is not None:  # the failure is printed once, above
+                note = note.replace(f"({failure.kind}: {failure.message})", "(see above)")
+            print(f"        {note}", file=sys.stderr)
         if c.get("xfail") and c.get("outcome") != "not_evaluated":
             print(f"        expected failure: {c['xfail']}", file=sys.stderr)
+
+
+def _counts(counts: dict[str, int]) -> str:
+    return ", ".join(f"{n} {k}" for k, n in counts.items())
+
+
+def _baseline_mark(c: dict[str, Any]) -> str:
+    """The criterion against its baseline, when it is not simply unchanged."""
+    b = c.get("baseline")
+    if not b or b.get("class") in (None, "unchanged"):
+        return ""
+    if "lo" not in b:
+        return f"  [{b['class'].upper()}: {b.get('note', '')}]"
+    return (f"  [{b['class'].upper()}: baseline {b['value']:.4g} within {b['lo']:.4g} .. "
+            f"{b['hi']:.4g} over {b['seeds']} seeds]" if b.get("value") is not None
+            else f"  [{b['class'].upper()}: baseline has no value]")
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -284,11 +399,29 @@ def cmd_view(args: argparse.Namespace) -> int:
         print("rig view: --screenshot needs --web", file=sys.stderr)
         return 2
     if not args.web:
-        return subprocess.call([sys.executable, "-m", "rerun", *map(str, files)])
+        from rig import webview
+
+        if not webview.has_display():
+            print(f"rig view: {webview.NO_DISPLAY}: use `rig view --web {path}` and open the "
+                  "address it prints in a browser", file=sys.stderr)
+            return 3
+        port = ["--port", str(args.grpc_port)] if args.grpc_port else []
+        return subprocess.call([sys.executable, "-m", "rerun", "--bind", args.bind, *port,
+                                *map(str, files)])
     return _view_web(args, files)
 
 
 def _view_web(args: argparse.Namespace, files: list[Path]) -> int:
+    from rig.supervisor import Terminated, terminate_as_exception
+
+    try:
+        with terminate_as_exception():  # SIGTERM/SIGHUP stop the server too (its own session)
+            return _serve_web(args, files)
+    except Terminated:
+        return 130
+
+
+def _serve_web(args: argparse.Namespace, files: list[Path]) -> int:
     import time
 
     from rig import webview

@@ -5,9 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
+
+from rig import cliargs
 
 EPILOG = """\
 axes (--param NAME=SPEC, repeatable):
@@ -39,38 +43,35 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("scenario", metavar="SCENARIO", help="scenario name or file (name@profile)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=SPEC", required=True,
                    help="a swept axis (repeatable; see below)")
-    p.add_argument("--random", type=int, default=0, metavar="N",
+    p.add_argument("--random", type=cliargs.number(int, minimum=1), default=0, metavar="N",
                    help="N random points instead of the grid")
     p.add_argument("--seed", type=int, default=1, help="seed of --random (default 1)")
-    p.add_argument("--bus", default="inproc",
-                   help="inproc (default), or a transport to run the points on the bus")
+    cliargs.add_shared(p, "bus", choices=cliargs.BUS_WITH_INPROC, default="inproc",
+                       help="inproc (default), or a transport to run the points on the bus")
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                    help="an existing Dask scheduler (default: a local process pool)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--workers", type=cliargs.number(int, minimum=1),
+                   default=os.cpu_count() or 1,
                    help="local pool size (default: the number of CPUs)")
-    p.add_argument("--retries", type=int, default=2,
+    p.add_argument("--retries", type=cliargs.number(int, minimum=0), default=2,
                    help="times a point is retried when its worker dies (default 2)")
     p.add_argument("--metric", default="pos_err_max_deg",
                    help="summary metric (rig list --metrics; default pos_err_max_deg)")
-    p.add_argument("--window", default=None, metavar="T0,T1",
+    p.add_argument("--window", type=cliargs.window, default=None, metavar="T0,T1",
                    help="its window in s (default: the scenario's criterion window on that "
                    "metric, else the second half)")
-    p.add_argument("--out", type=Path, default=None, help="output folder")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
-    p.set_defaults(func=cmd_sweep)
-
-
-def _window(text: str | None) -> tuple[float, float] | None:
-    if not text:
-        return None
-    a, _, b = text.partition(",")
-    return (float(a), float(b))
+    p.add_argument("--no-worker-timeout", type=cliargs.number(above=0.0), default=60.0,
+                   metavar="S", help="end the sweep when the cluster has had no worker for S "
+                   "seconds (default 60); its unfinished points are failed rows")
+    cliargs.add_shared(p, "out", type=Path, help="output folder")
+    cliargs.add_shared(p, "quiet", help="no progress line")
+    cliargs.command(p, cmd_sweep)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from rig import metrics, runner, scenario
     from rig.supervisor import Terminated, terminate_as_exception
-    from rig.sweep import engine, spec, summary, table
+    from rig.sweep import engine, spec
     from rig.sweep import point as sweep_point
 
     try:
@@ -82,7 +83,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise spec.SpecError("an axis is given twice")
         points = (spec.sample(axes, args.random, args.seed) if args.random > 0
                   else spec.grid(axes))
-        window = _window(args.window)
+        window = args.window
+        if window is not None and window[1] > sc.duration:
+            raise spec.SpecError(f"--window {window[0]:g},{window[1]:g}: {sc.name} lasts "
+                                 f"{sc.duration:g} s")
         if not metrics.known(args.metric):
             raise spec.SpecError(f"--metric {args.metric}: unknown (rig list --metrics)")
     except (FileNotFoundError, scenario.ScenarioError, spec.SpecError, ValueError) as exc:
@@ -90,8 +94,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return runner.EXIT_USAGE
     out = args.out or runner.default_out(f"sweep-{sc.name}")
     out.mkdir(parents=True, exist_ok=True)
+    # the points' scratch folders, under one this process removes whatever ends the sweep
+    # (a worker killed mid-point cannot clean its own; remote workers use their own temp)
+    scratch = None if args.scheduler else Path(tempfile.mkdtemp(prefix="rig-sweep-"))
     tasks = sweep_point.tasks(args.scenario, axes, points, bus=args.bus, metric=args.metric,
-                              window=window)
+                              window=window, scratch=str(scratch) if scratch else None)
     info: dict[str, Any] = {
         "schema": "hil-sweep/1", "scenario": sc.name, "points": len(tasks),
         "mode": f"random {args.random} (seed {args.seed})" if args.random else "grid",
@@ -105,27 +112,56 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     print(f"rig sweep: {len(tasks)} points of {sc.name} on {info['engine']} -> {out}",
           file=sys.stderr)
     done: list[dict[str, Any]] = []
+    outcome = engine.Outcome()
     try:
         with terminate_as_exception(), engine.client(args.scheduler, args.workers) as c:
+            link = engine.dashboard_link(c)
+            print(f"rig sweep: Dask dashboard at {link}" if link else
+                  "rig sweep: no Dask dashboard (the scheduler serves none; locally it needs "
+                  "bokeh)", file=sys.stderr)
             rows = engine.run_tasks(c, tasks, retries=args.retries, progress=not args.quiet,
-                                    on_row=done.append)
+                                    on_row=done.append,
+                                    no_worker_timeout_s=args.no_worker_timeout,
+                                    outcome=outcome)
     except (OSError, TimeoutError) as exc:
         print(f"rig sweep: cannot reach the cluster: {exc}", file=sys.stderr)
         return runner.EXIT_ENV
     except (KeyboardInterrupt, Terminated):
-        # the points that finished are kept: the table of what there is
-        if done:
-            info["interrupted_after"] = len(done)
-            (out / "sweep.json").write_text(json.dumps(info, indent=1))
-            rows = sorted(done, key=lambda r: int(r["point"]))
-            table.write(rows, out)
-            summary.write(rows, [a.name for a in axes], info, out)
-        print(f"rig sweep: interrupted after {len(done)} of {len(tasks)} points; "
-              f"their rows are in {out}", file=sys.stderr)
+        # the points that finished are kept: the table of what there is (perhaps no row)
+        info["interrupted_after"] = len(done)
+        info["cluster"] = outcome.to_json()
+        (out / "sweep.json").write_text(json.dumps(info, indent=1))
+        rows = sorted(done, key=lambda r: int(r["point"]))
+        files = _write(rows, axes, info, out)
+        print(f"rig sweep: interrupted after {len(done)} of {len(tasks)} points; their "
+              f"{len(rows)} rows are in {out} ({', '.join(files)})", file=sys.stderr)
         return runner.EXIT_INTERRUPTED
-    csv_path, parquet_path = table.write(rows, out)
-    report = summary.write(rows, [a.name for a in axes], info, out)
+    finally:
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+    info["cluster"] = outcome.to_json()
+    (out / "sweep.json").write_text(json.dumps(info, indent=1))
+    files = _write(rows, axes, info, out)
     passed = sum(1 for r in rows if r.get("passed"))
-    print(f"rig sweep: {passed}/{len(rows)} points passed -> {report}, {csv_path.name}, "
-          f"{parquet_path.name}", file=sys.stderr)
+    print(f"rig sweep: {passed}/{len(rows)} points passed -> {out}: {', '.join(files)}",
+          file=sys.stderr)
+    if outcome.workers_lost or outcome.rerun or outcome.gave_up:
+        print(f"rig sweep: {len(outcome.workers_lost)} workers lost, {outcome.rerun} points "
+              "run again on another worker"
+              + (f"; {outcome.gave_up}" if outcome.gave_up else ""), file=sys.stderr)
     return runner.EXIT_PASS if passed == len(rows) else runner.EXIT_FAIL
+
+
+def _write(rows: list[dict[str, Any]], axes: list[Any], info: dict[str, Any],
+           out: Path) -> list[str]:
+    """The table and the summary (an empty table when no point finished); the file names."""
+    from rig.sweep import summary, table
+
+    names = [a.name for a in axes]
+    csv_path, parquet_path = table.write(rows, out, params=names)
+    files = [csv_path.name, parquet_path.name]
+    report = summary.write(rows, names, info, out)
+    files.insert(0, report.name)
+    if (out / summary.PLOT).exists():
+        files.append(summary.PLOT)
+    return files

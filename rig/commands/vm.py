@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from rig import vm
+from rig import cliargs, vm
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -17,16 +17,18 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "writable) and return its exit code. Example: rig vm -- pytest -m vcan",
     )
     p.add_argument("--memory", default="2G", help="guest memory (default 2G)")
-    p.add_argument("--cpus", type=int, default=2, help="guest CPUs (default 2)")
+    p.add_argument("--cpus", type=cliargs.number(int, minimum=1), default=2,
+                   help="guest CPUs (default 2)")
     p.add_argument("--kvm", action="store_true", help="use KVM (hangs on some hosts)")
     p.add_argument("--kernel", type=Path, default=None,
                    help="kernel image (default: newest /boot/vmlinuz-*)")
-    p.add_argument("--channel", action="append", default=None,
+    p.add_argument("--channel", action="append", default=None, type=cliargs.channel,
+                   metavar="NAME",
                    help="vcan interface to create (repeatable; default vcan0)")
     p.add_argument("--rwdir", action="append", type=Path, default=None,
                    help="folder mounted writable (repeatable; default: the current folder)")
     p.add_argument("command", nargs=argparse.REMAINDER, help="-- COMMAND [ARGS...]")
-    p.set_defaults(func=_run)
+    cliargs.command(p, _run)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -59,6 +59,7 @@ class BenchPrograms:
     programs: tuple[str, ...] = (PLANT, FIRMWARE)
     lockstep: bool = True
     trace: bool = False  # plant.trace / fw.trace in the folder
+    trace_vio: bool = False  # the plant's trace also holds the VIO frames (--trace-vio)
     truth_every: int | None = None  # BENCH_TRUTH every N periods (None: the plant's default)
     console: bool = False  # fw_host's console on a pty, its parameter store a file
     # fw_host pairs with the plant's period 0 (lockstep from the start: stray frames on the
@@ -75,6 +76,7 @@ class BenchPrograms:
         out: dict[str, list[str]] = {}
         if PLANT in self.programs:
             plant = [str(_paths.binary(PLANT)), *common, *self._trace(folder, "plant.trace"),
+                     *(["--trace-vio"] if self.trace and self.trace_vio else []),
                      "--ready-file", str(folder / READY_FILES[PLANT])]
             config = profiles.profile_file(self.profile)
             plant += ["--config", str(config)] if config else ["--profile", self.profile]

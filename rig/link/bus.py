@@ -13,11 +13,23 @@ frames sent since the last ``at(period)`` are kept, so a lost lockstep grant goe
 byte for byte (``resend``).
 
 With ``record``, everything sent and received also goes into a log file (python-can's
-``Logger``: candump format for ``.log``), readable with python-can and cantools.
+``Logger``: candump format for ``.log``), readable with python-can and cantools. With
+``trace``, the same frames go into a trace file (``rig.trace``, the format of the programs'
+traces: ``rig.trace``), except the messages the programs trace themselves; ``note`` puts a
+frame there that is not sent (the in-process bench's grants, a call there, are the
+BENCH_STEP frames they are on the bus), so ``rig export`` has every frame of a run.
+
+Foreign traffic: the link also receives the messages only the rig sends (their DBC
+transmitter is RIG: BENCH_STEP, LOAD_CMD, FAULT_CMD, DRIVE_CMD, DRIVE_LIMITS, PARAM_REQ): one
+arriving comes from a node outside the run; it is counted in ``foreign`` and reported to
+``on_foreign`` (a run stops on it, ``rig.run.on_bus``). Frames are counted by identifier both
+ways (``tx_ids``, ``rx_ids``) for the run's check of what every node received against what
+the run's nodes sent (``rig.run.traffic``).
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -28,8 +40,9 @@ import can
 from cantools.database.can import Message
 
 from rig import bus as rigbus
-from rig import drive_link, faults, sil
+from rig import drive_link, faults, protocols, sil
 from rig.frames import FrameDecoder
+from rig.trace import TraceWriter
 
 LISTEN = (
     ("drive", "DRIVE_STATUS"), ("drive", "HEARTBEAT"), ("drive", "PARAM_RESP"),
@@ -40,6 +53,9 @@ LISTEN = (
 # the frames at the speed-loop rate and the plant's truth: decoded only on demand
 LAZY = frozenset({"TLM_POS", "TLM_CUR", "TLM_REF", "TLM_PARAM", "TLM_VOLT", "BENCH_TRUTH"})
 FOREIGN_LISTEN_S = 0.25  # how long the rig listens for other traffic before a run starts
+RUN_NODES = 3  # the rig, plant_rt and fw_host: the other nodes a unixcan node must reach
+# traced by plant_rt and fw_host themselves (plant.trace, fw.trace): not again in rig.trace
+PROGRAM_TRACED = frozenset({"BENCH_TRUTH", "BENCH_TRUTH_MAG", "FW_TRACE"})
 Signals = Mapping[str, Any]
 Handler = Callable[[Signals], None]
 
@@ -49,7 +65,19 @@ class LinkError(RuntimeError):
 
 
 class ForeignNodes(RuntimeError):
-    """Somebody else is on the channel (another run, another node)."""
+    """Somebody else sends on the channel (another run, another node), or more nodes listen
+    there than a unixcan node reaches."""
+
+
+class ForeignTraffic(ForeignNodes):
+    """Frames arrived from a node outside the run."""
+
+
+def rig_messages() -> dict[int, str]:
+    """The messages only the rig sends (their DBC transmitter is RIG), by frame id."""
+    return {int(m.frame_id): m.name
+            for db in ("drive", "vio", "bench") for m in protocols.database(db).messages
+            if "RIG" in (m.senders or [])}
 
 
 class FrameSink(Protocol):
@@ -67,12 +95,19 @@ class BusLink:
 
     def __init__(self, bus: FrameSink, *, transport: str = "", channel: str = "",
                  record: Path | None = None,
-                 frame_faults: drive_link.DriveLink | None = None) -> None:
+                 frame_faults: drive_link.DriveLink | None = None,
+                 trace: Path | None = None) -> None:
         self.bus = bus
         self.transport, self.channel = transport, channel
         self.decoder = FrameDecoder()
         self.faults = frame_faults if frame_faults is not None else drive_link.DriveLink()
         self._names = {int(self.decoder.message(n).frame_id): n for _, n in LISTEN}
+        self._rig_only = rig_messages()
+        self.tx_ids: collections.Counter[int] = collections.Counter()  # by arbitration id
+        self.rx_ids: collections.Counter[int] = collections.Counter()
+        self.foreign: list[str] = []  # what arrived that only the rig sends
+        self.on_foreign: Callable[[str], None] | None = None
+        self.listeners_at_start: int | None = None  # other nodes on a unixcan channel
         self.latest: dict[str, Signals] = {}
         self.latest_wall: dict[str, float] = {}
         self._undecoded: dict[str, can.Message] = {}
@@ -82,13 +117,16 @@ class BusLink:
         self.batch: list[tuple[can.Message, bool]] | None = None
         self.recording = record
         self._log: Any = can.Logger(str(record)) if record is not None else None
+        self._trace: TraceWriter | None = TraceWriter(trace) if trace is not None else None
+        self._untraced = {int(self.decoder.message(n).frame_id) for n in PROGRAM_TRACED}
         self.rx = 0
         self.tx = 0
         self.lazy = 0
 
     @classmethod
     def open(cls, transport: str | None, channel: str | None, *, record: Path | None = None,
-             frame_faults: drive_link.DriveLink | None = None) -> BusLink:
+             frame_faults: drive_link.DriveLink | None = None,
+             trace: Path | None = None) -> BusLink:
         """A link on a bus channel (``rig.bus.select_transport`` resolves ``auto``)."""
         transport, channel = rigbus.select_transport(transport, channel)
         try:
@@ -96,7 +134,7 @@ class BusLink:
         except (can.CanError, OSError, ValueError) as exc:
             raise LinkError(f"cannot open {transport} bus {channel!r}: {exc}") from exc
         return cls(bus, transport=transport, channel=channel, record=record,
-                   frame_faults=frame_faults)
+                   frame_faults=frame_faults, trace=trace)
 
     @property
     def where(self) -> str:
@@ -131,8 +169,22 @@ class BusLink:
             name = self._names.get(msg.arbitration_id, f"0x{msg.arbitration_id:X}")
             raise LinkError(f"{self.where}: cannot send {name}: {exc}") from exc
         self.tx += 1
+        self.tx_ids[msg.arbitration_id] += 1
         if self._log is not None:
             self._log(msg)
+        self._traced(msg)
+
+    def _traced(self, msg: can.Message) -> None:
+        if self._trace is not None and msg.arbitration_id not in self._untraced:
+            self._trace.write(msg.arbitration_id, bytes(msg.data), fd=bool(msg.is_fd))
+
+    def note(self, name: str, values: Mapping[str, Any]) -> None:
+        """A frame into the trace only, not sent (a grant in process: BENCH_STEP)."""
+        if self._trace is not None:
+            m = self.decoder.message(name)
+            self._trace.write(int(m.frame_id),
+                              bytes(m.encode(dict(values), scaling=True, strict=True)),
+                              fd=bool(m.is_fd))
 
     def at(self, period: int) -> None:
         """The sends that follow are before ``period``: frames a fault held back until then
@@ -177,8 +229,15 @@ class BusLink:
         if msg.is_error_frame:
             return
         self.rx += 1
+        self.rx_ids[msg.arbitration_id] += 1
         if self._log is not None:
             self._log(msg)
+        self._traced(msg)
+        own = self._rig_only.get(msg.arbitration_id)
+        if own is not None and not msg.is_extended_id:
+            self.note_foreign(f"a {own} frame (id 0x{msg.arbitration_id:03X}), which only the "
+                              "rig sends, from a node outside the run")
+            return
         name = self._names.get(msg.arbitration_id)
         if name is None:
             return  # not a message the rig listens to (the filters let it through)
@@ -232,32 +291,51 @@ class BusLink:
                 self.pump(min(left, 0.05))
         return found[0]
 
-    def refuse_foreign_nodes(self) -> None:
-        """Nobody else may be on the channel: a second run there paces or answers ours (a
-        180° error, 300 000 periods of capture loss). unixcan: no other live socket in the
-        channel folder; both transports: no frame within FOREIGN_LISTEN_S."""
+    def note_foreign(self, what: str) -> None:
+        """A frame no node of the run sent: counted, and reported to ``on_foreign``."""
+        self.foreign.append(what)
+        if self.on_foreign is not None:
+            self.on_foreign(what)
+
+    def check_channel(self) -> None:
+        """Before a run: nobody may send on the channel (a second run there paces or answers
+        ours: a 180° error, 300 000 periods of capture loss), so no frame may arrive within
+        FOREIGN_LISTEN_S (ForeignNodes, the frames named). Nodes that only listen (a
+        candump-like ``can.logger``, ``cantools monitor``) are welcome: unixcan counts them
+        (``listeners_at_start``), unless there are more than a unixcan node reaches
+        (HILBUS_MAX_PEERS, hilbus.h: the run's own nodes must reach each other)."""
         transport, channel = self.transport, self.channel
         if transport == "unixcan":
             from rig.bus import unixcan
 
+            max_peers = rigbus.unixcan_max_peers(channel)  # (before counting: its node leaves)
             own = {str(getattr(self.bus, "socket_path", ""))}
             others = unixcan.live_nodes(channel, own)
-            if others:
+            if len(others) > max_peers - (RUN_NODES - 1):
                 pids = sorted({Path(p).name.split("-", 1)[0] for p in others})
                 raise ForeignNodes(
-                    f"unixcan channel {channel!r} is in use: {len(others)} other node(s) in "
+                    f"unixcan channel {channel!r} holds {len(others)} other node(s) in "
                     f"{unixcan.base_dir() / channel} (pids {', '.join(pids[:8])}"
-                    f"{', ...' if len(pids) > 8 else ''}); another run on this channel? Use "
-                    "--channel NAME (a unixcan node reaches at most HILBUS_MAX_PEERS others, "
-                    "hilbus.h)")
+                    f"{', ...' if len(pids) > 8 else ''}): with the run's own, more than a "
+                    f"unixcan node reaches (HILBUS_MAX_PEERS = {max_peers}, hilbus.h); "
+                    "use --channel NAME")
+            self.listeners_at_start = len(others)
+        seen: collections.Counter[int] = collections.Counter()
+        before = collections.Counter(getattr(self.bus, "rx_ids", {}))
         deadline = time.monotonic() + FOREIGN_LISTEN_S
         while (left := deadline - time.monotonic()) > 0:
             msg = self.bus.recv(timeout=left)
             if msg is not None and not msg.is_error_frame:
-                raise ForeignNodes(
-                    f"{transport} channel {channel!r} is in use: a frame "
-                    f"0x{msg.arbitration_id:03X} arrived before the run started (another run "
-                    "or node on this channel?); use --channel NAME")
+                seen[msg.arbitration_id] += 1
+        # unixcan counts what its filters let through too (a node sending only the 10 kHz
+        # virtual I/O would pass unseen otherwise)
+        seen |= collections.Counter(getattr(self.bus, "rx_ids", {})) - before
+        if seen:
+            raise ForeignTraffic(
+                f"{transport} channel {channel!r} is in use: {describe_ids(seen)} arrived "
+                f"within {FOREIGN_LISTEN_S:g} s before the run started, from a node that "
+                "sends there (another run?); nodes that only listen are welcome. Use "
+                "--channel NAME")
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -266,9 +344,33 @@ class BusLink:
             with contextlib.suppress(Exception):
                 self._log.stop()
             self._log = None
+        if self._trace is not None:
+            with contextlib.suppress(OSError):
+                self._trace.close()
+            self._trace = None
 
 
 def listen_filters() -> list[dict[str, int]]:
-    """The ID filters of the messages the rig listens to."""
-    return [{"can_id": int(m.frame_id), "can_mask": 0x7FF}
-            for m in (FrameDecoder().message(n) for _, n in LISTEN)]
+    """The ID filters of the messages the rig listens to, and of those only it sends (one
+    arriving is foreign traffic)."""
+    ids = {int(FrameDecoder().message(n).frame_id) for _, n in LISTEN} | set(rig_messages())
+    return [{"can_id": i, "can_mask": 0x7FF} for i in sorted(ids)]
+
+
+def message_names() -> dict[int, str]:
+    """Every message of the bench's protocols by frame id."""
+    return {int(m.frame_id): m.name
+            for db in ("drive", "vio", "bench") for m in protocols.database(db).messages}
+
+
+def describe_ids(counts: Mapping[int, int], limit: int = 6) -> str:
+    """``3 VIO_ADC_0 (0x011), 1 frame of id 0x123`` for frame counts by raw can_id."""
+    names = message_names()
+    parts = []
+    for raw, n in sorted(counts.items(), key=lambda kv: -kv[1])[:limit]:
+        ident = raw & 0x1FFFFFFF
+        name = names.get(raw)
+        parts.append(f"{n} {name} (0x{ident:03X})" if name else
+                     f"{n} frame(s) of id 0x{ident:03X}")
+    more = len(counts) - limit
+    return ", ".join(parts) + (f" and frames of {more} more id(s)" if more > 0 else "")

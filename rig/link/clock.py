@@ -50,17 +50,52 @@ Hook = Callable[[], None]
 
 class PlantProgress:
     """What the plant last said of its progress (BENCH_PROGRESS: the next period it
-    simulates, and whether it waits for a grant)."""
+    simulates, and whether it waits for a grant).
 
-    def __init__(self, link: BusLink) -> None:
+    With ``grants_from_start`` (a lockstep run whose plant the rig started: period 0, no
+    grant, seq 0) every report is checked against the grants the rig sent (``granted``): the
+    plant reports the seq of the last grant it took and a period no later than that grant's
+    end, and its periods never go back. A report that breaks this is not the plant's: it is
+    ignored, and named to the link's ``note_foreign`` (a spoofed BENCH_PROGRESS once moved a
+    scenario's load step by 999 periods and the run passed)."""
+
+    def __init__(self, link: BusLink, *, grants_from_start: bool = False) -> None:
+        self.link = link
         self.period: int | None = None
         self.waiting = False
         self.frames = 0
         self.wall = 0.0  # when the last report came (time.monotonic)
+        # seq -> the end of the latest grant sent with it (None: not checked)
+        self.grants: dict[int, int] | None = {0: 0} if grants_from_start else None
+        self.implausible = 0
         link.on("BENCH_PROGRESS", self._heard)
 
+    def granted(self, seq: int, run_until: int) -> None:
+        """The rig sends a grant (BENCH_STEP) with this seq and end."""
+        if self.grants is not None:
+            self.grants[seq] = run_until
+
+    def _plausible(self, period: int, seq: int) -> str | None:
+        """Why a report cannot be the plant's, or None."""
+        if self.grants is None:
+            return None
+        end = self.grants.get(seq)
+        if end is None:
+            return f"seq {seq}, of no grant the rig sent"
+        if period > end:
+            return f"period {period} beyond the end of grant seq {seq} ({end})"
+        if self.period is not None and period < self.period:
+            return f"period {period} before the plant's last report ({self.period})"
+        return None
+
     def _heard(self, v: Signals) -> None:
-        self.period = int(v["period"])
+        period, seq = int(v["period"]), int(v["seq"])
+        why = self._plausible(period, seq)
+        if why is not None:
+            self.implausible += 1
+            self.link.note_foreign(f"a BENCH_PROGRESS the plant cannot have sent ({why})")
+            return
+        self.period = period
         self.waiting = int(v["state"]) == 0
         self.frames += 1
         self.wall = time.monotonic()
@@ -218,6 +253,7 @@ class LockstepClock(GrantClock):
 
     def _run(self, run_until: int) -> None:
         self._seq = (self._seq + 1) % 256
+        self.progress.granted(self._seq, run_until)
         self.link.send("BENCH_STEP", {"run_until": run_until, "seq": self._seq})
         progress = self.progress
         last_seen = progress.period

@@ -6,8 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rig import capture, profiles
+from rig import baseline, capture, profiles
 from rig.link.drive import accel_max
+from rig.run import traffic
 from rig.run.execution import TS, Execution
 from rig.run.plan import Plan
 from rig.run.result import Failure, RunResult
@@ -19,13 +20,18 @@ MAX_POST_FAILURE_PERIODS = 50_000  # after a crash, merge/record only short trac
 
 def program_failure(run: Execution, failure: Failure | None, on_bus: bool) -> Failure | None:
     """The programs' exit counters into the run's counters; the first thing that went wrong
-    with the programs or the bus, when nothing went wrong before."""
+    with the programs or the bus, when nothing went wrong before; foreign traffic on the
+    channel before anything else (``rig.run.traffic``: the run's data is not its own)."""
     if failure is None and not run.stops and on_bus:
         failure = Failure("error", "run ended without stopping its programs")
+    frames = traffic.Traffic()
     # a program that did not stop cleanly is a failure too (after a good run)
     for rep in run.stops.values():
         if rep.counters:
-            run.add_counters("plant" if rep.name == "plant_rt" else "firmware", rep.counters)
+            node = "plant" if rep.name == "plant_rt" else "firmware"
+            frames.add_program(node, rep.counters)
+            run.add_counters(node, {k: v for k, v in rep.counters.items()
+                                    if k not in ("tx_ids", "rx_ids")})
         if failure is None and not rep.clean:
             what = ("did not stop within the grace period (killed)" if rep.killed
                     else f"stopped with exit status {rep.returncode}")
@@ -49,6 +55,15 @@ def program_failure(run: Execution, failure: Failure | None, on_bus: bool) -> Fa
         counters["rig.rx_frames"] = float(run.monitor.link.rx)
         counters["rig.drive_faults"] = float(run.monitor.faults)
         counters["rig.grant_resends"] = float(run.grant_resends)
+    if on_bus and run.rig_tx_ids is not None and run.rig_rx_ids is not None:
+        frames.add_rig(run.rig_tx_ids, run.rig_rx_ids)
+        counters.update(frames.named_counters())
+        foreign = frames.problem(run.where)
+        if foreign is not None and (failure is None or failure.kind not in (
+                traffic.KIND, "interrupted")):
+            before = (f" (the run itself reported {failure.kind}: {failure.message[:300]})"
+                      if failure is not None else "")
+            failure = Failure(traffic.KIND, foreign + before)
     return failure
 
 
@@ -106,6 +121,8 @@ def coverage(plan: Plan, cap: capture.Capture | None, loss: capture.LossReport |
     holds without a hole and whether the run reached its planned end."""
     reached = not interrupted and periods_done >= plan.n_periods
     why = "" if failure is None else f"{failure.kind}: {failure.message[:200]}"
+    if failure is not None and failure.kind == traffic.KIND:
+        return Coverage(plan.n_periods, None, None, False, why)  # not the run's own data
     # a hole (missing, duplicate, stray or short records) could be anywhere; a partial
     # record at the end of a trace is where a killed writer stopped: the range holds before it
     holes = loss is None or not all(m.ok for m in loss.messages)
@@ -131,7 +148,36 @@ def judge(result: RunResult, sc: Scenario, cap: capture.Capture | None, cov: Cov
         result.passed = all_ok
     else:
         result.status = "interrupted" if failure.kind == "interrupted" else (
-            "error" if failure.kind == "environment" else "failed")
+            "error" if failure.kind in ("environment", traffic.KIND) else "failed")
         result.passed = False
     result.failure = failure
     return reads
+
+
+def judge_baseline(result: RunResult, sc: Scenario, mode: str, realtime: bool) -> None:
+    """Each criterion's value against the committed baseline (``rig.baseline``), into
+    ``result``: a regressed, changed or stale one fails the run; with ``mode`` "require" a
+    run without a baseline fails too. Real-time runs are not compared (their timing is the
+    wall clock's, not the seed's)."""
+    if mode == "off":
+        return
+    key = baseline.entry_key(sc.name, sc.profile)
+    if realtime:
+        result.baseline = {"skipped": "real-time runs are not compared with the baseline"}
+        return
+    try:
+        found = baseline.index().for_key(key)
+    except baseline.BaselineError as exc:
+        result.baseline = {"passed": False, "error": str(exc)}
+        result.passed = False
+        result.status = "failed" if result.status == "passed" else result.status
+        return
+    if found is None:
+        result.baseline = {"passed": mode != "require", "missing": key,
+                           "note": f"no baseline holds {key}"}
+    else:
+        result.baseline = found.judge(key, baseline.setup_digest(sc), sc.seed, result.criteria)
+    if not result.baseline["passed"]:
+        result.passed = False
+        if result.status == "passed":
+            result.status = "failed"

@@ -4,18 +4,23 @@ reports, the counters, what the rig heard, and the wall-clock timing of the gran
 
 from __future__ import annotations
 
+import importlib
+import threading
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rig import capture, recording
+from rig import capture
 from rig.link.clock import PlantProgress
 from rig.run.monitor import Monitor
 from rig.run.result import Timing
 from rig.supervisor import StopReport
+
+if TYPE_CHECKING:  # rerun (0.3 s to import) only once a recording is written
+    from rig import recording
 
 TS = capture.TS
 
@@ -32,6 +37,30 @@ class Execution:
     # wall s since t0 at its end, the grant's own wall s)
     cpu_s: float | None = None  # in process: CPU time of the closed loop
     grant_resends: int = 0  # lockstep grants the plant did not take at once (lost frames)
+    # on the bus: the frames per identifier the rig sent and received (rig.run.traffic)
+    rig_tx_ids: dict[int, int] | None = None
+    rig_rx_ids: dict[int, int] | None = None
+    where: str = ""  # "unixcan channel 'x'": for the messages
+    # modules the post-processing needs (rerun, matplotlib: ~0.5 s to import), imported in
+    # the background once the closed loop runs: not in the start-up, not after a crash
+    preload: tuple[str, ...] = ()
+    _preloading: threading.Thread | None = field(default=None, repr=False)
+
+    def start_preload(self) -> None:
+        """Imports ``preload`` in a background thread (once; the run goes on meanwhile: the
+        bench and the bus wait outside the interpreter lock)."""
+        if self._preloading is not None or not self.preload:
+            return
+
+        def load() -> None:
+            for name in self.preload:
+                try:
+                    importlib.import_module(name)
+                except Exception:  # imported again where used: an error shows there
+                    return
+
+        self._preloading = threading.Thread(target=load, name="rig-preload", daemon=True)
+        self._preloading.start()
 
     def wall(self) -> float:
         return time.monotonic() - self.t0
@@ -64,6 +93,8 @@ class Execution:
 
     def grant_samples(self) -> recording.TimedSamples | None:
         """Each grant's wall time and speed over real time, for the recording."""
+        from rig import recording
+
         if not self.grants:
             return None
         g = np.asarray(self.grants, dtype=np.float64)

@@ -23,6 +23,20 @@ from rig.run.result import RunResult
 from rig.scenario import Scenario
 
 
+class _GrantsTraced:
+    """The bench as the in-process clock sees it, each grant also written into the rig's
+    trace as the BENCH_STEP frame it is on the bus (sequence numbers as LockstepClock's)."""
+
+    def __init__(self, bench: sil.SilBench, link: BusLink) -> None:
+        self.bench, self.link = bench, link
+        self.seq = 0
+
+    def run_until(self, run_until: int) -> int:
+        self.seq = (self.seq + 1) % 256
+        self.link.note("BENCH_STEP", {"run_until": run_until, "seq": self.seq})
+        return self.bench.run_until(run_until)
+
+
 def run_in_process(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
                    run: Execution) -> None:
     """Runs the scenario on the in-process bench, filling ``run``."""
@@ -50,15 +64,23 @@ def run_in_process(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult
     prog = Progress(sc.name, sc.duration, enabled=opts.progress)
     timeout = opts.timeout_s or sc.timeout_s or 60.0 + 300.0 * sc.duration
     try:
-        bench = sil.SilBench(profile_path, psets, fsets, out / "plant.trace", out / "fw.trace")
+        bench = sil.SilBench(profile_path, psets, fsets, out / "plant.trace", out / "fw.trace",
+                             trace_vio=opts.trace_bus)
     except sil.BenchError as exc:
         raise RunError("config", f"in-process bench: {exc}") from exc
+    if opts.core_journal is not None:
+        try:
+            bench.journal(opts.core_journal, opts.core_journal_windows)
+        except sil.BenchError as exc:
+            bench.close()
+            raise RunError("config", f"in-process bench: {exc}") from exc
     port = sil.BenchPort(bench)
-    link = BusLink(port, frame_faults=drive_link.DriveLink(plan.link_windows))
+    link = BusLink(port, frame_faults=drive_link.DriveLink(plan.link_windows),
+                   trace=out / "rig.trace" if opts.trace_bus else None)
     try:
         run.t0 = time.monotonic()
         deadline = run.t0 + timeout
-        clock = InprocClock(link, bench, grant_s=sc.grant_max_s)
+        clock = InprocClock(link, _GrantsTraced(bench, link), grant_s=sc.grant_max_s)
 
         def check_deadline() -> None:
             if time.monotonic() > deadline:
@@ -81,6 +103,7 @@ def run_in_process(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult
             run.counters["rig.bench_rejected"] = float(len(bench.rejected))
             run.counters["rig.bench_refused_faulted"] = float(len(port.refused_faulted))
     finally:
+        link.close()  # (its trace)
         try:
             bench.close()
         except sil.BenchError as exc:

@@ -36,19 +36,19 @@ class LiveFeed:
     def _position(self, v: Signals) -> None:
         p = self._full_period(int(v["period"]))
         self.view.add("speed", p, {"estimated": float(v["speed_hat"])})
-        values = {"θ̂": float(v["theta_hat"]), "θ": math.nan}  # θ: when the truth is known
+        values = {"θ est": float(v["theta_hat"]), "θ": math.nan}  # θ: when the truth is known
         th = self.monitor.true_angle(int(v["period"]))
         if th is not None:
             true_deg = math.degrees(th) % 360.0
             values["θ"] = true_deg
             err = (float(v["theta_hat"]) - true_deg + 180.0) % 360.0 - 180.0
-            self.view.add("error", p, {"θ̂ - θ": err})
+            self.view.add("error", p, {"θ est - θ": err})
         self.view.add("position", p, values)
 
     def _current(self, v: Signals) -> None:
         p = self._full_period(int(v["period"]))
         self.view.add("current", p, {"id": float(v["id"]), "iq": float(v["iq"])})
-        self.view.add("torque", p, {"T̂e": float(v["te_hat"])})
+        self.view.add("torque", p, {"Te est": float(v["te_hat"])})
 
     def _reference(self, v: Signals) -> None:
         p = self._full_period(int(v["period"]))
@@ -56,9 +56,9 @@ class LiveFeed:
 
     def _parameters(self, v: Signals) -> None:
         p = self._full_period(int(v["period"]))
-        self.view.add("params", p, {"Ld̂ (mH)": float(v["ld_hat"]) * 1e3,
-                                    "Lq̂ (mH)": float(v["lq_hat"]) * 1e3,
-                                    "λ̂m": float(v["lambda_hat"])})
+        self.view.add("params", p, {"Ld est (mH)": float(v["ld_hat"]) * 1e3,
+                                    "Lq est (mH)": float(v["lq_hat"]) * 1e3,
+                                    "λm est": float(v["lambda_hat"])})
 
     def _truth(self, v: Signals) -> None:
         p = int(v["period"])

@@ -1,6 +1,8 @@
-"""A scenario run on the bus: plant_rt and fw_host started on a channel nobody else is on,
-the plan paced in lockstep or real time, the programs stopped, what the rig and the bus
-counted."""
+"""A scenario run on the bus: plant_rt and fw_host started on a channel nobody else sends on
+(nodes that only listen are welcome, and counted), the plan paced in lockstep or real time,
+the programs stopped, what the rig and the bus counted. A frame from outside the run that
+the rig sees (one only the rig sends, a BENCH_PROGRESS the plant cannot have sent) stops the
+run as foreign traffic at once; the counts catch the rest afterwards (``rig.run.traffic``)."""
 
 from __future__ import annotations
 
@@ -8,25 +10,28 @@ import contextlib
 import sys
 import time
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 from rig import bus as rigbus
-from rig import drive_link, recording
+from rig import drive_link
 from rig.link import bench
-from rig.link.bus import BusLink, ForeignNodes, LinkError
+from rig.link.bus import BusLink, ForeignNodes, ForeignTraffic, LinkError
 from rig.link.clock import GrantClock, LockstepClock, PlantProgress, WallClock
 from rig.link.drive import DriveMaster
 from rig.progress import Progress
-from rig.run import pacing
+from rig.run import pacing, traffic
 from rig.run.bench_commands import BenchCommands
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import TS, Execution
-from rig.run.live import LiveFeed
 from rig.run.monitor import Monitor
 from rig.run.options import RunOptions
 from rig.run.plan import Plan
 from rig.run.programs import bench_programs, versions
 from rig.run.result import RunResult
 from rig.scenario import Scenario
+
+if TYPE_CHECKING:  # the live view (rerun) is imported only for --live
+    from rig.run.live import LiveFeed
 
 # the bus reader thread (unixcan) must get the GIL within a sender's patience (2 ms)
 SWITCH_INTERVAL_S = 0.0005
@@ -47,16 +52,35 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
     result.command_lines = {"plant": argv[bench.PLANT], "firmware": argv[bench.FIRMWARE]}
     try:
         link = BusLink.open(transport, channel,
-                            frame_faults=drive_link.DriveLink(plan.link_windows))
+                            frame_faults=drive_link.DriveLink(plan.link_windows),
+                            trace=result.out_dir / "rig.trace" if opts.trace_bus else None)
     except LinkError as exc:
         raise EnvironmentProblem(str(exc)) from exc
+    run.where = f"{transport} channel {channel!r}"
     try:
-        link.refuse_foreign_nodes()
+        link.check_channel()
+    except ForeignTraffic as exc:
+        link.close()
+        raise RunError(traffic.KIND, f"foreign traffic: {exc}") from exc
     except ForeignNodes as exc:
         link.close()
         raise EnvironmentProblem(str(exc)) from exc
-    run.progress = PlantProgress(link)
+    except (RuntimeError, FileNotFoundError, OSError) as exc:  # hilbus_tool: not built
+        link.close()
+        raise EnvironmentProblem(str(exc)) from exc
+    if link.listeners_at_start is not None:
+        run.counters["rig.listeners.start"] = float(link.listeners_at_start)
+    run.progress = PlantProgress(link, grants_from_start=not opts.realtime)
     run.monitor = Monitor(link)
+
+    def foreign(what: str) -> None:
+        period = run.progress.period if run.progress is not None else None
+        raise RunError(traffic.KIND, f"foreign traffic on {run.where} at period {period}: "
+                       f"{what}. Another node sends on this channel: the run's data is not "
+                       "its own and nothing is judged. Use a channel of its own "
+                       "(--channel NAME)")
+
+    link.on_foreign = foreign
     live = _live_view(sc, opts, link, run.monitor, run.progress) if opts.live else None
     switch = sys.getswitchinterval()
     sys.setswitchinterval(min(switch, SWITCH_INTERVAL_S))
@@ -64,10 +88,19 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
         _run_programs(sc, plan, opts, programs, link, run, live)
     finally:
         sys.setswitchinterval(switch)
+        link.on_foreign = None  # (the frames of the stop are counted, not raised)
+        if transport == "unixcan":
+            from rig.bus import unixcan
+
+            own = {str(getattr(link.bus, "socket_path", ""))}
+            run.counters["rig.listeners.end"] = float(len(unixcan.live_nodes(channel, own)))
         link.close()
         stats = getattr(link.bus, "stats", None)
         if isinstance(stats, Mapping):
             run.add_counters("rig.bus", stats)
+        run.rig_tx_ids = dict(link.tx_ids)
+        # unixcan: every frame that reached the socket, the filtered ones too
+        run.rig_rx_ids = dict(getattr(link.bus, "rx_ids", None) or link.rx_ids)
         if live is not None:
             with contextlib.suppress(Exception):
                 live.close()
@@ -75,6 +108,9 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
 
 def _live_view(sc: Scenario, opts: RunOptions, link: BusLink, monitor: Monitor,
                progress: PlantProgress) -> LiveFeed | None:
+    from rig import recording
+    from rig.run.live import LiveFeed
+
     try:
         stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)", opts.live_url)
         view = recording.LiveView(stream)
@@ -93,6 +129,7 @@ def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.Be
         sc.duration + 30.0 if opts.realtime else 60.0 + 300.0 * sc.duration)
     virtual = bench.VirtualBench(programs, opts.out, grace_s=opts.grace_s)
     with virtual.sup:
+        run.start_preload()  # while the programs start (the rig waits for them)
         virtual.start(link.transport, link.channel, ready_timeout_s=sc.ready_timeout_s,
                       env=opts.env)
         run.t0 = time.monotonic()
@@ -129,7 +166,7 @@ def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.Be
                 virtual.sup.sleep(LOCKSTEP_DRAIN_S)
             else:
                 run.periods_done = pacing.realtime(sc, plan, clock, drive, bench_cmds,
-                                                   progress, opts.stall_s)
+                                                   progress, opts.stall_s, run)
         except BaseException:
             grace = min(grace, 1.0)  # failing: end quickly
             raise

@@ -24,6 +24,10 @@ class RunOptions:
     grace_s: float = 5.0
     stall_s: float = STALL_S
     record: bool = True
+    figures: bool = True  # figure.png and a picture per criterion that did not pass (rig.figures)
+    # every frame of the run into the traces (the plant's VIO frames, rig.trace: the rig's
+    # own), so rig export --can-log holds the whole bus
+    trace_bus: bool = True
     # what a run keeps besides result.json, report.md and recording.rrd: "all" keeps the
     # full-rate traces (*.trace) and capture columns (capture/) of every run, "failing" only
     # of runs that did not pass (rig run's default; the API's is "all": callers read captures)
@@ -31,3 +35,15 @@ class RunOptions:
     extra_plant_args: Sequence[str] = ()
     extra_fw_args: Sequence[str] = ()
     env: Mapping[str, str] = field(default_factory=dict)
+    # compare with the committed baselines (rig.baseline): "off" (the API's default), "auto"
+    # (rig run's: where a baseline exists), "require" (a run without one fails)
+    baseline: str = "off"
+    # suites in process: scenarios run on this many worker processes at once
+    jobs: int = 1
+    # suites: no scenario starts after one did not pass (the others' verdicts are not needed)
+    fail_fast: bool = False
+    # in process only: journal every call into the control core to this file (rig.target_m4
+    # replays it on the Cortex-M4F build), in these ISR index windows (start, length; none:
+    # the whole run)
+    core_journal: Path | None = None
+    core_journal_windows: Sequence[tuple[int, int]] = ()

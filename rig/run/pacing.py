@@ -47,12 +47,14 @@ def lockstep(sc: Scenario, plan: Plan, clock: GrantClock, drive: DriveMaster,
         t_grant = time.monotonic()
         clock.grant(until)
         run.grants.append((until, run.wall(), time.monotonic() - t_grant))
+        run.start_preload()  # the loop runs: now the post-processing's imports
         after_grant(until)
     return plan.n_periods
 
 
 def realtime(sc: Scenario, plan: Plan, clock: WallClock, drive: DriveMaster,
-             bench: BenchCommands, progress: PlantProgress, stall_s: float) -> int:
+             bench: BenchCommands, progress: PlantProgress, stall_s: float,
+             run: Execution | None = None) -> int:
     """Sends the plan's commands on the wall clock; returns the last period commanded."""
     drive.cmd, limits = initial_drive(sc)
     load = LoadSetting()
@@ -68,6 +70,8 @@ def realtime(sc: Scenario, plan: Plan, clock: WallClock, drive: DriveMaster,
     drive.send_command()
     bench.load(load)
     clock.on_cycle(drive.send_command)
+    if run is not None:
+        run.start_preload()
     last_period, last_change = progress.period, time.monotonic()
     i = 0
     # the plant's own report ends the run (an estimate could run ahead of a lagging plant)

@@ -24,8 +24,8 @@ PLANT_INITIAL = {"theta_e_deg": "initial.theta_e_deg", "speed_rpm": "initial.spe
 def plant_sets(sc: Scenario) -> list[str]:
     """The plant's ``section.key=value`` settings over its profile (plant_rt ``--set``)."""
     sets = bench.settings(sc.overrides)
-    if sc.initial_theta_deg:
-        sets.append(f"{PLANT_INITIAL['theta_e_deg']}={sc.initial_theta_deg!r}")
+    if sc.start_theta_deg:
+        sets.append(f"{PLANT_INITIAL['theta_e_deg']}={sc.start_theta_deg!r}")
     if sc.initial_speed_rpm:
         sets.append(f"{PLANT_INITIAL['speed_rpm']}={sc.initial_speed_rpm!r}")
     return sets
@@ -50,6 +50,7 @@ def bench_programs(sc: Scenario, opts: RunOptions) -> bench.BenchPrograms:
     return bench.BenchPrograms(
         profile=sc.profile, plant_sets=tuple(plant_sets(sc)),
         fw_sets=tuple(firmware_sets(sc, values)), lockstep=not opts.realtime, trace=True,
+        trace_vio=opts.trace_bus,
         paired_from_start=not opts.realtime, extra_plant_args=tuple(opts.extra_plant_args),
         extra_fw_args=tuple(opts.extra_fw_args))
 
@@ -66,8 +67,24 @@ def sha(path: str | Path) -> str:
     return h.hexdigest()[:16]
 
 
+def commit() -> str | None:
+    """The rig's checkout (``git describe --always --dirty``), when it is one."""
+    import subprocess
+
+    try:
+        done = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "describe",
+                               "--always", "--dirty", "--abbrev=12"], capture_output=True,
+                              text=True, timeout=5, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return done.stdout.strip() or None if done.returncode == 0 else None
+
+
 def versions(plant: str | None = None, fw: str | None = None) -> dict[str, str]:
     out = {"rig": __version__, "python": platform.python_version()}
+    checkout = commit()
+    if checkout:
+        out["rig.commit"] = checkout
     for dist in ("numpy", "cantools", "python-can", "rerun-sdk"):
         try:
             out[dist] = metadata.version(dist)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from rig import capture, recording, report
+from rig import capture, report
 from rig.run.execution import TS, Execution
 from rig.run.outputs import dir_size
 from rig.run.result import RunResult
@@ -17,6 +17,8 @@ def write_recording(result: RunResult, cap: capture.Capture, run: Execution,
                     reads: list[tuple[str, int, int]]) -> dict[str, Any]:
     """Writes the recording; what result.json says of it (the error when it failed: the
     verdict stands without the recording)."""
+    from rig import recording  # rerun: imported when a recording is written, not at start
+
     rrd = result.out_dir / "recording.rrd"
     try:
         counter_log = run.monitor.counter_log if run.monitor is not None else []

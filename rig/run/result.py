@@ -118,6 +118,9 @@ class RunResult:
     command_lines: dict[str, Any] | None = None  # the programs' (or the bench's) settings
     finished: str = ""
     kept: Kept | None = None
+    baseline: dict[str, Any] | None = None  # the comparison with the baseline (rig.baseline)
+    seeds: list[dict[str, Any]] | None = None  # a run over the scenario's own seeds: each one
+    figures: dict[str, Any] | None = None  # rig.figures: the pictures in the run folder
     capture: capture.Capture | None = field(default=None, compare=False, repr=False)
 
     # -- result.json ---------------------------------------------------------------------
@@ -141,6 +144,12 @@ class RunResult:
         out["finished"] = self.finished
         if self.kept is not None:
             out["kept"] = self.kept.to_json()
+        if self.baseline is not None:
+            out["baseline"] = self.baseline
+        if self.seeds is not None:
+            out["seeds"] = self.seeds
+        if self.figures is not None:
+            out["figures"] = self.figures
         return out
 
     @classmethod
@@ -162,7 +171,8 @@ class RunResult:
             recording=data.get("recording"), timing=_from_json(Timing, data.get("timing")),
             versions=dict(data.get("versions") or {}), command_lines=data.get("command_lines"),
             finished=str(data.get("finished", "")), kept=_from_json(Kept, data.get("kept")),
-            capture=cap,
+            baseline=data.get("baseline"), seeds=data.get("seeds"),
+            figures=data.get("figures"), capture=cap,
         )
 
     @classmethod
@@ -172,6 +182,13 @@ class RunResult:
         data = json.loads((d / "result.json").read_text())
         cap = capture.Capture(d / "capture") if (d / "capture" / "meta.json").exists() else None
         return cls.from_json(data, d, cap)
+
+    def __repr__(self) -> str:  # short: pytest shows it in a failed assertion
+        return f"RunResult({self.scenario}: {self.status}, report {self.report_path})"
+
+    @property
+    def report_path(self) -> Path:
+        return Path(self.out_dir) / "report.md"
 
     # -- questions -----------------------------------------------------------------------
     def failed_criteria(self) -> list[Criterion]:
@@ -203,7 +220,7 @@ class RunResult:
         return metrics.compute(name, w, params)
 
     def explain(self) -> str:
-        lines = [f"{self.scenario}: {self.status} ({self.out_dir})"]
+        lines = [f"{self.scenario}: {self.status} (report: {self.report_path})"]
         if self.failure is not None:
             lines.append(f"  {self.failure.kind}: {self.failure.message}")
             if self.failure.log_tail:

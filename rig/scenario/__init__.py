@@ -25,6 +25,7 @@ from rig.scenario.files import (
 from rig.scenario.lookup import find, is_suite_file, load
 from rig.scenario.model import (
     PROFILES,
+    SEED_KEY,
     Comparison,
     Criterion,
     LoadCommand,
@@ -48,8 +49,8 @@ from rig.scenario.suite import COMPARISON_RELATIONS, load_suite, parse_suite
 
 __all__ = [
     "COMPARISON_RELATIONS", "LOAD_KINDS", "MAX_DURATION_S", "MAX_READY_TIMEOUT_S",
-    "MAX_TIMEOUT_S", "PROFILES", "SCENARIO_DIR", "SEGMENT_KINDS", "SUITE_DIR", "Comparison",
-    "Criterion", "Issue", "LoadCommand", "LoadEvent", "Scenario", "ScenarioError",
+    "MAX_TIMEOUT_S", "PROFILES", "SCENARIO_DIR", "SEED_KEY", "SEGMENT_KINDS", "SUITE_DIR",
+    "Comparison", "Criterion", "Issue", "LoadCommand", "LoadEvent", "Scenario", "ScenarioError",
     "SpeedCommand", "SpeedSegment", "Suite", "field_name", "find", "is_suite_file", "load",
     "load_scenario", "load_suite", "locate", "parse_scenario", "parse_suite", "read_text",
     "scenario_files", "scenario_names", "suite_files", "validate_name",

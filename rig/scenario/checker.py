@@ -4,7 +4,6 @@ at the first."""
 
 from __future__ import annotations
 
-import math
 import re
 import tomllib
 from collections.abc import Iterable, Mapping, Sequence
@@ -12,7 +11,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rig.scenario.positions import Path_, locate
+from rig.numbers import finite, shown
+from rig.scenario.positions import Path_, locate, too_deep
+
+__all__ = ["Checker", "Issue", "ScenarioError", "finite", "shown"]
+
+MAX_NESTING = 32  # arrays and inline tables in a scenario or suite file (they need 3)
+BOM = "\ufeff"
 
 
 @dataclass(frozen=True)
@@ -87,9 +92,9 @@ class Checker:
                 self.err(p, "required number is missing")
                 return 0.0
             return default
-        v = data[key]
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            self.err(p, f"must be a finite number, not {v!r}")
+        v = finite(data[key])
+        if v is None:
+            self.err(p, f"must be a finite number, not {shown(data[key])}")
             return default if default is not None else 0.0
         if positive and v <= 0:
             self.err(p, f"must be > 0, not {v!r}")
@@ -130,7 +135,8 @@ def read_text(path: Path) -> str:
     """A scenario or suite file as text; not UTF-8 is a schema error at its line."""
     raw = path.read_bytes()
     try:
-        return raw.decode("utf-8")
+        # a byte order mark (editors on Windows write one) is not part of the TOML text
+        return raw.decode("utf-8").removeprefix(BOM)
     except UnicodeDecodeError as exc:
         line = raw.count(b"\n", 0, exc.start) + 1
         raise ScenarioError([Issue(str(path), line, "",
@@ -140,8 +146,15 @@ def read_text(path: Path) -> str:
 
 def parse_toml(file: Path, text: str) -> dict[str, Any]:
     """The document; a syntax error is a schema error at its line."""
+    text = text.removeprefix(BOM)
+    deep = too_deep(text, MAX_NESTING)
+    if deep is not None:
+        raise ScenarioError([Issue(str(file), deep, "", f"arrays or inline tables nested more "
+                                   f"than {MAX_NESTING} deep")])
     try:
         return tomllib.loads(text)
+    except RecursionError:  # the guard above should have caught it
+        raise ScenarioError([Issue(str(file), None, "", "nested too deeply")]) from None
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"\(at line (\d+)", str(exc))
         raise ScenarioError(

@@ -8,7 +8,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from rig import _paths, faults, params, plant_schema, profiles
-from rig.scenario.checker import Checker
+from rig.scenario.checker import Checker, finite, shown
 from rig.scenario.positions import Path_, locate
 
 
@@ -43,10 +43,11 @@ def check_firmware(c: Checker, firmware: Mapping[str, Any]) -> None:
         except params.ParamError:
             c.err(where, "unknown parameter (rig param list, protocols/parameters.csv)")
             continue
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            c.err(where, f"must be a number, not {value!r}")
+        number = finite(value)
+        if number is None:
+            c.err(where, f"must be a finite number, not {shown(value)}")
             continue
-        problem = info.problem(float(value))
+        problem = info.problem(number)
         if problem is not None:
             c.err(where, problem)
 

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
-from rig.scenario.checker import ScenarioError, read_text
+from rig.scenario.checker import ScenarioError, parse_toml, read_text
 from rig.scenario.files import SCENARIO_DIR, SUITE_DIR
 from rig.scenario.model import Scenario, Suite
 from rig.scenario.parse import load_scenario, parse_file
@@ -14,9 +13,9 @@ from rig.scenario.suite import load_suite
 
 def is_suite_file(path: Path) -> bool:
     try:
-        data = tomllib.loads(read_text(path))
+        data = parse_toml(path, read_text(path))
         return "scenarios" in data or "include" in data
-    except (OSError, tomllib.TOMLDecodeError, ScenarioError):
+    except (OSError, ScenarioError):
         return False
 
 
@@ -28,9 +27,18 @@ def find(target: str | Path) -> Path:
     for cand in (SCENARIO_DIR / f"{target}.toml", SUITE_DIR / f"{target}.toml"):
         if cand.is_file():
             return cand
+    near = nearest_names(str(target))
     raise FileNotFoundError(
-        f"no scenario or suite {str(target)!r} (a file, or a name in {SCENARIO_DIR} or {SUITE_DIR})"
-    )
+        f"no scenario or suite {str(target)!r} (a file, or a name in {SCENARIO_DIR} or "
+        f"{SUITE_DIR})" + (f"; did you mean {' or '.join(near)}?" if near else ""))
+
+
+def nearest_names(text: str, n: int = 3) -> list[str]:
+    """The shipped scenario and suite names closest to ``text`` (a misspelt name)."""
+    import difflib
+
+    names = [p.stem for d in (SCENARIO_DIR, SUITE_DIR) for p in sorted(d.glob("*.toml"))]
+    return difflib.get_close_matches(text, names, n=n, cutoff=0.6)
 
 
 def load(target: str | Path) -> Scenario | Suite:

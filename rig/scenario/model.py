@@ -19,10 +19,25 @@ import numpy as np
 import numpy.typing as npt
 
 from rig import faults
-from rig.scenario.checker import Checker, ScenarioError, read_text
+from rig.scenario.checker import Checker, Issue, ScenarioError, read_text
 from rig.scenario.checks import check_overrides, check_stuck_codes
 
 PROFILES = ("ideal", "paper", "harsh")
+def side_of(comparison: str) -> str:
+    """Which way a criterion's value improves, from its comparison: lower for < and <=,
+    higher for > and >=, either (any move counts) for == and reported values."""
+    if comparison in ("<", "<="):
+        return "lower"
+    if comparison in (">", ">="):
+        return "higher"
+    return "either"
+
+
+# the plant profile field that seeds its noise (plant_rt/profiles/*.toml, [sensors] seed)
+SEED_KEY = "sensors.seed"
+# the start-angle dither per seed (Scenario.with_seed): far below anything a drive could
+# care about, enough to show how a deterministic closed loop spreads
+SEED_THETA_DITHER_DEG = 0.001
 
 
 @dataclass(frozen=True)
@@ -80,6 +95,12 @@ class Criterion:
     profiles: tuple[str, ...] = ()
     # known failure: the reason with the measured value; reported XFAIL (XPASS if it passes)
     xfail: str = ""
+    # which way the value improves (lower, higher, either) for the baseline; "" derives it
+    # from the comparison (side_of)
+    better: str = ""
+
+    def side(self) -> str:
+        return self.better or side_of(self.comparison)
 
     def applies_to(self, profile: str) -> bool:
         return not self.profiles or profile in self.profiles
@@ -113,13 +134,29 @@ class Scenario:
     timeout_s: float = 0.0  # 0: derived from the duration
     ready_timeout_s: float = 10.0
     realtime_ok: bool = True
+    # decide the criteria over these plant noise seeds (worst case; rig.run.multi_seed)
+    seeds: tuple[int, ...] = ()
+    # added to the start angle by a run's seed (with_seed): not part of the scenario
+    theta_dither_deg: float = 0.0
+
+    @property
+    def start_theta_deg(self) -> float:
+        """The rotor angle the plant starts from: the scenario's plus the seed's dither."""
+        return self.initial_theta_deg + self.theta_dither_deg
 
     def with_profile(self, profile: str) -> Scenario:
         """The same scenario on another fidelity profile, named ``<name>@<profile>``; only
         the criteria that apply on that profile are kept. Its overrides and stuck ADC codes
         are checked on that profile (``ScenarioError``)."""
         if profile not in PROFILES:
-            raise ValueError(f"unknown profile {profile!r} (one of: {', '.join(PROFILES)})")
+            import difflib
+
+            near = difflib.get_close_matches(profile, PROFILES, n=1)
+            raise ScenarioError([Issue(str(self.file), None, f"{self.name}@{profile}",
+                                       f"unknown profile {profile!r} (one of: "
+                                       f"{', '.join(PROFILES)})"
+                                       + (f"; did you mean {self.name}@{near[0]}?" if near
+                                          else ""))])
         if self.overrides and profile != self.profile:
             c = Checker(self.file, self._text())
             check_overrides(c, profile, self.overrides)
@@ -140,6 +177,27 @@ class Scenario:
             return read_text(self.file)
         except OSError:
             return ""
+
+    def with_seed(self, seed: int) -> Scenario:
+        """The same scenario under other immaterial conditions: the plant's noise drawn from
+        another seed (the profile field ``SEED_KEY``) and the start angle moved by
+        (seed - 1) * SEED_THETA_DITHER_DEG. The dither gives the noise-free ``ideal`` profile
+        a spread too: its closed loop is deterministic but not insensitive (a start
+        0.001 deg away moved its Table 2 cell at 1000 r/min from 0.0046 to 0.0033 deg and
+        its speed excursion from 0.16 to 0.08 r/min, as any change of rounding would).
+        The name is unchanged: the seed is a dimension of a run, not another scenario. A
+        scenario decided over its own seeds (``seeds``) keeps them: its verdict does not
+        depend on one seed."""
+        if self.seeds:
+            return self
+        return replace(self, overrides={**self.overrides, SEED_KEY: int(seed)},
+                       theta_dither_deg=(int(seed) - 1) * SEED_THETA_DITHER_DEG)
+
+    @property
+    def seed(self) -> int | None:
+        """The noise seed the scenario sets (None: the profile's own)."""
+        value = self.overrides.get(SEED_KEY)
+        return int(value) if isinstance(value, int | float) else None
 
     def on_own_profile(self) -> Scenario:
         """Only the criteria that apply on the scenario's own profile."""

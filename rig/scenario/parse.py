@@ -9,7 +9,15 @@ from pathlib import Path
 from typing import Any
 
 from rig import faults, metrics, profiles, protocols
-from rig.scenario.checker import Checker, Issue, ScenarioError, parse_toml, read_text
+from rig.scenario.checker import (
+    Checker,
+    Issue,
+    ScenarioError,
+    finite,
+    parse_toml,
+    read_text,
+    shown,
+)
 from rig.scenario.checks import check_firmware, check_overrides
 from rig.scenario.model import (
     PROFILES,
@@ -17,6 +25,7 @@ from rig.scenario.model import (
     LoadEvent,
     Scenario,
     SpeedSegment,
+    side_of,
 )
 from rig.scenario.positions import Path_, locate
 
@@ -27,6 +36,13 @@ LOAD_KINDS = ("step", "ramp", "off", "speed_hold")
 MAX_DURATION_S = 3600.0
 MAX_TIMEOUT_S = 86400.0
 MAX_READY_TIMEOUT_S = 600.0
+# criteria: which way a value improves (the baseline's better side)
+BETTER_SIDES = ("lower", "higher", "either")
+# [run] seeds: a verdict over seeds needs a few to have a spread, and stays affordable
+MIN_SEEDS = 3
+MAX_SEEDS = 32
+
+MAX_REPEAT = 100_000  # cycles of a periodic speed segment (the duration is bounded too)
 
 
 TOP_KEYS = (
@@ -56,8 +72,9 @@ def _segment(c: Checker, raw: Any, path: Path_) -> SpeedSegment | None:
             c.err((*path, "hold"), "a triangle has no hold (use a trapezoid)")
         dwell = c.number(d, path, "dwell", 0.0, minimum=0)
         rep = d.get("repeat", 1)
-        if isinstance(rep, bool) or not isinstance(rep, int) or rep < 1:
-            c.err((*path, "repeat"), f"must be an integer >= 1, not {rep!r}")
+        if isinstance(rep, bool) or not isinstance(rep, int) or not 1 <= rep <= MAX_REPEAT:
+            c.err((*path, "repeat"), f"must be an integer >= 1 (at most {MAX_REPEAT}), not "
+                  f"{shown(rep)}")
             rep = 1
         dur = (rise + hold + fall + dwell) * rep
         return SpeedSegment(kind, dur, peak=peak, rise=rise, hold=hold, fall=fall,
@@ -89,7 +106,7 @@ def _load_event(c: Checker, raw: Any, path: Path_, duration: float) -> LoadEvent
 
 def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion | None:
     d = c.table(raw, path, ("name", "metric", "window", "limit", "comparison", "params",
-                            "profiles", "xfail"))
+                            "profiles", "xfail", "better"))
     if not d:
         return None
     metric = c.string(d, path, "metric")
@@ -120,12 +137,13 @@ def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion 
             c.err(wp, f"must be [t0, t1] in seconds (t1 may be \"end\"), not {w!r}")
         else:
             t0, t1 = w
+            given = (t0,) if isinstance(t1, str) and t1 == "end" else (t0, t1)
             if isinstance(t1, str) and t1 == "end":
-                t1 = duration
+                t1 = duration  # (an invalid duration is reported as such)
             ok = True
-            for i, v in enumerate((t0, t1)):
-                if isinstance(v, bool) or not isinstance(v, int | float):
-                    c.err((*wp, i), f"must be a number of seconds, not {v!r}")
+            for i, v in enumerate(given):
+                if finite(v) is None:
+                    c.err((*wp, i), f"must be a finite number of seconds, not {shown(v)}")
                     ok = False
             if ok:
                 if not 0 <= t0 < t1:
@@ -139,7 +157,15 @@ def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion 
         for k in pd:
             if k in metrics.params_of(metric):
                 params[k] = c.number(pd, (*path, "params"), k)
-    return Criterion(name, metric, window, limit, comparison, params, profiles, xfail)
+    # which way the value improves, for the baseline (rig.baseline): from the comparison
+    # ("<=": lower), or given for a reported value ("either": any move beyond the seed
+    # spread counts)
+    default_better = side_of(comparison)
+    better = c.string(d, path, "better", "", choices=BETTER_SIDES)
+    if better and comparison in ("<", "<=", ">", ">=") and better != default_better:
+        c.err((*path, "better"), f"a {comparison!r} criterion improves towards the "
+              f"{default_better} side, not {better!r}")
+    return Criterion(name, metric, window, limit, comparison, params, profiles, xfail, better)
 
 
 def _scalars(c: Checker, raw: Any, path: Path_) -> dict[str, float | int | str | bool]:
@@ -273,7 +299,7 @@ def parse_scenario(file: Path, text: str) -> Scenario:
                 break
 
     run = c.table(data.get("run", {}), ("run",),
-                  ("grant_max_s", "timeout_s", "ready_timeout_s", "realtime_ok"))
+                  ("grant_max_s", "timeout_s", "ready_timeout_s", "realtime_ok", "seeds"))
     grant = c.number(run, ("run",), "grant_max_s", 0.1, positive=True, maximum=0.1)
     timeout = c.number(run, ("run",), "timeout_s", 0.0, minimum=0.0, maximum=MAX_TIMEOUT_S)
     ready_timeout = c.number(run, ("run",), "ready_timeout_s", 10.0, positive=True,
@@ -282,6 +308,8 @@ def parse_scenario(file: Path, text: str) -> Scenario:
     if not isinstance(realtime_ok, bool):
         c.err(("run", "realtime_ok"), "must be true or false")
         realtime_ok = True
+
+    seeds = _seeds(c, run.get("seeds"))
 
     if c.issues:
         raise ScenarioError(c.issues)
@@ -293,7 +321,30 @@ def parse_scenario(file: Path, text: str) -> Scenario:
         speed=tuple(segments), load=tuple(events), faults=tuple(events_f),
         criteria=tuple(crits), grant_max_s=grant,
         timeout_s=timeout, ready_timeout_s=ready_timeout, realtime_ok=realtime_ok,
+        seeds=seeds,
     )
+
+
+def _seeds(c: Checker, raw: Any) -> tuple[int, ...]:
+    """``[run] seeds``: a count N (seeds 1..N) or a list of distinct seeds; the scenario's
+    criteria are then decided over all of them (rig.run.multi_seed)."""
+    if raw is None:
+        return ()
+    where = ("run", "seeds")
+    if isinstance(raw, int) and not isinstance(raw, bool):
+        seeds = list(range(1, raw + 1)) if 0 < raw <= MAX_SEEDS else []
+    elif isinstance(raw, list) and all(isinstance(x, int) and not isinstance(x, bool)
+                                       for x in raw):
+        seeds = list(raw)
+    else:
+        c.err(where, "must be a number of seeds or a list of seeds (whole numbers)")
+        return ()
+    if not MIN_SEEDS <= len(seeds) <= MAX_SEEDS or len(set(seeds)) != len(seeds) or \
+            any(not 0 <= x < 2**31 for x in seeds):
+        c.err(where, f"must be a count of {MIN_SEEDS} to {MAX_SEEDS} seeds or a list of as many "
+              "distinct seeds in 0 .. 2^31 - 1")
+        return ()
+    return tuple(seeds)
 
 
 def parse_file(path: Path) -> Scenario:

@@ -187,6 +187,22 @@ class _Locator:
             self._i += 1
 
 
+def too_deep(text: str, limit: int) -> int | None:
+    """The line where arrays and inline tables nest deeper than ``limit``, else None (a
+    guard before tomllib, which recurses once per level and gives up with RecursionError)."""
+    depth = 0
+    for kind, value, line in _tokens(text):
+        if kind != "punct":
+            continue
+        if value in "[{":
+            depth += 1
+            if depth > limit:
+                return line
+        elif value in "]}":
+            depth = max(0, depth - 1)
+    return None
+
+
 def locate(text: str, path: Path_) -> int | None:
     """Line (1-based) of the key or element at ``path``, else of its nearest located parent."""
     lines = _locator(text).lines

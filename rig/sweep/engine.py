@@ -5,7 +5,11 @@ its scheduler address. The same code either way.
 Each task may be retried (``retries``): a worker that dies takes its task with it, and the
 scheduler gives it to another worker. A task that still fails (its workers kept dying, or
 the scheduler gave up on it) is recorded as a failed row with the reason: no point is
-dropped. A progress line on stderr (rewritten on a TTY, every few seconds otherwise)."""
+dropped. A progress line on stderr (rewritten on a TTY, every few seconds otherwise). What
+the cluster went through is counted (``Outcome``): the workers lost and the points run again
+after losing theirs; a cluster left without any worker for ``no_worker_timeout_s`` ends the
+sweep, its unfinished points failed rows saying so, instead of waiting for ever. The local
+cluster serves Dask's dashboard on 127.0.0.1 (a free port): ``dashboard_link``."""
 
 from __future__ import annotations
 
@@ -13,6 +17,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 from rig.sweep import point as sweep_point
@@ -31,9 +36,45 @@ def client(scheduler: str | None, workers: int) -> Iterator[Any]:
             yield c
         return
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=None, host="127.0.0.1") as cluster, \
+                      dashboard_address=dashboard_address(), host="127.0.0.1") as cluster, \
             Client(cluster) as c:
         yield c
+
+
+def dashboard_address() -> str | None:
+    """127.0.0.1 on a free port when Dask's dashboard can be served (it needs bokeh)."""
+    import importlib.util
+
+    return "127.0.0.1:0" if importlib.util.find_spec("bokeh") is not None else None
+
+
+def dashboard_link(c: Any) -> str | None:
+    """The cluster's dashboard address, when it serves one."""
+    try:
+        info = c.scheduler_info()
+        if "dashboard" not in (info.get("services") or {}):
+            return None
+        return str(c.dashboard_link)
+    except Exception:  # an older scheduler, a closed client: no link
+        return None
+
+
+NO_WORKER_TIMEOUT_S = 60.0
+POLL_S = 1.0
+
+
+@dataclass
+class Outcome:
+    """What the cluster went through during a sweep."""
+
+    workers_seen: set[str] = field(default_factory=set)
+    workers_lost: set[str] = field(default_factory=set)
+    rerun: int = 0  # points run again after their worker was lost
+    gave_up: str | None = None  # why the sweep ended before every point finished
+
+    def to_json(self) -> dict[str, Any]:
+        return {"workers_seen": len(self.workers_seen), "workers_lost": len(self.workers_lost),
+                "points_rerun": self.rerun, "gave_up": self.gave_up}
 
 
 class ProgressLine:
@@ -67,31 +108,83 @@ class ProgressLine:
         self.stream.flush()
 
 
+def _workers(c: Any) -> set[str]:
+    try:
+        return set((c.scheduler_info().get("workers") or {}).keys())
+    except Exception:  # the scheduler is unreachable: no worker to count on
+        return set()
+
+
+def _reruns(c: Any, keys: Sequence[str]) -> int:
+    """Times the scheduler ran these tasks again after losing the worker that ran them (its
+    ``suspicious`` count per task)."""
+    def count(dask_scheduler: Any, keys: Sequence[str]) -> int:
+        return sum(getattr(dask_scheduler.tasks.get(k), "suspicious", 0) or 0 for k in keys)
+
+    try:
+        return int(c.run_on_scheduler(count, keys=list(keys)))
+    except Exception:  # a scheduler that cannot run code for us: not counted
+        return 0
+
+
 def run_tasks(c: Any, tasks: Sequence[sweep_point.Task],
               fn: Callable[[sweep_point.Task], Row] = sweep_point.run, *, retries: int = 2,
-              progress: bool = True, on_row: Callable[[Row], None] | None = None) -> list[Row]:
-    """Every task's row, in task order (a failure is a row too)."""
-    from distributed import as_completed
+              progress: bool = True, on_row: Callable[[Row], None] | None = None,
+              no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S,
+              outcome: Outcome | None = None) -> list[Row]:
+    """Every task's row, in task order (a failure is a row too); ``outcome`` gets what the
+    cluster went through."""
+    from distributed import wait
 
-    futures = c.map(fn, list(tasks), retries=retries, pure=False,
-                    key=[f"sweep-point-{t.index}-{id(tasks)}" for t in tasks])
+    seen = outcome if outcome is not None else Outcome()
+    keys = [f"sweep-point-{t.index}-{id(tasks)}" for t in tasks]
+    futures = c.map(fn, list(tasks), retries=retries, pure=False, key=keys)
     by_future = dict(zip(futures, tasks, strict=True))
     rows: dict[int, Row] = {}
     line = ProgressLine(len(tasks), enabled=progress)
     failed = 0
-    for fut in as_completed(futures):
-        task = by_future[fut]
+    pending = set(futures)
+    alone_since: float | None = None
+    seen.workers_seen |= _workers(c)
+    while pending:
         try:
-            row: Row = fut.result()
-        except Exception as exc:  # KilledWorker, a lost connection, a task error
-            row = sweep_point.failed_row(task, type(exc).__name__, str(exc) or repr(exc))
-        finally:
-            fut.release()
-        rows[task.index] = row
-        if not row.get("passed"):
-            failed += 1
-        if on_row is not None:
-            on_row(row)
+            wait(list(pending), timeout=POLL_S, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            pass  # none finished in this poll: look at the workers
+        done = {f for f in pending if f.status != "pending"}
+        pending -= done
+        now_workers = _workers(c)
+        seen.workers_lost |= seen.workers_seen - now_workers
+        seen.workers_seen |= now_workers
+        for fut in done:
+            task = by_future[fut]
+            try:
+                row: Row = fut.result()
+            except Exception as exc:  # KilledWorker, a lost connection, a task error
+                row = sweep_point.failed_row(task, type(exc).__name__, str(exc) or repr(exc))
+            rows[task.index] = row
+            if not row.get("passed"):
+                failed += 1
+            if on_row is not None:
+                on_row(row)
         line.update(len(rows), failed)
+        if now_workers or done:
+            alone_since = None
+            continue
+        alone_since = alone_since or time.monotonic()
+        if time.monotonic() - alone_since >= no_worker_timeout_s:
+            seen.gave_up = (f"the cluster had no worker for {no_worker_timeout_s:g} s "
+                            f"({len(pending)} points unfinished)")
+            c.cancel(list(pending))
+            for fut in pending:
+                task = by_future[fut]
+                rows[task.index] = sweep_point.failed_row(task, "no_workers", seen.gave_up)
+                failed += 1
+                if on_row is not None:
+                    on_row(rows[task.index])
+            break
+    seen.rerun = _reruns(c, keys)
+    for fut in futures:
+        fut.release()
     line.update(len(rows), failed, force=True)
     return [rows[t.index] for t in tasks]

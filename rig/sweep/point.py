@@ -30,6 +30,7 @@ class Task:
     metric: str = "pos_err_max_deg"
     window: tuple[float, float] | None = None
     channel: str | None = None
+    scratch: str | None = None  # the folder the point's run goes into (None: the temp dir)
 
 
 def _label(values: dict[str, float]) -> str:
@@ -76,10 +77,10 @@ def _run(task: Task) -> dict[str, Any]:
     # on a bus every point needs a channel of its own (points run side by side)
     channel = task.channel if task.bus == "inproc" else (
         task.channel or f"sweep-{os.getpid()}-{task.index}")
-    with tempfile.TemporaryDirectory(prefix="rig-sweep-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="rig-sweep-", dir=task.scratch) as tmp:
         result = runner.run_scenario(sc, runner.RunOptions(
             out=Path(tmp) / "run", bus=task.bus, channel=channel, progress=False,
-            record=False))
+            record=False, figures=False))
         value: float | None = None
         if result.capture is not None:
             with _suppress_metric_errors():

@@ -16,6 +16,7 @@ axis independently (uniform over a range, uniform over the listed values).
 from __future__ import annotations
 
 import itertools
+import math
 import random
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -34,6 +35,34 @@ ALIASES: dict[str, str] = {
     "vdc": "inverter.vdc_v",
 }
 SCALES = ("speed_scale", "load_scale")
+# A sweep's points are built in memory and each is a run (about a second in process): more
+# than this is refused before anything is built (a 9 M-point grid took 57 s to fail).
+MAX_POINTS = 100_000
+
+
+# the profile's keys end in their SI unit (rs_ohm, ld_h, lambda_m_wb, noise_rms_a, ...)
+KEY_UNITS = {"ohm": "Ω", "h": "H", "wb": "Wb", "a": "A", "s": "s", "v": "V", "hz": "Hz",
+             "rpm": "r/min", "nm": "N·m", "kgm2": "kg·m²", "per_a2": "1/A²"}
+
+
+def unit_of(name: str) -> str:
+    """The unit of a swept parameter (axis name or key): the profile key's suffix, the
+    firmware parameter's unit (protocols/parameters.csv), 'factor' for a scale."""
+    key = ALIASES.get(name, name)
+    if key in SCALES:
+        return "factor"
+    if key.startswith("firmware."):
+        from rig import params
+
+        try:
+            return params.table().lookup(key.removeprefix("firmware.")).unit
+        except params.ParamError:
+            return ""
+    leaf = key.rsplit(".", 1)[-1]
+    for suffix, unit in sorted(KEY_UNITS.items(), key=lambda kv: -len(kv[0])):
+        if leaf.endswith("_" + suffix):
+            return unit
+    return ""
 
 
 class SpecError(ValueError):
@@ -66,9 +95,12 @@ class Axis:
 
 def _number(text: str, axis: str) -> float:
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
         raise SpecError(f"{axis}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise SpecError(f"{axis}: {text!r} is not a finite number")
+    return value
 
 
 def parse_axis(text: str) -> Axis:
@@ -91,20 +123,34 @@ def parse_axis(text: str) -> Axis:
             n = int(parts[2])
         except ValueError:
             raise SpecError(f"{name}: N in {spec!r} is not an integer") from None
-        if n < 1:
-            raise SpecError(f"{name}: N must be at least 1")
+        if not 1 <= n <= MAX_POINTS:
+            raise SpecError(f"{name}: N must be in 1 .. {MAX_POINTS}, not {n}")
         values = (lo,) if n == 1 else tuple(lo + (hi - lo) * k / (n - 1) for k in range(n))
         return Axis(name, key, values=values)
     return Axis(name, key, values=tuple(_number(v, name) for v in spec.split(",")))
 
 
+def count(axes: Sequence[Axis], random_n: int = 0) -> int:
+    """How many points the grid (or ``random_n`` random draws) has; SpecError above
+    ``MAX_POINTS``, found before any point is built."""
+    n = random_n if random_n > 0 else math.prod(len(a.grid()) for a in axes)
+    if n > MAX_POINTS:
+        what = f"--random {random_n}" if random_n > 0 else "the grid (" + " x ".join(
+            f"{len(a.values)} {a.name}" for a in axes) + ")"
+        raise SpecError(f"{what} has {n:,} points, more than the {MAX_POINTS:,} a sweep takes "
+                        "(each is a run): sweep fewer values, or --random N")
+    return n
+
+
 def grid(axes: Sequence[Axis]) -> list[dict[str, float]]:
+    count(axes)
     names = [a.name for a in axes]
     return [dict(zip(names, combo, strict=True))
             for combo in itertools.product(*(a.grid() for a in axes))]
 
 
 def sample(axes: Sequence[Axis], n: int, seed: int) -> list[dict[str, float]]:
+    count(axes, n)
     rng = random.Random(seed)
     return [{a.name: a.draw(rng) for a in axes} for _ in range(n)]
 

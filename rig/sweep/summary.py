@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 WORST_SHOWN = 10
+PLOT = "worst_error.png"
 
 
 def _value(r: dict[str, Any]) -> float:
@@ -25,15 +26,25 @@ def worst(rows: Sequence[dict[str, Any]], n: int = WORST_SHOWN) -> list[dict[str
     return sorted(rows, key=key)[:n]
 
 
-def plot(rows: Sequence[dict[str, Any]], params: Sequence[str], metric: str,
-         path: Path) -> None:
-    import matplotlib
+def _label(name: str, unit: str) -> str:
+    return f"{name} ({unit})" if unit else name
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def plot(rows: Sequence[dict[str, Any]], params: Sequence[str], metric: str,
+         path: Path | None = None) -> Any:
+    """The summary metric against every swept parameter, each axis with its unit; written to
+    ``path`` (the figure returned either way)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from rig import metrics
+    from rig.sweep.spec import unit_of
 
     n = max(1, len(params))
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.6), squeeze=False)
+    fig = Figure(figsize=(4.2 * n, 3.6), layout="tight")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, n, squeeze=False)
+    metric_unit = metrics.unit_of(metric) if metrics.known(metric) else ""
     for ax, p in zip(axes[0], params, strict=False):
         for passed, color, label in ((True, "tab:green", "pass"), (False, "tab:red", "fail")):
             xs = [r[f"param.{p}"] for r in rows if bool(r.get("passed")) == passed
@@ -44,14 +55,14 @@ def plot(rows: Sequence[dict[str, Any]], params: Sequence[str], metric: str,
         missing = [r[f"param.{p}"] for r in rows if math.isnan(_value(r))]
         if missing:
             ax.scatter(missing, [0.0] * len(missing), marker="x", c="k", label="no result")
-        ax.set_xlabel(p)
-        ax.set_ylabel(metric)
+        ax.set_xlabel(_label(p, unit_of(p)))
+        ax.set_ylabel(_label(metric, metric_unit))
         ax.grid(True, alpha=0.3)
     axes[0][0].legend(fontsize=8)
     fig.suptitle(f"worst error ({metric}) against each swept parameter")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
 
 
 def markdown(rows: Sequence[dict[str, Any]], params: Sequence[str], info: dict[str, Any]) -> str:
@@ -76,7 +87,18 @@ def markdown(rows: Sequence[dict[str, Any]], params: Sequence[str], info: dict[s
         cells += ["—" if math.isnan(v) else f"{v:.4g}", str(r.get("status")),
                   str(r.get("failure") or "").replace("|", "/")[:120]]
         lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "![worst error against each swept parameter](worst_error.png)", "",
+    cluster = info.get("cluster") or {}
+    if cluster:
+        lines += ["", f"Cluster: {cluster.get('workers_seen')} workers, "
+                  f"{cluster.get('workers_lost')} lost, {cluster.get('points_rerun')} points "
+                  "run again on another worker"
+                  + (f"; {cluster['gave_up']}" if cluster.get("gave_up") else "") + "."]
+    if info.get("interrupted_after") is not None:
+        lines += ["", f"Interrupted after {info['interrupted_after']} of {info.get('points')} "
+                  "points: the table holds the points that finished."]
+    if rows:
+        lines += ["", f"![worst error against each swept parameter]({PLOT})"]
+    lines += ["",
               "Every point is a row of `sweep.csv` / `sweep.parquet` (parameters, verdict, "
               "reason, every criterion's value and outcome).", ""]
     return "\n".join(lines)
@@ -84,7 +106,8 @@ def markdown(rows: Sequence[dict[str, Any]], params: Sequence[str], info: dict[s
 
 def write(rows: Sequence[dict[str, Any]], params: Sequence[str], info: dict[str, Any],
           out: Path) -> Path:
-    plot(rows, params, str(info.get("metric")), out / "worst_error.png")
+    if rows:
+        plot(rows, params, str(info.get("metric")), out / PLOT)
     path = out / "summary.md"
     path.write_text(markdown(rows, params, info))
     return path

@@ -1,8 +1,9 @@
 /* fw_math.h - the few math functions the core needs, behind one interface.
  *
- * Float build: the C library's single-precision functions (TI's RTS on the C28x, newlib or
- * glibc elsewhere). A fixed-point build maps these to IQmath (_IQsin, _IQatan2, _IQsqrt ...)
- * together with the real_t typedef in fw_types.h. Nothing else in the core includes math.h.
+ * Float build: sqrtf and floorf of the C library (exact on every IEEE 754 target); sine,
+ * cosine and atan2 are the core's own (fw_trig.c: the C libraries differ in their last
+ * bits). A fixed-point build maps these to IQmath (_IQsin, _IQatan2, _IQsqrt ...) together
+ * with the real_t typedef in fw_types.h. Nothing else in the core includes math.h.
  */
 #ifndef FW_MATH_H
 #define FW_MATH_H
@@ -24,11 +25,25 @@ typedef struct {
 } fw_cplx_t;
 
 static inline real_t fw_sqrt(real_t x) { return (x > FW_REAL(0.0)) ? sqrtf(x) : FW_REAL(0.0); }
-static inline real_t fw_sin(real_t x) { return sinf(x); }
-static inline real_t fw_cos(real_t x) { return cosf(x); }
-static inline real_t fw_atan2(real_t y, real_t x) { return atan2f(y, x); }
 static inline real_t fw_fabs(real_t x) { return (x < FW_REAL(0.0)) ? -x : x; }
-static inline real_t fw_floor(real_t x) { return floorf(x); }
+/* sine, cosine (both of one angle: one reduction) and atan2 are the core's own (fw_trig.c):
+ * the same bits on every target whatever its C library */
+void fw_sincos(real_t x, real_t *s, real_t *c);
+real_t fw_sin(real_t x);
+real_t fw_cos(real_t x);
+real_t fw_atan2(real_t y, real_t x);
+/* floor, exact as floorf for every float (signed zeros, infinities and NaN included), without
+ * the library call: the Cortex-M4F has no rounding instruction and newlib's floorf takes
+ * ~20 instructions of bit handling; a conversion toward zero is one (VCVT) */
+static inline real_t fw_floor(real_t x)
+{
+    real_t t;
+    if (!(fw_fabs(x) < FW_REAL(8388608.0)) || x == FW_REAL(0.0)) {
+        return x; /* |x| >= 2^23 is integral already; NaN, infinities and zeros as they are */
+    }
+    t = (real_t)(int32_t)x;
+    return (t > x) ? t - FW_REAL(1.0) : t;
+}
 static inline real_t fw_min(real_t a, real_t b) { return (a < b) ? a : b; }
 static inline real_t fw_max(real_t a, real_t b) { return (a > b) ? a : b; }
 static inline real_t fw_clamp(real_t x, real_t lo, real_t hi)
@@ -69,6 +84,11 @@ static inline fw_cplx_t fw_cmul(fw_cplx_t a, fw_cplx_t b)
 static inline fw_cplx_t fw_cconj(fw_cplx_t a) { return fw_c(a.re, -a.im); }
 static inline real_t fw_cabs2(fw_cplx_t a) { return a.re * a.re + a.im * a.im; }
 static inline real_t fw_cabs(fw_cplx_t a) { return fw_sqrt(fw_cabs2(a)); }
-static inline fw_cplx_t fw_cexpj(real_t angle) { return fw_c(fw_cos(angle), fw_sin(angle)); }
+static inline fw_cplx_t fw_cexpj(real_t angle)
+{
+    fw_cplx_t z;
+    fw_sincos(angle, &z.im, &z.re);
+    return z;
+}
 
 #endif /* FW_MATH_H */

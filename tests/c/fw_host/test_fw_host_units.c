@@ -142,6 +142,26 @@ static void test_assembly(void)
         r = feed(0, 1u, 1);
         CHECK(r.complete && r.n_lost == 0, "then 1");
     }
+    /* Issue 23.5: in lockstep the plant skips no period before its first barrier: data that
+     * skips periods then is another node's (future, rejected), and never runs the ISR; after
+     * a barrier (frame faults: the plant goes on without PWM) it is followed as before */
+    {
+        fwh_adc_init(&A);
+        fwh_adc_lockstep(&A);
+        fwh_adc_expect_first(&A, 0u);
+        CHECK(feed(0, 0u, 1).complete, "period 0");
+        CHECK(feed(0, 1u, 1).complete, "period 1");
+        r = feed(0, 1u + 60u, 1); /* the stray frame */
+        CHECK(r.verdict == FWH_ADC_FUTURE && !r.complete && r.n_lost == 0,
+              "a skip before any barrier is future (verdict %d)", (int)r.verdict);
+        r = feed(0, 2u, 1); /* the plant's next period */
+        CHECK(r.complete && r.n_lost == 0 && r.adc->period == 2u, "the plant goes on at 2");
+        fwh_adc_barrier(&A);
+        r = feed(0, 5u, 1); /* 3 and 4 lost behind barriers */
+        CHECK(r.verdict == FWH_ADC_OK && r.complete && r.lost_first == 3u && r.n_lost == 2,
+              "after a barrier a skip is followed (%d %lu %lu)", r.complete,
+              (unsigned long)r.lost_first, (unsigned long)r.n_lost);
+    }
     /* period counter wrap-around */
     fwh_adc_init(&A);
     feed(0, 0xFFFFFFFFu, 1);

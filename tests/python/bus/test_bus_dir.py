@@ -124,6 +124,69 @@ def test_symlinked_folders_are_refused_and_nothing_outside_is_removed(
     assert stale.exists() and not (victim / "x").exists()
 
 
+def _nobody() -> tuple[int, int]:
+    import pwd
+
+    try:
+        entry = pwd.getpwnam("nobody")
+    except KeyError:
+        pytest.skip("no user nobody")
+    return entry.pw_uid, entry.pw_gid
+
+
+@pytest.mark.parametrize("above", ["link_of_another_user", "folder_of_another_user",
+                                   "folder_others_write"])
+def test_folders_above_the_base_must_be_trusted(above: str, short_tmp: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 23.18: a symbolic link above UNIXCAN_DIR was followed wherever it pointed (the
+    bus folder then lies where another user can move it away or put another in its place).
+    C and Python now refuse a folder above the base that another user owns or can write,
+    and a link there that is not root's or this user's."""
+    if above != "folder_others_write" and os.geteuid() != 0:
+        pytest.skip("needs root to make a file of another user")
+    victim = short_tmp / "theirs"
+    victim.mkdir(mode=0o755)
+    if above == "link_of_another_user":
+        uid, gid = _nobody()
+        os.chown(victim, uid, gid)
+        (short_tmp / "link").symlink_to(victim)
+        os.lchown(short_tmp / "link", uid, gid)
+        parent, why = short_tmp / "link", "symbolic link of uid"
+    elif above == "folder_of_another_user":
+        uid, gid = _nobody()
+        os.chown(victim, uid, gid)
+        parent, why = victim, "belongs to uid"
+    else:
+        victim.chmod(0o777)
+        parent, why = victim, "writable by other users"
+    monkeypatch.setenv("UNIXCAN_DIR", str(parent / "uc"))
+    with pytest.raises(can.CanInitializationError, match=why):
+        can.Bus(interface="unixcan", channel="x")
+    rc, _, err = c_dir("x", dict(os.environ))
+    assert rc == 1 and why in err and "above the bus folder" in err, err
+    assert not any(victim.iterdir())  # nothing was made there
+
+
+def test_trusted_folders_above_the_base_are_used(short_tmp: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """The same rule lets the usual places through: a link of this user (as /var/run ->
+    /run is root's), a sticky folder others write to (as /tmp), folders to be made."""
+    real = short_tmp / "real"
+    real.mkdir(mode=0o755)
+    (short_tmp / "mine").symlink_to(real)
+    sticky = short_tmp / "sticky"
+    sticky.mkdir()
+    sticky.chmod(0o1777)
+    for parent in (short_tmp / "mine", sticky, short_tmp / "new" / "deeper"):
+        monkeypatch.setenv("UNIXCAN_DIR", str(parent / "uc"))
+        can.Bus(interface="unixcan", channel="ok").shutdown()
+        rc, folder, err = c_dir("ok", dict(os.environ))
+        assert rc == 0, err
+        assert Path(folder).resolve() == (parent / "uc" / "ok").resolve()
+    assert (real / "uc" / "ok").is_dir()
+    assert stat.S_IMODE((short_tmp / "new").stat().st_mode) == 0o700
+
+
 def test_modes_and_a_base_others_can_write(short_tmp: Path,
                                            monkeypatch: pytest.MonkeyPatch) -> None:
     base = short_tmp / "uc"

@@ -186,6 +186,21 @@ class Peer:
         self.send_adc(period, n_soc, **codes)
         return self.pwm(period + 1)
 
+    def sync(self, period: int) -> None:
+        """The plant's barrier after the ADC frames of a period (VIO_SYNC)."""
+        self.sync_seq = getattr(self, "sync_seq", 0) % 255 + 1
+        self.send("VIO_SYNC", {"period": period, "seq": self.sync_seq})
+
+    def step_after_loss(self, period: int, n_soc: int, **codes: int) -> dict[str, Any]:
+        """ADC(period) after periods the plant skipped, as a plant in lockstep does it: the
+        frames of the first skipped period lost to a frame fault, its barrier (VIO_SYNC),
+        the plant going on without PWM; fw_host follows skipped periods in lockstep only
+        after a barrier (adc_assembly.h). PWM(period + 1) back."""
+        self.sync(period - 1)
+        self.send_adc(period, n_soc, **codes)
+        self.sync(period)
+        return self.pwm(period + 1)
+
     def run(self, first: int, count: int, n_soc: int = 1, **codes: int) -> list[dict[str, Any]]:
         """Lockstep periods first .. first+count-1, each with the SOC count the last PWM asked
         for (like the plant); returns the PWM frames."""

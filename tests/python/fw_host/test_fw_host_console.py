@@ -184,7 +184,7 @@ def test_drive_commands_act_on_the_core(console_fw: tuple[FwProcess, Console],
 def test_reset_after_a_fault(console_fw: tuple[FwProcess, Console], peer: Peer) -> None:
     _, con = console_fw
     pwms = peer.run(0, 2)
-    peer.step(10, pwms[-1]["n_soc"])      # periods 2..9 lost: ADC-loss fault
+    peer.step_after_loss(10, pwms[-1]["n_soc"])  # periods 2..9 lost: ADC-loss fault
     peer.status(lambda v: v["state"] == STATE["FAULT"] and v["fault_code"] == FAULT_ADC_LOSS)
     assert err_code(con.one("enable")) == 11
     assert con.one("reset") == "OK"

@@ -18,7 +18,7 @@ COUNTER_KEYS = {
     "console_lines", "console_errors", "console_keepalive_lapses", "console_out_dropped",
     "state", "fault_code", "fault_name", "core_overruns", "tx_frames", "tx_drops", "tx_errors",
     "rx_frames", "rx_overflows", "rx_malformed", "rx_filtered", "non_data_frames",
-    "foreign_entries", "peers_beyond_limit", "rt",
+    "foreign_entries", "peers_beyond_limit", "tx_ids", "rx_ids", "rt",
 }
 
 
@@ -65,6 +65,8 @@ def test_bad_arguments_exit_2(args: list[str], needle: str) -> None:
     ("pole_pairs = 2.5\n", 1, "field 'pole_pairs'"),
     ("fw_version = 1\n", 1, "field 'fw_version': read-only"),
     ("x" * 300 + "\n", 1, "longer than 255"),
+    ("# c\nrs_ohm = 2\0junk\n", 2, "a NUL byte (not a text file)"),  # issue 23.17: was
+    ("rs_ohm = 2\0", 1, "a NUL byte"),                                # "longer than 255"
 ])
 def test_bad_parameter_file_exits_2_naming_line_and_field(
         tmp_path: Path, text: str, line: int, needle: str) -> None:
@@ -73,6 +75,17 @@ def test_bad_parameter_file_exits_2_naming_line_and_field(
     r = run("--no-console", "--params", str(f))
     assert r.returncode == 2, r.stderr
     assert f"{f}:{line}:" in r.stderr and needle in r.stderr, r.stderr
+
+
+def test_a_parameter_file_that_never_ends_exits_2(tmp_path: Path) -> None:
+    """Issue 23.17: `--params /dev/zero` looped for ever (and a file of endless blank lines
+    would): a NUL byte ends it at once, and a file is read up to 1 MiB."""
+    r = run("--no-console", "--params", "/dev/zero")
+    assert r.returncode == 2 and "/dev/zero:1: a NUL byte" in r.stderr, r.stderr
+    f = tmp_path / "blank.txt"
+    f.write_text("\n" * (2 << 20))
+    r = run("--no-console", "--params", str(f))
+    assert r.returncode == 2 and "longer than 1048576 bytes" in r.stderr, r.stderr
 
 
 def test_missing_parameter_file_exits_2(tmp_path: Path) -> None:

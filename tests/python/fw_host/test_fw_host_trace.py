@@ -29,7 +29,7 @@ def test_trace_has_one_record_per_isr(start_fw: StartFw, peer: Peer, tmp_path: P
     trace = tmp_path / "fw.trace"
     fw = start_fw("--trace", str(trace), "--send-trace")
     pwms = peer.run(20, 5)
-    peer.step(27, pwms[-1]["n_soc"])          # 25 and 26 lost: ISRs without data
+    peer.step_after_loss(27, pwms[-1]["n_soc"])  # 25 and 26 lost: ISRs without data
     peer.drain()
     assert fw.stop() == 0
     c = fw.counters()

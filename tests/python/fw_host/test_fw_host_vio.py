@@ -64,6 +64,7 @@ def test_stale_future_incomplete_and_malformed_adc_data_are_rejected(
     peer.send_adc(53 + 5000, n_soc)                # far in the future
     frames = peer.adc_frames(53, 12)               # n_soc 12: needs VIO_ADC_0 and _1
     peer.send_raw(*frames[0], fd=True)             # ... only _0 comes: incomplete
+    peer.sync(53)                                  # (a frame fault: the plant's barrier)
     bad = peer.adc_frames(54, 3)[0]
     peer.send_raw(0x12, bad[1], fd=True)           # VIO_ADC_1 although n_soc is 3: malformed
     peer.send_raw(*bad, fd=True)                   # 54 complete: ISRs for 53 (no data), 54
@@ -101,14 +102,46 @@ def test_wrong_length_type_and_range_of_adc_frames(start_fw: StartFw, peer: Peer
 def test_adc_loss_faults_and_turns_the_gates_off(start_fw: StartFw, peer: Peer) -> None:
     fw = start_fw()
     pwms = peer.run(0, 3)
-    # periods 3..6 never come: ADC(7) runs the ISR without data for them first
-    pwm = peer.step(7, pwms[-1]["n_soc"])
+    # periods 3..6 never come: ADC(7), confirmed by the plant's barrier (in lockstep the plant
+    # skips a period only behind one), runs the ISR without data for them first
+    pwm = peer.step_after_loss(7, pwms[-1]["n_soc"])
     assert pwm["gate_enable"] == 0
     st = peer.status(lambda v: v["state"] == STATE["FAULT"])
     assert st["fault_code"] == FAULT_ADC_LOSS
     assert fw.stop() == 0
     c = fw.counters()
     assert c["isr_no_data"] == 4 and c["fault_name"] == "ADC_LOSS"
+
+
+def test_a_stray_frame_ahead_does_not_take_the_lockstep_over(start_fw: StartFw,
+                                                              peer: Peer) -> None:
+    """Issue 23.5: one VIO_ADC frame of another node a few periods ahead of the plant (within
+    FWH_ADC_MAX_GAP) took the ADC sequence over: the ISR ran the skipped periods without data
+    and the stray data, the plant's next frames were stale and the lockstep stalled. In
+    lockstep the plant skips no period until a frame fault makes it send barriers: before
+    that, data that skips periods is rejected (future)."""
+    fw = start_fw()
+    pwms = peer.run(0, 5)
+    n_soc = int(pwms[-1]["n_soc"])
+    peer.send_adc(5 + 60, 1)                        # the stray frame, 60 periods ahead
+    check_pwm(peer.step(5, n_soc), 6)               # the plant's period 5 goes on
+    pwms = peer.run(6, 3, n_soc=int(pwms[-1]["n_soc"]))
+    check_pwm(pwms[-1], 9)
+    assert fw.stop() == 0
+    c = fw.counters()
+    assert c["isr_no_data"] == 0 and c["last_period"] == 8 and c["fault_name"] == "NONE"
+    assert c["rejects"]["future_period"] == 1
+
+
+def test_in_real_time_skipped_periods_are_followed_at_once(start_fw: StartFw,
+                                                          peer: Peer) -> None:
+    """Real time: the plant does not wait, frames lost on the bus leave gaps; the firmware
+    follows the newest period at once (no barrier there)."""
+    fw = start_fw("--realtime")
+    pwms = peer.run(0, 3)
+    check_pwm(peer.step(6, int(pwms[-1]["n_soc"])), 7)  # 3..5 lost
+    assert fw.stop() == 0
+    assert fw.counters()["isr_no_data"] == 3
 
 
 def test_restarted_plant_is_followed_after_a_few_periods(start_fw: StartFw,

@@ -84,6 +84,9 @@ def _load() -> C.CDLL:
     lib.plant_flux_map.argtypes = [vp, C.c_double, C.c_double, dp, dp]
     lib.plant_current_from_flux.restype = C.c_int
     lib.plant_current_from_flux.argtypes = [vp, C.c_double, C.c_double, dp]
+    lib.plant_set_fault.restype = C.c_int
+    lib.plant_set_fault.argtypes = [vp, C.c_int, C.c_int, C.c_int, C.c_int, C.c_int,
+                                    C.c_double, C.c_uint32, C.c_char_p, sz]
     lib.plant_adc_current_code.restype = C.c_int32
     lib.plant_adc_current_code.argtypes = [C.c_double, C.c_int, C.c_double, C.POINTER(C.c_int)]
     for name, struct in (
@@ -212,6 +215,18 @@ class Plant:
 
     def set_state(self, theta_e: float, omega_m: float, id_: float, iq: float) -> None:
         self._lib.plant_set_state(self._h, theta_e, omega_m, id_, iq)
+
+    def set_fault(self, slot: int, kind: str, *, channel: int = 0, phase: int = 0,
+                  gate: int = 0, value: float = 0.0, periods: int = 0) -> None:
+        """A physical fault from the next period on; kind by its name in bench.dbc's
+        FAULT_CMD.kind (OPEN_PHASE, GATE_OFF, ...)."""
+        choices = protocols.database("bench").get_message_by_name("FAULT_CMD") \
+            .get_signal_by_name("kind").choices
+        code = next(int(v) for v, n in choices.items() if str(n) == kind)
+        err = C.create_string_buffer(256)
+        if self._lib.plant_set_fault(self._h, slot, code, channel, phase, gate, value, periods,
+                                     err, len(err)) != 0:
+            raise ValueError(err.value.decode())
 
     def set_load(self, mode: int, torque: float = 0.0, speed_rpm: float = 0.0, k: float = 0.0):
         self._lib.plant_set_load(self._h, mode, torque, speed_rpm, k)

@@ -13,7 +13,11 @@ Written from the physics, not from the C code, and deliberately in other coordin
   {open, conducting +, conducting -} to the legs at zero current and keeping the consistent
   one (the C plant resolves them step by step);
 * the open-phase voltage is found from two evaluations of the linear dependence of
-  d i_x/dt on u_x.
+  d i_x/dt on u_x;
+* a disconnected phase (the OPEN_PHASE fault, ``run(disconnect=...)``) is a leg whose terminal
+  floats: from the period it opens its current is cut (the stator current loses its
+  component along that phase's axis, the arc's energy is not followed), and the other legs
+  then conduct by the signs of the currents that are left.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ SQ3 = math.sqrt(3.0)
 
 POS, NEG, OPEN = "pos", "neg", "open"
 UPPER, LOWER, NONE = "upper", "lower", "none"
+DISCONNECTED = "disconnected"  # a phase cut off the inverter: its terminal floats
 
 
 @dataclass
@@ -194,6 +199,8 @@ class Reference:
     # ------------------------------------------------------------------ electrical model
     def band(self, gate: str) -> tuple[float, float]:
         """Terminal voltage for positive current (lo) and negative current (hi)."""
+        if gate == DISCONNECTED:
+            return -math.inf, math.inf
         if gate == UPPER:
             return self.vdc - self.drop, self.vdc + self.drop
         if gate == LOWER:
@@ -287,6 +294,8 @@ class Reference:
     def consistent(
         self, y: np.ndarray, gates: Sequence[str], modes: Sequence[str], at_zero: Sequence[int]
     ) -> bool:
+        if any(g == DISCONNECTED and m != OPEN for g, m in zip(gates, modes, strict=True)):
+            return False  # no current through a disconnected phase
         n_open = sum(m == OPEN for m in modes)
         if n_open == 2:
             return False
@@ -369,10 +378,16 @@ class Reference:
 
     # ------------------------------------------------------------------ run
     def run(
-        self, cmds: Sequence[Command], i0: tuple[float, float] = (0.0, 0.0)
+        self, cmds: Sequence[Command], i0: tuple[float, float] = (0.0, 0.0),
+        disconnect: dict[int, int] | None = None,
     ) -> list[dict[str, np.ndarray]]:
-        """Per period: true currents and sensor outputs at the SOCs (in the given order)."""
+        """Per period: true currents and sensor outputs at the SOCs (in the given order).
+        ``disconnect``: {phase: period} cuts that phase off from the start of that period."""
         timelines = gate_timeline(cmds, self.dead_ticks)
+        for x, period in (disconnect or {}).items():
+            start = period * PERIOD_TICKS
+            kept = [(t, st) for t, st in timelines[x] if t < start]
+            timelines[x] = [*kept, (start, DISCONNECTED)]
         n = len(cmds)
         # all edge ticks and SOC ticks, absolute
         edges = sorted({t for tl in timelines for t, _ in tl} | {n * PERIOD_TICKS})
@@ -401,6 +416,11 @@ class Reference:
                         changed = True
                     gates[x] = timelines[x][pos[x]][1]
                     pos[x] += 1
+                if gates[x] == DISCONNECTED and modes[x] != OPEN:
+                    # the cut: no current in x from now on; _settle labels the other legs
+                    # by the currents that are left
+                    modes[x] = OPEN
+                    self._project(y, modes)
             if changed:
                 modes = self._settle(y, gates, modes, None)
             if t_tick in soc_set:

@@ -93,3 +93,41 @@ def test_free_shaft_with_load_matches_reference(name: str) -> None:
     err_i, err_s, _ = run_both(name, seq, over, theta0, rpm, 0, torque, k)
     print(f"{name} free shaft: |i - ref| <= {err_i * 1e3:.3g} mA")
     assert err_i < TARGET_A and err_s < TARGET_A
+
+
+def test_open_phase_cut_that_flips_a_current_matches_reference() -> None:
+    """Issue 23.12: phase b opens at the start of a period in which cutting its current (the
+    stator current loses its component along b's axis: i_a and i_c each gain i_b/2) turns
+    i_c from +0.04 A to about -0.33 A. The plant kept c's conduction label of the positive
+    current, so 10 ns later it saw c's current "reach zero" and set every current to zero
+    (the magnetic energy of a and c vanished). Against the reference, which labels the legs
+    by the currents left after the cut: SVPWM at 1000 r/min on `paper`, exact sensors."""
+    rpm, theta0, cut, phase = 1000.0, 0.3, 117, 1
+    prof = profile("paper")
+    dead = round(prof["inverter"]["dead_time_s"] / 1e-8)
+    seq = varied_sequence(140, rpm, theta0, amps=2.0, seed=11, dead_ticks=dead)
+    plant = Plant("paper", quiet(rpm, theta0))
+    got = []
+    before: dict[str, float] = {}
+    for k, c in enumerate(seq):
+        if k == cut:
+            before = plant.truth_now()
+            plant.set_fault(0, "OPEN_PHASE", phase=phase)
+        got.append(plant.step(c))
+    ia, ib, ic = before["ia"], before["ib"], before["ic"]
+    assert ic > 0.0 and ic + ib / 2 < -0.25, (ia, ib, ic)  # the cut flips i_c's sign
+    ref = Reference(prof, theta0, rpm / 60 * 2 * math.pi, 1).run(
+        [Command(c.cmp_up, c.cmp_dn, c.soc, c.gate_enable) for c in seq],
+        disconnect={phase: cut})
+    # after the cut: b carries nothing, a and c what the cut left them (not zero)
+    assert np.max(np.abs(ref[cut + 1]["ib"])) < 1e-9
+    assert np.min(np.abs(ref[cut + 1]["ia"])) > 0.2
+    err = max(
+        max(np.max(np.abs(g.ia_true - r["ia"])), np.max(np.abs(g.ib_true - r["ib"])),
+            np.max(np.abs(g.ia_sensor - r["ya"])), np.max(np.abs(g.ib_sensor - r["yb"])))
+        for g, r in zip(got, ref, strict=True)
+    )
+    print(f"open phase b at period {cut}: i_a {ia:+.3f} -> {ref[cut + 1]['ia'][0]:+.3f} A "
+          f"(plant {got[cut + 1].ia_true[0]:+.3f}), |i - ref| <= {err * 1e3:.3g} mA")
+    assert err < ACCEPT_A
+    assert err < TARGET_A

@@ -7,6 +7,10 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+# numpy before any test: pytester (test_plugin.py) restores sys.modules after its test, and
+# numpy's C core cannot be imported a second time into a process. The rig imports numpy
+# lazily, so without this the first import could fall inside such a test.
+import numpy  # noqa: F401
 import pytest
 
 HERE = Path(__file__).resolve().parent

@@ -15,7 +15,7 @@ import numpy as np
 from rig import cli, metrics, recording
 from rig import scenario as sc
 
-FULL_RATE = ("plant.trace", "fw.trace", "capture")
+FULL_RATE = ("plant.trace", "fw.trace", "rig.trace", "capture")
 
 
 def _failing_scenario(tmp_path: Path) -> Path:

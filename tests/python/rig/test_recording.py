@@ -113,12 +113,31 @@ def test_live_view_keeps_one_row_shape_per_entity(tmp_path: Path) -> None:
     rec = rr.RecordingStream("live_test")
     rec.save(path)
     live = recording.LiveView(rec, min_interval=1)
-    live.add("position", 0, {"θ̂": 1.0, "θ": 2.0})
-    live.add("position", 1, {"θ̂": 3.0})  # the truth of this period not heard yet
-    live.add("position", 2, {"θ̂": 4.0, "θ": 5.0, "other": 6.0})
+    live.add("position", 0, {"θ est": 1.0, "θ": 2.0})
+    live.add("position", 1, {"θ est": 3.0})  # the truth of this period not heard yet
+    live.add("position", 2, {"θ est": 4.0, "θ": 5.0, "other": 6.0})
     live.close()
     rec.flush()
     recording._finalize(rec)
     periods, values = recording.read_column(path, "live/position")
     np.testing.assert_array_equal(periods, [0, 1, 2])
     np.testing.assert_array_equal(values, [[2.0, 1.0], [np.nan, 3.0], [5.0, 4.0]])  # θ, θ̂
+
+
+def test_viewer_labels_have_no_combining_marks() -> None:
+    """The Rerun viewer's font drops combining marks: "θ̂" was drawn as "θ", the estimate
+    indistinguishable from the truth. Every string the recording and the live view give the
+    viewer (series labels, view names, entity paths) is free of them ("θ est")."""
+    import ast
+    import unicodedata
+
+    from rig.run import live
+
+    for module in (recording, live):
+        tree = ast.parse(Path(module.__file__).read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                marks = [c for c in node.value if unicodedata.combining(c)]
+                assert not marks, f"{module.__name__}:{node.lineno}: {node.value!r}"
+    labels = [label for s in recording.SERIES for label in s.names]
+    assert "θ est" in labels and "θ est - θ (deg el.)" in labels

@@ -15,6 +15,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import sweep_tasks
@@ -72,7 +73,46 @@ def test_local_pool_sweep_writes_table_and_summary(tmp_path: Path) -> None:
     assert (out / "sweep.csv").read_text().count("\n") == 5
     assert "Pass rate: 2/4 (50.0 %)" in (out / "summary.md").read_text()
     assert (out / "worst_error.png").stat().st_size > 10_000
-    assert json.loads((out / "sweep.json").read_text())["points"] == 4
+    info = json.loads((out / "sweep.json").read_text())
+    assert info["points"] == 4 and info["cluster"]["workers_lost"] == 0
+    # the last line names every file written, the plot too; the dashboard's address is given
+    assert r.stderr.strip().splitlines()[-1].endswith(
+        f"-> {out}: summary.md, sweep.csv, sweep.parquet, worst_error.png")
+    assert "Dask dashboard at http://127.0.0.1:" in r.stderr
+    # the Parquet columns have their types, whatever the rows hold
+    schema = pq.read_schema(out / "sweep.parquet")
+    assert schema.field("point").type == pa.int64()
+    assert schema.field("param.rs").type == pa.float64()
+    assert schema.field("passed").type == pa.bool_()
+    assert schema.field("crit.position error while turning").type == pa.float64()
+    assert pa.types.is_dictionary(schema.field("outcome.position error while turning").type)
+    assert schema.field("failure").type == pa.string()  # null in the passing rows
+
+
+def test_typed_columns_hold_when_no_row_fills_them() -> None:
+    rows = [{"point": 0, "param.rs": 2, "status": "passed", "passed": True, "failure": None,
+             "crit.x": None, "outcome.x": "not_evaluated"}]
+    t = table.to_arrow(rows, ["rs"])
+    assert [t.schema.field(c).type for c in ("point", "param.rs", "failure", "crit.x")] == [
+        pa.int64(), pa.float64(), pa.string(), pa.float64()]
+    empty = table.to_arrow([], ["rs", "noise"])  # an interrupted sweep before any point
+    assert empty.num_rows == 0 and {"point", "param.rs", "param.noise", "passed",
+                                    "metric_value"} <= set(empty.column_names)
+
+
+def test_plots_name_their_units() -> None:
+    assert [spec.unit_of(n) for n in ("rs", "ld", "lambda_m", "noise", "dead_time", "vdc",
+                                      "magnetics.lq_sat_per_a2", "speed_scale")] == [
+        "Ω", "H", "Wb", "A", "s", "V", "1/A²", "factor"]
+    from rig import params
+
+    assert spec.unit_of("firmware.spd_kp") == params.table().lookup("spd_kp").unit
+    rows = [{"point": 0, "param.rs": 1.9, "param.speed_scale": 1.0, "passed": True,
+             "metric_value": 0.5}]
+    fig = summary.plot(rows, ["rs", "speed_scale"], "pos_err_max_deg")
+    labels = [(ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes]
+    assert labels == [("rs (Ω)", "pos_err_max_deg (deg)"),
+                      ("speed_scale (factor)", "pos_err_max_deg (deg)")]
 
 
 def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
@@ -133,9 +173,13 @@ def test_sweep_on_a_dask_cluster_survives_a_killed_worker(dask_cluster: str,
     import cloudpickle
 
     cloudpickle.register_pickle_by_value(sweep_tasks)  # the workers cannot import tests/
+    outcome = engine.Outcome()
     with engine.client(dask_cluster, 0) as c:
-        rows = engine.run_tasks(c, tasks, task_fn, retries=2, progress=False)
+        rows = engine.run_tasks(c, tasks, task_fn, retries=2, progress=False, outcome=outcome)
     assert marker.exists(), "the victim's worker was never killed"
+    # what the cluster went through is counted: the worker that died, the point run again
+    assert len(outcome.workers_lost) == 1 and outcome.rerun >= 1, outcome
+    assert outcome.gave_up is None
     assert [r["point"] for r in rows] == list(range(len(points)))
     good = [r for r in rows if r["param.sensors.seed"] == 1]
     bad = [r for r in rows if r["param.sensors.seed"] == -1]
@@ -162,3 +206,46 @@ def test_rig_sweep_cli_on_the_cluster(dask_cluster: str, tmp_path: Path) -> None
     rows = table.read(out / "sweep.parquet")
     assert [x["passed"] for x in rows] == [True, True]
     assert "Pass rate: 2/2" in (out / "summary.md").read_text()
+
+
+@pytest.mark.timeout(300)
+def test_a_cluster_without_workers_ends_the_sweep_instead_of_waiting() -> None:
+    from distributed import Client, LocalCluster
+
+    tasks = sweep_point.tasks("smoke", [spec.parse_axis("rs=1.9,2.0")],
+                              spec.grid([spec.parse_axis("rs=1.9,2.0")]))
+    outcome = engine.Outcome()
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=None,
+                      host="127.0.0.1") as cluster, Client(cluster) as c:
+        t0 = time.monotonic()
+        rows = engine.run_tasks(c, tasks, progress=False, no_worker_timeout_s=3.0,
+                                outcome=outcome)
+        waited = time.monotonic() - t0
+    assert 3.0 <= waited < 60.0
+    assert [r["failure_kind"] for r in rows] == ["no_workers", "no_workers"]
+    assert outcome.gave_up is not None and "no worker for 3 s" in outcome.gave_up
+    assert all(outcome.gave_up == r["failure"] for r in rows)
+
+
+def test_an_interrupted_sweep_keeps_its_table_and_leaves_no_scratch(tmp_path: Path) -> None:
+    scratch_root = tmp_path / "tmp"
+    scratch_root.mkdir()
+    out = tmp_path / "sweep"
+    env = {**os.environ, "TMPDIR": str(scratch_root)}
+    p = subprocess.Popen(
+        [sys.executable, "-m", "rig", "sweep", "table2_1000rpm_1nm", "--param",
+         "rs=1.8,1.9,2.0,2.1", "--workers", "2", "--out", str(out), "--quiet"],
+        stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 120
+    while not any(scratch_root.glob("rig-sweep-*/rig-sweep-*")):  # points running
+        assert time.monotonic() < deadline and p.poll() is None, p.stderr
+        time.sleep(0.2)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "interrupted after" in err and f"are in {out}" in err
+    assert (out / "sweep.csv").is_file() and (out / "sweep.parquet").is_file()
+    assert (out / "summary.md").is_file()
+    n_rows = len(table.read(out / "sweep.parquet"))
+    assert f"; their {n_rows} rows are in" in err
+    assert list(scratch_root.glob("rig-sweep-*")) == []  # (dask-scratch-space is Dask's)

@@ -83,7 +83,7 @@ def test_a_live_run_streams_to_the_web_viewer(hil_run, tmp_path: Path,  # type: 
         # the server keeps what was streamed: the live blueprint and its data open later
         png = tmp_path / "live.png"
         seen = browser.look(viewer.url(renderer="webgl"), png,
-                            expect=["sensorless_hil_live", "θ̂ and θ (deg)", "speed (r/min)"],
+                            expect=["sensorless_hil_live", "θ est and θ (deg)", "speed (r/min)"],
                             width=1024, height=640)  # a live view repaints: a smaller page
     assert seen.ok, f"the viewer reported: {seen.panic or seen.errors}"
     _assert_not_blank(png, (1024, 640))

@@ -63,6 +63,7 @@ def _args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--lockstep", action="store_true")
     p.add_argument("--realtime", action="store_true")
     p.add_argument("--trace")
+    p.add_argument("--trace-vio", action="store_true")  # plant_rt's (the stand-in has no VIO)
     p.add_argument("--ready-file")
     p.add_argument("--config")
     p.add_argument("--set", action="append", default=[])

@@ -1,0 +1,66 @@
+"""``rig compare A B``: two results side by side, judged against the seed spread."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rig import cliargs
+
+EPILOG = """\
+A and B: a run folder, a suite folder, a `rig baseline record` folder (seed-N/ inside: the
+mean over its seeds), a baseline file, or baseline:SUITE (the committed one). Each criterion
+is unchanged (within the seed spread), improved, regressed, changed (beyond the spread, no
+better side), unknown (no spread known), added or removed.
+
+exit status: 0 nothing regressed or changed; 1 something did; 2 usage.
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "compare", help="two runs, suites or baselines side by side, against the seed spread",
+        description="Per scenario run and criterion: A's value, B's, the difference and "
+        "whether it is beyond the spread the plant's noise seeds give (the baseline's band). "
+        "What a reviewer reads before a firmware change is merged.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("a", metavar="A")
+    p.add_argument("b", metavar="B")
+    p.add_argument("--all", action="store_true",
+                   help="list every criterion, not only those that moved")
+    cliargs.add_shared(p, "out", type=Path,
+                       help="also write DIR/compare.md, compare.json and a plot per moved "
+                       "metric")
+    cliargs.command(p, cmd_compare)
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    import json
+
+    from rig import compare
+
+    try:
+        a, b = compare.load_side(args.a), compare.load_side(args.b)
+    except compare.CompareError as exc:
+        print(f"rig compare: {exc}", file=sys.stderr)
+        return 2
+    rows = compare.compare(a, b)
+    head = f"rig compare: A = {a.label}, B = {b.label}"
+    table = compare.markdown(rows, only_changed=not args.all)
+    summary = compare.summary_line(rows)
+    print(f"{head}\n{summary}\n\n{table}")
+    if args.out is not None:
+        from rig import output
+
+        output.prepare(args.out)
+        pngs = compare.plots(rows, args.out, "A", "B")
+        md = [f"# {head}", "", summary, "", table, ""]
+        md += [f"![{p.stem}]({p.name})" for p in pngs]
+        output.write_text(args.out / "compare.md", "\n".join(md) + "\n")
+        output.write_text(args.out / "compare.json",
+                          json.dumps({"a": a.label, "b": b.label,
+                                      "rows": compare.to_json(rows)}, indent=1))
+        print(f"\n-> {args.out}/compare.md ({len(pngs)} plots)", file=sys.stderr)
+    c = compare.counts(rows)
+    return 1 if c.get("regressed") or c.get("changed") else 0

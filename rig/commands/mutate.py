@@ -1,0 +1,142 @@
+"""``rig mutate``: the mutation catalogue against the gate and the C tests."""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rig import cliargs
+
+if TYPE_CHECKING:
+    from rig.mutation.campaign import Gate
+    from rig.mutation.catalogue import Mutant
+    from rig.mutation.worktree import MutationTree
+
+EPILOG = """\
+Each mutant of tests/mutants/catalogue.toml is applied alone to a copy of this checkout
+(OUT/work), rebuilt incrementally, and judged: ctest, then the gate (the suite `gate` in
+process against the committed baselines, stopping at the first failing scenario). The
+unmutated copy goes through the same detectors first and must pass them. Results in
+OUT/results.json and OUT/summary.md; the score counts killed / (killed + survived), leaving
+out mutants argued equivalent in the catalogue and those that do not compile.
+
+exit status: 0 the campaign ran (whatever the score); 1 the unmutated tree fails a detector;
+2 usage or catalogue error.
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "mutate", help="mutation testing: does the gate catch realistic firmware bugs?",
+        description="Apply realistic firmware bugs one at a time and check that the gate or "
+        "the C tests catch each of them.", epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--only", default=None, metavar="IDS",
+                   help="comma-separated mutant ids (default: the whole catalogue)")
+    p.add_argument("--catalogue", type=Path, default=None, metavar="FILE",
+                   help="another catalogue file")
+    p.add_argument("--suite", default="gate", metavar="SUITES",
+                   help="the gate's suites, comma-separated (default: gate)")
+    p.add_argument("--baseline", choices=("require", "auto", "off"), default="require",
+                   help="how the gate uses the baselines (off: the criteria's limits only)")
+    p.add_argument("--detectors", default="ctest,gate", metavar="LIST",
+                   help="ctest and/or gate (default both, ctest first)")
+    p.add_argument("--both", action="store_true",
+                   help="run every detector on every mutant (a score per detector)")
+    p.add_argument("--seed", type=cliargs.number(int, minimum=0, maximum=2**31 - 1),
+                   default=None, metavar="N",
+                   help="run the gate at this noise seed (default: the profiles')")
+    p.add_argument("--jobs", "-j", type=cliargs.number(int, minimum=1, maximum=64), default=2,
+                   metavar="N", help="build and gate parallelism (default 2)")
+    cliargs.add_shared(p, "out", type=Path,
+                       help="results (default: $HIL_OUT or ./out, mutate-time)")
+    p.add_argument("--keep-work", action="store_true",
+                   help="keep the work copy (source and build) afterwards")
+    p.add_argument("--list", action="store_true", help="list the catalogue and exit")
+    cliargs.command(p, cmd_mutate)
+
+
+def cmd_mutate(args: argparse.Namespace) -> int:
+    from rig import outdirs
+    from rig.mutation import campaign, catalogue
+    from rig.mutation.worktree import MutationTree
+
+    try:
+        mutants = catalogue.load(args.catalogue)
+    except catalogue.CatalogueError as exc:
+        print(f"rig mutate: {exc}", file=sys.stderr)
+        return 2
+    if args.list:
+        for m in mutants:
+            eq = f"  [equivalent: {m.equivalent}]" if m.equivalent else ""
+            print(f"{m.id:<32} {m.cls:<6} {Path(m.file).name:<22} {m.description}{eq}")
+        print(f"{len(mutants)} mutants", file=sys.stderr)
+        return 0
+    if args.only:
+        wanted = [x.strip() for x in args.only.split(",") if x.strip()]
+        unknown = sorted(set(wanted) - {m.id for m in mutants})
+        if unknown:
+            print(f"rig mutate: unknown mutants: {', '.join(unknown)}", file=sys.stderr)
+            return 2
+        mutants = [m for m in mutants if m.id in wanted]
+    detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
+    if not detectors or set(detectors) - {"ctest", "gate"}:
+        print("rig mutate: --detectors takes ctest and/or gate", file=sys.stderr)
+        return 2
+    out = args.out or outdirs.default_out("mutate")
+    out.mkdir(parents=True, exist_ok=True)
+    gate = campaign.Gate(tuple(s.strip() for s in args.suite.split(",") if s.strip()),
+                         args.baseline, args.jobs, args.seed)
+    # the copy lives in a short temporary path: the C bus tests put Unix sockets under their
+    # build folder, and a socket address holds at most 107 bytes
+    work = Path(tempfile.mkdtemp(prefix="rig-mutate-"))
+    try:
+        return _campaign(args, mutants, gate, MutationTree(work, jobs=args.jobs), out,
+                         detectors)
+    finally:
+        if not args.keep_work:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def _campaign(args: argparse.Namespace, mutants: list[Mutant], gate: Gate, tree: MutationTree,
+              out: Path, detectors: list[str]) -> int:
+    from rig.mutation import campaign
+    from rig.mutation.worktree import BuildError
+
+    def say(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+
+    try:
+        say(f"rig mutate: {len(mutants)} mutants; copying the tree to {tree.src}")
+        tree.copy()
+        step = tree.configure()
+        if not step.ok:
+            say(f"rig mutate: cmake configure failed:\n{step.log[-2000:]}")
+            return 1
+        say("rig mutate: the unmutated tree through " + ", ".join(detectors))
+        problems = campaign.control(tree, gate, out, detectors)
+    except BuildError as exc:
+        say(f"rig mutate: {exc}")
+        return 1
+    if problems:
+        say("rig mutate: the unmutated tree fails; no kill would mean anything:")
+        for p in problems:
+            say(f"  {p}")
+        return 1
+    try:
+        verdicts = campaign.run(mutants, tree, gate, out, both=args.both,
+                                detectors=detectors, progress=say)
+    except KeyboardInterrupt:
+        say(f"rig mutate: interrupted; partial results in {out}")
+        return 130
+    s = campaign.score(verdicts)
+    say(f"rig mutate: {s.killed}/{s.judged} killed ({s.percent:.0f} %), {s.survived} "
+        f"survived, {s.equivalent} equivalent, {s.stillborn} stillborn -> {out}/summary.md")
+    for v in verdicts:
+        if v.status == campaign.SURVIVED:
+            say(f"  survived: {v.id}: {v.description}")
+    return 0
