@@ -131,6 +131,11 @@ int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gat
                        real_t omega_min, real_t omega_learn_min, real_t theta_end,
                        fw_cplx_t i_end, real_t ld_app, real_t lambda_nom, real_t alpha);
 int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc); /* active, start forgotten */
+/* Starts the estimator at the stator flux psi (V*s, alpha-beta) at electrical speed omega, as
+ * if it had run settle_tc time constants (the flux is known, e.g. from the start-up's
+ * back-EMF test); omega_min, ratio as fw_flux_update. */
+void fw_flux_seed(fw_flux_t *f, fw_cplx_t psi, real_t omega, real_t ratio, real_t omega_min,
+                  real_t settle_tc);
 
 /* ---- current_refs.c (paper eqs. 10, 50, 53) ----------------------------------------------------- */
 real_t fw_refs_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda);
@@ -167,8 +172,18 @@ uint16_t fw_protection_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);
 /* ---- polarity_detect.c -------------------------------------------------------------------- */
 typedef struct {
     real_t id, iq;     /* current references along the estimated frame, A */
+    fw_cplx_t v_ff;    /* alpha-beta voltage added to the current loop's (the catch), V */
 } fw_polarity_out_t;
+#define FW_POL_METHOD_SATURATION 1
+#define FW_POL_METHOD_MOTION 2
+#define FW_POL_METHOD_EMF 3 /* the back-EMF test: the shaft was turning */
+#define FW_POL_METHOD_CATCH 4 /* the catch: the shaft turned fast, its back-EMF gave the angle */
 void fw_polarity_start(fw_polarity_t *pol);
+/* After a decision: the shaft's electrical speed at the start of the back-EMF window (the
+ * enable), now (the end of the last period) and its acceleration, from the straight line
+ * through the window's q back-EMF; 0 when the window is too short. */
+int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
+                           real_t *omega_now, real_t *accel);
 /* One period; returns pol->result (0 running, 1 done, -1 failed). */
 int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                     fw_polarity_out_t *out);
