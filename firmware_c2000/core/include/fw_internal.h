@@ -17,8 +17,18 @@
 fw_cplx_t fw_svpwm_vec_unit(int16_t k);
 fw_cplx_t fw_svpwm_vec_unit2(int16_t k);
 int16_t fw_svpwm_vec_state(int16_t k); /* switching state bits (a = 1, b = 2, c = 4) */
-/* alpha-beta voltage of a switching state with an isolated neutral */
-fw_cplx_t fw_svpwm_state_voltage(int16_t state_bits, real_t vdc);
+/* alpha-beta voltage of a switching state with an isolated neutral: 2/3 vdc and vdc/sqrt3
+ * times the state's multipliers (0, +-1/2, +-1, exact), the bits of the phase sums
+ * (sa - (sb + sc)/2, sb - sc) they stand for; inline, as it is in every loop over a pattern */
+static inline fw_cplx_t fw_svpwm_state_voltage(int16_t state_bits, real_t vdc)
+{
+    static const real_t m_re[8] = {FW_REAL(0.0), FW_REAL(1.0),  FW_REAL(-0.5), FW_REAL(0.5),
+                                   FW_REAL(-0.5), FW_REAL(0.5), FW_REAL(-1.0), FW_REAL(0.0)};
+    static const real_t m_im[8] = {FW_REAL(0.0), FW_REAL(0.0),  FW_REAL(1.0), FW_REAL(1.0),
+                                   FW_REAL(-1.0), FW_REAL(-1.0), FW_REAL(0.0), FW_REAL(0.0)};
+    const int16_t s = (int16_t)(state_bits & 7);
+    return fw_c(vdc * (FW_REAL(2.0) / FW_REAL(3.0)) * m_re[s], vdc * FW_M_INV_SQRT3 * m_im[s]);
+}
 /* Largest voltage magnitude that still leaves a V7 window of tmin in every direction. */
 real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks);
 /* Plan period pattern for average voltage v_ref (alpha-beta, V). mod: carry and last sector
@@ -38,10 +48,29 @@ void fw_svpwm_to_pwm(const fw_plan_t *plan, uint32_t period, int16_t gate, fw_pw
 
 /* ---- inverter_model.c: dead time and device drop ------------------------------------------ */
 /* phase currents (a, b, c) of an alpha-beta current, and alpha-beta of phase voltages */
-void fw_inverter_phase_currents(fw_cplx_t i, real_t iph[3]);
-fw_cplx_t fw_inverter_phase_to_ab(const real_t v[3]);
+static inline real_t fw_inverter_phase_b(fw_cplx_t i)
+{
+    return FW_REAL(-0.5) * i.re + FW_REAL(0.5) * FW_M_SQRT3 * i.im;
+}
+static inline real_t fw_inverter_phase_c(fw_cplx_t i)
+{
+    return FW_REAL(-0.5) * i.re - FW_REAL(0.5) * FW_M_SQRT3 * i.im;
+}
+static inline void fw_inverter_phase_currents(fw_cplx_t i, real_t iph[3])
+{
+    iph[0] = i.re;
+    iph[1] = fw_inverter_phase_b(i);
+    iph[2] = fw_inverter_phase_c(i);
+}
+static inline fw_cplx_t fw_inverter_phase_to_ab(const real_t v[3])
+{
+    return fw_c((FW_REAL(2.0) / FW_REAL(3.0)) * (v[0] - FW_REAL(0.5) * (v[1] + v[2])),
+                (v[1] - v[2]) * FW_M_INV_SQRT3);
+}
 /* the device drop over a stretch in which the current moves linearly from i0 to i1, V */
 fw_cplx_t fw_inverter_drop_voltage(const fw_core_t *c, fw_cplx_t i0, fw_cplx_t i1);
+/* the current of window w of c->plan_cur at its first and last sample (its slope's stretch) */
+void fw_inverter_window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1);
 /* the device drop over the sampled stretch of window w of c->plan_cur, V */
 fw_cplx_t fw_inverter_window_drop(const fw_core_t *c, int16_t w);
 /* Mean inverter voltage error of the period of c->plan_cur at current c->i_avg (dead time
