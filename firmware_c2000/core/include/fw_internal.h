@@ -13,10 +13,24 @@
 #define FW_RPM_PER_RADS ((real_t)9.54929658551372014613) /* 60 / (2 pi) */
 
 /* ---- svpwm.c: pattern, stretching, sampling plan ------------------------------------------ */
-/* Unit vector of active vector k (1..6) at phi_k = (k-1)*pi/3 and of 2*phi_k. */
-fw_cplx_t fw_svpwm_vec_unit(int16_t k);
-fw_cplx_t fw_svpwm_vec_unit2(int16_t k);
-int16_t fw_svpwm_vec_state(int16_t k); /* switching state bits (a = 1, b = 2, c = 4) */
+/* cos/sin of phi_k = (k-1)*60 deg, k = 1..6 (svpwm.c) and the switching states of V1..V6 */
+extern const real_t fw_svpwm_vec_cos[6];
+extern const real_t fw_svpwm_vec_sin[6];
+extern const int16_t fw_svpwm_vec_bits[6];
+/* Unit vector of active vector k (1..6) at phi_k = (k-1)*pi/3 and of 2*phi_k (inline: the
+ * estimator and the modulator take them every period). */
+static inline fw_cplx_t fw_svpwm_vec_unit(int16_t k)
+{
+    const int16_t i = (int16_t)((k - 1) % 6);
+    return fw_c(fw_svpwm_vec_cos[i], fw_svpwm_vec_sin[i]);
+}
+static inline fw_cplx_t fw_svpwm_vec_unit2(int16_t k)
+{
+    const int16_t i = (int16_t)((2 * (k - 1)) % 6);
+    return fw_c(fw_svpwm_vec_cos[i], fw_svpwm_vec_sin[i]);
+}
+/* switching state bits (a = 1, b = 2, c = 4) of active vector k */
+static inline int16_t fw_svpwm_vec_state(int16_t k) { return fw_svpwm_vec_bits[(k - 1) % 6]; }
 /* alpha-beta voltage of a switching state with an isolated neutral: 2/3 vdc and vdc/sqrt3
  * times the state's multipliers (0, +-1/2, +-1, exact), the bits of the phase sums
  * (sa - (sb + sc)/2, sb - sc) they stand for; inline, as it is in every loop over a pattern */
@@ -92,7 +106,10 @@ void fw_outer_step(fw_core_t *c);
 /* ---- slope_estimator.c: slopes and the least-squares position estimate --------------------- */
 /* LS slope of window w: A/s alpha-beta, mean sample time (ticks), current at that time (A). */
 /* Gamma(theta) v = Gamma0 v + g conj(v), g = Gamma1 exp(j 2 theta) */
-fw_cplx_t fw_slope_gamma_times(real_t gamma0, fw_cplx_t g, fw_cplx_t v);
+static inline fw_cplx_t fw_slope_gamma_times(real_t gamma0, fw_cplx_t g, fw_cplx_t v)
+{
+    return fw_cadd(fw_cscale(v, gamma0), fw_cmul(g, fw_cconj(v)));
+}
 int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, int32_t adc_half,
                         real_t lsb, fw_cplx_t *slope, real_t *t_mean_ticks, fw_cplx_t *i_mean);
 /* Section 4.5: rotate the zero-state slope to the active window's time before differencing. */
@@ -159,7 +176,11 @@ void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);
 int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gate, real_t ratio,
                        real_t omega_min, real_t omega_learn_min, real_t theta_end,
                        fw_cplx_t i_end, real_t ld_app, real_t lambda_nom, real_t alpha);
-int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc); /* active, start forgotten */
+/* active, its start forgotten: exp(-settle_tc) (flux_estimator.c) */
+static inline int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc)
+{
+    return (int16_t)(f->active && f->settle_tc >= settle_tc);
+}
 
 /* ---- current_refs.c (paper eqs. 10, 50, 53) ----------------------------------------------------- */
 real_t fw_refs_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda);
@@ -187,7 +208,13 @@ real_t fw_speed_ctrl_ramp(real_t y, real_t target, real_t step);
 real_t fw_speed_ctrl(fw_pi_t *pi, real_t ref_rpm, real_t speed_rpm, real_t iq_lim, real_t ts);
 
 /* ---- protection.c ------------------------------------------------------------------------- */
-real_t fw_protection_adc_offset(int32_t code, int32_t adc_half); /* code - adc_half, no int overflow */
+/* A code minus the mid-scale code, for any int32 input: the subtraction is done in real_t (an
+ * int32 difference overflows for codes near INT32_MIN). Exact for every code of a converter of
+ * up to 24 bits (the float mantissa). */
+static inline real_t fw_protection_adc_offset(int32_t code, int32_t adc_half)
+{
+    return (real_t)code - (real_t)adc_half;
+}
 int16_t fw_protection_codes_in_range(const fw_adc_t *adc, int32_t adc_half); /* all in 0..2^N-1 */
 uint16_t fw_protection_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb, real_t oc_trip,
                             real_t *i_peak);

@@ -179,6 +179,12 @@ static int16_t has_signs(const real_t iph[3], const real_t sgn[3])
                      sgn[2] * iph[2] >= FW_RECON_SIGN_A);
 }
 
+/* phase current x (0 a, 1 b, 2 c) of an alpha-beta current, as fw_inverter_phase_currents */
+static real_t phase_current(fw_cplx_t i, int16_t x)
+{
+    return (x == 0) ? i.re : ((x == 1) ? fw_inverter_phase_b(i) : fw_inverter_phase_c(i));
+}
+
 /* dead time's soft sign of a phase current over 10 mA, as fw_clamp(i / 0.01, -1, 1) */
 static real_t soft_sign_10ma(real_t i)
 {
@@ -235,30 +241,28 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
         g = fw_cscale(fw_cexpj(FW_REAL(2.0) * c->theta_hat), c->pe.gamma1_f);
     }
     /* the slope of every switching state: measured where it was (the last measured window
-     * that covers it), else s0 + Gamma(theta) v */
+     * that covers it: windows and segments are both in time order, so each window's covered
+     * segments are found from its start on), else s0 + Gamma(theta) v */
     {
-        uint16_t w_start[3], w_end[3];
-        int16_t w_idx[3];
-        int16_t nw = 0, w;
+        int16_t found[FW_MAX_SEG];
+        int16_t w;
+        for (s = 0; s < n; s++) {
+            found[s] = -1;
+        }
         for (w = 0; w < 3; w++) {
             if (c->slope_ok[w]) {
-                w_start[nw] = pl->win[w].start;
-                w_end[nw] = pl->win[w].end;
-                w_idx[nw] = w;
-                nw++;
+                const uint16_t start = pl->win[w].start, end = pl->win[w].end;
+                for (s = 0; s < n && pl->seg_t[s] < start; s++) {
+                }
+                for (; s < n && pl->seg_t[s + 1] <= end; s++) {
+                    found[s] = w;
+                }
             }
         }
         for (s = 0; s < n; s++) {
             int16_t bits = pl->seg_state[s];
-            int16_t found = -1;
-            for (w = (int16_t)(nw - 1); w >= 0; w--) {
-                if (w_start[w] <= pl->seg_t[s] && w_end[w] >= pl->seg_t[s + 1]) {
-                    found = w_idx[w];
-                    break;
-                }
-            }
-            if (found >= 0) {
-                slope[s] = c->slope[found];
+            if (found[s] >= 0) {
+                slope[s] = c->slope[found[s]];
             } else if (bits == 0 || bits == 7) {
                 slope[s] = c->slope[FW_WIN_ZERO];
             } else {
@@ -268,7 +272,7 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
             }
             slope[s] = fw_cscale(slope[s], FW_TICK_S); /* A per tick */
             tb[s] = (real_t)pl->seg_t[s];
-            modelled[s] = (int16_t)(found < 0);
+            modelled[s] = (int16_t)(found[s] < 0);
         }
     }
     tb[n] = (real_t)pl->seg_t[n];
@@ -349,21 +353,28 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
             boundary_currents(tb, slope, n, ta, c->i_win[FW_WIN_ZERO], i_b);
         }
         for (s = 1; s < n; s++) {
-            int16_t changed = (int16_t)(pl->seg_state[s] ^ pl->seg_state[s - 1]);
-            real_t sum = FW_REAL(0.0);
-            int16_t x, cnt = 0;
-            for (x = 0; x < 3; x++) {
-                if ((changed >> x) & 1) {
-                    real_t i_x = (x == 0) ? i_b[s].re
-                                          : ((x == 1) ? fw_inverter_phase_b(i_b[s])
-                                                      : fw_inverter_phase_c(i_b[s]));
-                    real_t sgn = soft_sign_10ma(i_x);
-                    int16_t rising = (int16_t)((pl->seg_state[s] >> x) & 1);
-                    sum += td_half * (rising ? (FW_REAL(1.0) + sgn) : (FW_REAL(1.0) - sgn));
-                    cnt++;
+            const int16_t state = pl->seg_state[s];
+            const int16_t changed = (int16_t)(state ^ pl->seg_state[s - 1]);
+            if (changed == 1 || changed == 2 || changed == 4) {
+                /* one leg switched (every layout's edges but simultaneous ones): the mean of
+                 * one term, 0 + y = y and y / 1 = y for the y >= 0 it is */
+                const int16_t x = (int16_t)((changed == 1) ? 0 : ((changed == 2) ? 1 : 2));
+                real_t sgn = soft_sign_10ma(phase_current(i_b[s], x));
+                shift[s] = td_half * (((state >> x) & 1) ? (FW_REAL(1.0) + sgn)
+                                                         : (FW_REAL(1.0) - sgn));
+            } else {
+                real_t sum = FW_REAL(0.0);
+                int16_t x, cnt = 0;
+                for (x = 0; x < 3; x++) {
+                    if ((changed >> x) & 1) {
+                        real_t sgn = soft_sign_10ma(phase_current(i_b[s], x));
+                        int16_t rising = (int16_t)((state >> x) & 1);
+                        sum += td_half * (rising ? (FW_REAL(1.0) + sgn) : (FW_REAL(1.0) - sgn));
+                        cnt++;
+                    }
                 }
+                shift[s] = (cnt > 0) ? sum / (real_t)cnt : FW_REAL(0.0);
             }
-            shift[s] = (cnt > 0) ? sum / (real_t)cnt : FW_REAL(0.0);
         }
         for (s = 1; s < n; s++) {
             tb[s] += shift[s];
@@ -381,29 +392,36 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
 real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
 {
     const real_t P = (real_t)FW_P_TICKS;
-    real_t th = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
-    fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
-    fw_cplx_t rot = fw_cexpj(-th);
+    real_t th;
+    fw_cplx_t g, rot;
     fw_cplx_t vbar = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     fw_cplx_t r0 = fw_c(FW_REAL(0.0), FW_REAL(0.0)); /* ripple at the segment start, dq */
+    real_t p00 = FW_REAL(0.0); /* r0.re * r0.im / 3 (the end's term of the segment before) */
+    fw_cplx_t v_seg[FW_MAX_SEG];
+    real_t len_seg[FW_MAX_SEG];
     real_t acc = FW_REAL(0.0);
     int16_t s;
     if (pl->layout == FW_LAYOUT_OFF) {
         return FW_REAL(0.0);
     }
+    th = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
+    g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
+    rot = fw_cexpj(-th);
     for (s = 0; s < pl->n_seg; s++) {
-        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
-        vbar = fw_cadd(vbar, fw_cscale(fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc), len / P));
+        len_seg[s] = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
+        v_seg[s] = fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc);
+        vbar = fw_cadd(vbar, fw_cscale(v_seg[s], len_seg[s] / P));
     }
     for (s = 0; s < pl->n_seg; s++) {
-        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
-        fw_cplx_t dv = fw_csub(fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc), vbar);
+        real_t len = len_seg[s];
+        fw_cplx_t dv = fw_csub(v_seg[s], vbar);
         fw_cplx_t slope = fw_cadd(fw_cscale(dv, c->pe.gamma0_f), fw_cmul(g, fw_cconj(dv)));
         fw_cplx_t r1 = fw_cadd(r0, fw_cmul(fw_cscale(slope, len * FW_TICK_S), rot));
         /* exact integral of the product of two linear segments */
-        acc += len * (r0.re * r0.im / FW_REAL(3.0) +
-                      (r0.re * r1.im + r1.re * r0.im) / FW_REAL(6.0) + r1.re * r1.im / FW_REAL(3.0));
+        real_t p11 = r1.re * r1.im / FW_REAL(3.0);
+        acc += len * (p00 + (r0.re * r1.im + r1.re * r0.im) / FW_REAL(6.0) + p11);
         r0 = r1;
+        p00 = p11;
     }
     return acc / P;
 }

@@ -43,7 +43,7 @@ fw_cplx_t fw_inverter_drop_voltage(const fw_core_t *c, fw_cplx_t i0, fw_cplx_t i
 }
 
 /* the current of window w at its first and last sample (the stretch its slope was fitted on) */
-void fw_inverter_window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1)
+static inline void window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1)
 {
     const fw_window_t *win = &c->plan_cur.win[w];
     real_t t0 = (real_t)c->plan_cur.soc[win->soc_first] - c->slope_t[w];
@@ -52,11 +52,16 @@ void fw_inverter_window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cp
     *i1 = fw_cadd(c->i_win[w], fw_cscale(c->slope[w], t1 * FW_TICK_S));
 }
 
+void fw_inverter_window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1)
+{
+    window_span(c, w, i0, i1);
+}
+
 /* drop voltage over the sampled stretch of window w */
 fw_cplx_t fw_inverter_window_drop(const fw_core_t *c, int16_t w)
 {
     fw_cplx_t i0, i1;
-    fw_inverter_window_span(c, w, &i0, &i1);
+    window_span(c, w, &i0, &i1);
     return fw_inverter_drop_voltage(c, i0, i1);
 }
 

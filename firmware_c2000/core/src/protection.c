@@ -4,14 +4,6 @@
 /* the integer path of fw_protection_samples: converters of up to 20 bits (below) */
 #define FW_PROT_INT_HALF_MAX ((int32_t)1 << 19)
 
-/* A code minus the mid-scale code, for any int32 input: the subtraction is done in real_t
- * (an int32 difference overflows for codes near INT32_MIN). Exact for every code of a
- * converter of up to 24 bits (the float mantissa). */
-real_t fw_protection_adc_offset(int32_t code, int32_t adc_half)
-{
-    return (real_t)code - (real_t)adc_half;
-}
-
 static int16_t n_samples(const fw_adc_t *adc)
 {
     return (adc->n_soc < FW_MAX_SOC) ? adc->n_soc : (int16_t)FW_MAX_SOC;

@@ -53,29 +53,15 @@
  */
 #include "fw_internal.h"
 
-/* cos/sin of phi_k = (k-1)*60 deg and of 2*phi_k, k = 1..6 */
-static const real_t vec_cos[6] = {FW_REAL(1.0), FW_REAL(0.5), FW_REAL(-0.5),
-                                  FW_REAL(-1.0), FW_REAL(-0.5), FW_REAL(0.5)};
-static const real_t vec_sin[6] = {FW_REAL(0.0), FW_REAL(0.86602540378443864676),
-                                  FW_REAL(0.86602540378443864676), FW_REAL(0.0),
-                                  FW_REAL(-0.86602540378443864676),
-                                  FW_REAL(-0.86602540378443864676)};
+/* cos/sin of phi_k = (k-1)*60 deg, k = 1..6 (fw_svpwm_vec_unit, fw_svpwm_vec_unit2) */
+const real_t fw_svpwm_vec_cos[6] = {FW_REAL(1.0), FW_REAL(0.5), FW_REAL(-0.5),
+                                    FW_REAL(-1.0), FW_REAL(-0.5), FW_REAL(0.5)};
+const real_t fw_svpwm_vec_sin[6] = {FW_REAL(0.0), FW_REAL(0.86602540378443864676),
+                                    FW_REAL(0.86602540378443864676), FW_REAL(0.0),
+                                    FW_REAL(-0.86602540378443864676),
+                                    FW_REAL(-0.86602540378443864676)};
 /* switching states of V1..V6: 100, 110, 010, 011, 001, 101 (bit0 = a, bit1 = b, bit2 = c) */
-static const int16_t vec_bits[6] = {1, 3, 2, 6, 4, 5};
-
-fw_cplx_t fw_svpwm_vec_unit(int16_t k)
-{
-    int16_t i = (int16_t)((k - 1) % 6);
-    return fw_c(vec_cos[i], vec_sin[i]);
-}
-
-fw_cplx_t fw_svpwm_vec_unit2(int16_t k)
-{
-    int16_t i = (int16_t)((2 * (k - 1)) % 6);
-    return fw_c(vec_cos[i], vec_sin[i]);
-}
-
-int16_t fw_svpwm_vec_state(int16_t k) { return vec_bits[(k - 1) % 6]; }
+const int16_t fw_svpwm_vec_bits[6] = {1, 3, 2, 6, 4, 5};
 
 real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks)
 {

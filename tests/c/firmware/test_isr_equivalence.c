@@ -371,6 +371,158 @@ static void ref_plan_segments(fw_plan_t *pl)
     }
 }
 
+
+/* the unit vectors of the active vectors, as svpwm.c had them */
+static fw_cplx_t ref_vec_unit(int16_t k)
+{
+    static const real_t c6[6] = {FW_REAL(1.0), FW_REAL(0.5), FW_REAL(-0.5),
+                                 FW_REAL(-1.0), FW_REAL(-0.5), FW_REAL(0.5)};
+    static const real_t s6[6] = {FW_REAL(0.0), FW_REAL(0.86602540378443864676),
+                                 FW_REAL(0.86602540378443864676), FW_REAL(0.0),
+                                 FW_REAL(-0.86602540378443864676),
+                                 FW_REAL(-0.86602540378443864676)};
+    int16_t i = (int16_t)((k - 1) % 6);
+    return fw_c(c6[i], s6[i]);
+}
+
+static fw_cplx_t ref_vec_unit2(int16_t k) { return ref_vec_unit((int16_t)((2 * (k - 1)) % 6 + 1)); }
+
+static void ref_slope_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2],
+                  const real_t t[2], real_t kv, real_t omega, real_t gamma0_prior,
+                  fw_est_out_t *out)
+{
+    fw_cplx_t y[2], u[2];
+    int16_t k;
+
+    out->n_active = 0;
+    out->ok = 0;
+    out->residual = FW_REAL(0.0);
+    if (n_active < 1 || n_active > 2 || !(kv > FW_REAL(0.0))) {
+        return;
+    }
+    /* y_k = Di_k * exp(+j phi_k) / kv = Gamma0 * u_k + g,  u_k = exp(j 2 phi_k)  (section 3) */
+    for (k = 0; k < n_active; k++) {
+        y[k] = fw_cscale(fw_cmul(di[k], ref_vec_unit(vec[k])), FW_REAL(1.0) / kv);
+        u[k] = ref_vec_unit2(vec[k]);
+    }
+    if (n_active == 2) {
+        /* g rotates at 2*omega between the two windows: with r_k = exp(j 2 omega (t_k - t_ref))
+         * the model y_k = Gamma0 u_k + g r_k becomes w_k = Gamma0 v_k + g with w = y conj(r),
+         * v = u conj(r): the same closed form, now exact for a rotating rotor. */
+        real_t t_ref = FW_REAL(0.5) * (t[0] + t[1]);
+        fw_cplx_t w[2], v[2], d, dw;
+        real_t d2;
+        for (k = 0; k < 2; k++) {
+            fw_cplx_t rc = fw_cconj(fw_cexpj(FW_REAL(2.0) * omega * (t[k] - t_ref)));
+            w[k] = fw_cmul(y[k], rc);
+            v[k] = fw_cmul(u[k], rc);
+        }
+        d = fw_csub(v[0], v[1]);
+        dw = fw_csub(w[0], w[1]);
+        d2 = fw_cabs2(d);
+        if (!(d2 > FW_REAL(1e-6))) {
+            return;
+        }
+        {
+            fw_cplx_t p = fw_cmul(dw, fw_cconj(d));
+            out->gamma0 = p.re / d2;
+            out->residual = p.im / fw_sqrt(d2); /* the 4th equation, 1/H */
+            out->g = fw_csub(fw_cscale(fw_cadd(w[0], w[1]), FW_REAL(0.5)),
+                             fw_cscale(fw_cadd(v[0], v[1]), FW_REAL(0.5) * out->gamma0));
+        }
+        out->t_ref = t_ref;
+        out->n_active = 2;
+    } else {
+        /* single-vector fallback: g = y - Gamma0_bar * u */
+        out->gamma0 = gamma0_prior;
+        out->g = fw_csub(y[0], fw_cscale(u[0], gamma0_prior));
+        out->t_ref = t[0];
+        out->n_active = 1;
+    }
+    out->gamma1 = fw_cabs(out->g);
+    out->theta_raw = FW_REAL(0.5) * fw_atan2(out->g.im, out->g.re);
+    out->ok = (int16_t)(out->gamma0 > FW_REAL(0.0) && out->gamma1 > FW_REAL(0.0) &&
+                        out->gamma1 < out->gamma0);
+}
+
+static real_t ref_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
+{
+    const real_t P = (real_t)FW_P_TICKS;
+    real_t th = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
+    fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
+    fw_cplx_t rot = fw_cexpj(-th);
+    fw_cplx_t vbar = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    fw_cplx_t r0 = fw_c(FW_REAL(0.0), FW_REAL(0.0)); /* ripple at the segment start, dq */
+    real_t acc = FW_REAL(0.0);
+    int16_t s;
+    if (pl->layout == FW_LAYOUT_OFF) {
+        return FW_REAL(0.0);
+    }
+    for (s = 0; s < pl->n_seg; s++) {
+        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
+        vbar = fw_cadd(vbar, fw_cscale(ref_state_voltage(pl->seg_state[s], pl->vdc), len / P));
+    }
+    for (s = 0; s < pl->n_seg; s++) {
+        real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
+        fw_cplx_t dv = fw_csub(ref_state_voltage(pl->seg_state[s], pl->vdc), vbar);
+        fw_cplx_t slope = fw_cadd(fw_cscale(dv, c->pe.gamma0_f), fw_cmul(g, fw_cconj(dv)));
+        fw_cplx_t r1 = fw_cadd(r0, fw_cmul(fw_cscale(slope, len * FW_TICK_S), rot));
+        /* exact integral of the product of two linear segments */
+        acc += len * (r0.re * r0.im / FW_REAL(3.0) +
+                      (r0.re * r1.im + r1.re * r0.im) / FW_REAL(6.0) + r1.re * r1.im / FW_REAL(3.0));
+        r0 = r1;
+    }
+    return acc / P;
+}
+
+/* the learnt Lq curve's slope as param_estimator.c computed it (its constants: 50 updates
+ * make a bin learnt, 0.15 A the least spacing of the two points) */
+static real_t ref_inv_lq_slope(const fw_param_est_t *pe, real_t iq)
+{
+    real_t a = fw_fabs(iq);
+    int16_t lo = -1, hi = -1;
+    int16_t b;
+    real_t k, lim;
+    for (b = 0; b < FW_LQ_BINS; b++) {
+        if (pe->lq_bin_seen[b] < 50) {
+            continue;
+        }
+        if (pe->lq_bin_x[b] <= a) {
+            if (lo < 0 || pe->lq_bin_x[b] > pe->lq_bin_x[lo]) {
+                lo = b;
+            }
+        } else if (hi < 0 || pe->lq_bin_x[b] < pe->lq_bin_x[hi]) {
+            hi = b;
+        }
+    }
+    if (lo < 0 || hi < 0) {
+        int16_t n1 = (lo >= 0) ? lo : hi;
+        int16_t n2 = -1;
+        if (n1 < 0) {
+            return FW_REAL(0.0);
+        }
+        for (b = 0; b < FW_LQ_BINS; b++) {
+            if (b != n1 && pe->lq_bin_seen[b] >= 50 &&
+                (n2 < 0 || fw_fabs(pe->lq_bin_x[b] - pe->lq_bin_x[n1]) <
+                               fw_fabs(pe->lq_bin_x[n2] - pe->lq_bin_x[n1]))) {
+                n2 = b;
+            }
+        }
+        if (n2 < 0) {
+            return FW_REAL(0.0);
+        }
+        lo = (pe->lq_bin_x[n1] < pe->lq_bin_x[n2]) ? n1 : n2;
+        hi = (lo == n1) ? n2 : n1;
+    }
+    if (!(pe->lq_bin_x[hi] - pe->lq_bin_x[lo] >= 0.15f)) {
+        return FW_REAL(0.0);
+    }
+    k = (pe->lq_bin[hi] - pe->lq_bin[lo]) / (pe->lq_bin_x[hi] - pe->lq_bin_x[lo]);
+    lim = FW_REAL(0.6) * fw_max(pe->lq_bin[lo], pe->lq_bin[hi]);
+    k = fw_clamp(k, -lim, lim);
+    return (iq < FW_REAL(0.0)) ? -k : k;
+}
+
 /* ---- the checks ------------------------------------------------------------------------- */
 
 static void state_voltages(void)
@@ -605,6 +757,121 @@ static void reconstruction(void)
     free(r);
 }
 
+
+static int same_est(const fw_est_out_t *a, const fw_est_out_t *b)
+{
+    return a->n_active == b->n_active && a->ok == b->ok && same(a->theta_raw, b->theta_raw) &&
+           same(a->gamma0, b->gamma0) && same(a->gamma1, b->gamma1) && same_c(a->g, b->g) &&
+           same(a->residual, b->residual) && same(a->t_ref, b->t_ref);
+}
+
+static void slope_solutions(void)
+{
+    int it;
+    for (it = 0; it < 200000; it++) {
+        fw_est_out_t o_new, o_ref;
+        int16_t vec[2];
+        fw_cplx_t di[2];
+        real_t t[2];
+        const int16_t n = (int16_t)(1 + rnd_u32() % 2);
+        const real_t omega = (it % 9 == 0) ? FW_REAL(0.0) : rnd(-3000.0f, 3000.0f);
+        const real_t kv = rnd(100.0f, 170.0f), g0 = rnd(40.0f, 90.0f);
+        vec[0] = (int16_t)(1 + rnd_u32() % 6);
+        vec[1] = (int16_t)((vec[0] % 6) + 1);
+        di[0] = fw_c(rnd(-2e6f, 2e6f), rnd(-2e6f, 2e6f));
+        di[1] = fw_c(rnd(-2e6f, 2e6f), rnd(-2e6f, 2e6f));
+        /* mean sample times (s), whole ticks or not: t0 + t1 exact or not */
+        t[0] = (real_t)(rnd_u32() % 10000u) * FW_TICK_S;
+        t[1] = (it % 2) ? (real_t)(rnd_u32() % 10000u) * FW_TICK_S : rnd(0.0f, 1e-4f);
+        memset(&o_new, 0x5A, sizeof o_new);
+        memset(&o_ref, 0x5A, sizeof o_ref);
+        fw_slope_solve(n, vec, di, t, kv, omega, g0, &o_new);
+        ref_slope_solve(n, vec, di, t, kv, omega, g0, &o_ref);
+        CHECK(same_est(&o_new, &o_ref), "solve case %d", it);
+    }
+}
+
+static void window_drops(void)
+{
+    fw_core_t *c = (fw_core_t *)calloc(1, sizeof *c);
+    int it;
+    fw_core_init(c);
+    for (it = 0; it < 100000; it++) {
+        int16_t w;
+        do {
+            random_plan(c, &c->plan_cur, (uint32_t)it);
+        } while (c->plan_cur.n_soc_windows == 0);
+        c->p[FW_IDX_VDROP_V] = rnd(0.5f, 2.0f);
+        for (w = 0; w < 3; w++) {
+            if (!c->plan_cur.win[w].measured) {
+                continue;
+            }
+            c->slope[w] = fw_c(rnd(-3000.0f, 3000.0f), rnd(-3000.0f, 3000.0f));
+            c->slope_t[w] = window_t_mean(&c->plan_cur, w);
+            c->i_win[w] = fw_c(rnd(-0.01f, 0.01f), rnd(-0.01f, 0.01f));
+            CHECK(same_c(fw_inverter_window_drop(c, w), ref_window_drop(c, w)), "window %d", w);
+        }
+    }
+    free(c);
+}
+
+static void ripple_products(void)
+{
+    fw_core_t *c = (fw_core_t *)calloc(1, sizeof *c);
+    int it;
+    fw_core_init(c);
+    for (it = 0; it < 100000; it++) {
+        fw_plan_t pl;
+        random_plan(c, &pl, (uint32_t)it);
+        if (it % 50 == 0) {
+            fw_svpwm_plan_off(&pl, FW_REAL(200.0));
+        }
+        c->trk.init = (int16_t)(rnd_u32() % 4 != 0);
+        c->trk.theta = rnd(0.0f, FW_M_2PI);
+        c->trk.omega = rnd(-2000.0f, 2000.0f);
+        c->trk.age_ticks = -(int32_t)(rnd_u32() % 10000u);
+        c->pe.gamma0_f = rnd(50.0f, 80.0f);
+        c->pe.gamma1_f = rnd(-6.0f, 6.0f);
+        CHECK(same(fw_recon_ripple_dq_product(c, &pl), ref_ripple_dq_product(c, &pl)),
+              "ripple case %d", it);
+    }
+    free(c);
+}
+
+static void lq_slopes(void)
+{
+    fw_param_est_t pe;
+    int it;
+    memset(&pe, 0, sizeof pe);
+    pe.bin_width = FW_REAL(4.5) / (real_t)FW_LQ_BINS;
+    for (it = 0; it < 200000; it++) {
+        int16_t b;
+        const int kind = it % 5; /* 0-1 points rising with the bin, 2 any order, 3 ties, 4 near */
+        for (b = 0; b < FW_LQ_BINS; b++) {
+            pe.lq_bin_seen[b] = (int16_t)((rnd_u32() % 3 == 0) ? 50 + rnd_u32() % 100 : rnd_u32() % 60);
+            pe.lq_bin[b] = rnd(30.0f, 80.0f);
+            pe.lq_bin_x[b] = ((real_t)b + rnd(0.0f, 1.0f)) * pe.bin_width;
+            if (kind == 2) {
+                pe.lq_bin_x[b] = rnd(0.0f, 4.5f);
+            } else if (kind == 3 && b > 0 && rnd_u32() % 3 == 0) {
+                pe.lq_bin_x[b] = pe.lq_bin_x[b - 1];
+            } else if (kind == 4) {
+                /* rising points a unit in the last place apart, and the last one far: their
+                 * distances to it round alike (the lowest bin of equal ones counts) */
+                pe.lq_bin_x[b] = (b == FW_LQ_BINS - 1) ? FW_REAL(4.4)
+                                                       : FW_REAL(0.5) + (real_t)b * 6.0e-8f;
+            }
+        }
+        {
+            const real_t iq = (kind == 4)     ? FW_REAL(4.6)
+                              : (it % 7 == 0) ? pe.lq_bin_x[rnd_u32() % FW_LQ_BINS]
+                                              : rnd(-5.0f, 5.0f);
+            CHECK(same(fw_paramest_inv_lq_slope(&pe, iq), ref_inv_lq_slope(&pe, iq)),
+                  "Lq slope case %d at %g", it, (double)iq);
+        }
+    }
+}
+
 int main(void)
 {
     state_voltages();
@@ -612,5 +879,9 @@ int main(void)
     drop_voltages();
     segments_and_socs();
     reconstruction();
+    slope_solutions();
+    window_drops();
+    ripple_products();
+    lq_slopes();
     TEST_DONE();
 }
