@@ -109,36 +109,48 @@ static void integrate_segments(const real_t *tb, const fw_cplx_t *slope, int16_t
  * (ta, i_a), each the sum of the segments from the anchor to the boundary, added from the
  * earliest segment on, as the reconstruction was defined (bit for bit: the order fixes the
  * rounding): after the anchor the sums share their prefixes and run forward; before it each
- * one starts anew at the anchor's current with its own earliest segment (a few terms). */
+ * one starts anew at the anchor's current with its own earliest segment (a few terms). Only
+ * the boundaries whose sums hold a segment of s_lo..s_hi are (re)computed: the others keep
+ * the bits they have when only those segments' slopes changed. */
 static void boundary_currents(const real_t *tb, const fw_cplx_t *slope, int16_t n, real_t ta,
-                              fw_cplx_t i_a, fw_cplx_t *i_b)
+                              fw_cplx_t i_a, fw_cplx_t *i_b, int32_t s_lo, int32_t s_hi)
 {
     fw_cplx_t back[FW_MAX_SEG]; /* segment s's share between tb[s] and the anchor */
     int16_t has_back[FW_MAX_SEG];
     int32_t kf = 0; /* the first boundary at or after the anchor */
-    int32_t k, s, n_back;
-    fw_cplx_t f = i_a;
+    int32_t k, s, n_back, k_end, k0;
+    fw_cplx_t f;
     while (kf <= n && tb[kf] < ta) {
         kf++;
     }
     n_back = (kf < n) ? kf : n;
-    for (s = 0; s < n_back; s++) {
-        real_t hi = fw_min(tb[s + 1], ta);
-        has_back[s] = (int16_t)(hi > tb[s]);
-        if (has_back[s]) {
-            back[s] = fw_cscale(slope[s], tb[s] - hi);
-        }
-    }
-    for (k = 0; k < kf; k++) {
-        fw_cplx_t i = i_a;
-        for (s = k; s < n_back; s++) {
+    /* before the anchor: boundary k holds segments k..n_back-1 */
+    k_end = (s_lo < n_back) ? ((s_hi < n_back - 1) ? s_hi : n_back - 1) : -1;
+    if (k_end >= 0) {
+        for (s = 0; s < n_back; s++) {
+            real_t hi = fw_min(tb[s + 1], ta);
+            has_back[s] = (int16_t)(hi > tb[s]);
             if (has_back[s]) {
-                i = fw_cadd(i, back[s]);
+                back[s] = fw_cscale(slope[s], tb[s] - hi);
             }
         }
-        i_b[k] = i;
+        for (k = 0; k <= k_end; k++) {
+            fw_cplx_t i = i_a;
+            for (s = k; s < n_back; s++) {
+                if (has_back[s]) {
+                    i = fw_cadd(i, back[s]);
+                }
+            }
+            i_b[k] = i;
+        }
     }
-    for (k = kf; k <= n; k++) {
+    /* from the anchor on: boundary k holds segments kf-1..k-1 */
+    if (s_hi < kf - 1) {
+        return;
+    }
+    k0 = (s_lo + 1 > kf) ? s_lo + 1 : kf;
+    f = (k0 == kf) ? i_a : i_b[k0 - 1];
+    for (k = k0; k <= n; k++) {
         if (k > 0) {
             real_t lo = fw_max(tb[k - 1], ta);
             if (tb[k] > lo) {
@@ -283,7 +295,7 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
     if (c->p[FW_IDX_VDROP_V] > FW_REAL(0.0)) {
         real_t sgn0[3];
         int16_t clear0 = 0;
-        int16_t all_same = 1; /* every modelled segment has the zero window's drop */
+        int32_t ch_lo = n, ch_hi = -1; /* the segments whose slope bits change */
         fw_cplx_t u0 = fw_c(FW_REAL(0.0), FW_REAL(0.0));
         int16_t have_u0 = 0;
         int16_t same_prev = 0; /* boundary s has the zero window's signs */
@@ -294,7 +306,7 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
             clear0 = (int16_t)(clear_signs(z0, sgn0) && clear_signs(z1, sgn1) &&
                                sgn0[0] == sgn1[0] && sgn0[1] == sgn1[1] && sgn0[2] == sgn1[2]);
         }
-        boundary_currents(tb, slope, n, ta, c->i_win[FW_WIN_ZERO], i_b);
+        boundary_currents(tb, slope, n, ta, c->i_win[FW_WIN_ZERO], i_b, 0, n - 1);
         have_i_b = 1;
         for (s = 0; s < n; s++) {
             int16_t same_next;
@@ -306,7 +318,8 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
             if (!modelled[s]) {
                 /* x + (0, 0) below: x, unless x has a zero (its sign) */
                 if (slope[s].re == FW_REAL(0.0) || slope[s].im == FW_REAL(0.0)) {
-                    all_same = 0;
+                    ch_lo = (s < ch_lo) ? s : ch_lo;
+                    ch_hi = s;
                 }
                 slope[s] = fw_cadd(slope[s], fw_c(FW_REAL(0.0), FW_REAL(0.0)));
                 continue;
@@ -329,14 +342,17 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
                 /* a zero correction leaves a slope without zeros as it was */
                 if (!(corr.re == FW_REAL(0.0) && corr.im == FW_REAL(0.0) &&
                       slope[s].re != FW_REAL(0.0) && slope[s].im != FW_REAL(0.0))) {
-                    all_same = 0;
+                    ch_lo = (s < ch_lo) ? s : ch_lo;
+                    ch_hi = s;
                 }
                 slope[s] = fw_cadd(slope[s], corr);
                 same_prev = same_next;
             }
         }
-        /* unchanged slopes: the boundary currents stand */
-        have_i_b = all_same;
+        /* the boundary currents of the changed slopes again (those of the others stand) */
+        if (ch_hi >= 0 && td > FW_REAL(0.0)) {
+            boundary_currents(tb, slope, n, ta, c->i_win[FW_WIN_ZERO], i_b, ch_lo, ch_hi);
+        }
     }
     /* Dead time: a leg's turn-on edge takes effect td late when its current flows out of the
      * leg (the lower diode holds it low), its turn-off edge td late when the current flows in
@@ -350,7 +366,7 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
         real_t shift[FW_MAX_SEG + 1];
         const real_t td_half = td * FW_REAL(0.5);
         if (!have_i_b) {
-            boundary_currents(tb, slope, n, ta, c->i_win[FW_WIN_ZERO], i_b);
+            boundary_currents(tb, slope, n, ta, c->i_win[FW_WIN_ZERO], i_b, 0, n - 1);
         }
         for (s = 1; s < n; s++) {
             const int16_t state = pl->seg_state[s];
