@@ -92,10 +92,34 @@ fw_cplx_t fw_inverter_window_drop(const fw_core_t *c, int16_t w);
 fw_cplx_t fw_inverter_error(const fw_core_t *c);
 
 /* ---- current_recon.c: the period's current from its samples ------------------------------- */
-/* c->i_avg (period mean) and c->i_end from the samples of c->plan_cur and the slopes */
-void fw_recon_current(fw_core_t *c, const fw_adc_t *adc);
+/* an angle and its fw_cexpj, once computed, for the others who need it in the same period */
+typedef struct {
+    int16_t valid; /* e is fw_cexpj(th) (th is always set) */
+    real_t th;     /* rad */
+    fw_cplx_t e;
+} fw_angle_t;
+/* fw_cexpj(-a->th) without its own reduction when a is valid: the conjugate of a->e, bit for
+ * bit, where both its components are nonzero and finite (fw_sincos is odd in x except where
+ * its reduced argument is zero, which leaves one component a zero) */
+static inline fw_cplx_t fw_angle_conj(const fw_angle_t *a)
+{
+    const fw_cplx_t e = a->e;
+    if (a->valid && e.re != FW_REAL(0.0) && e.im != FW_REAL(0.0) && fw_is_finite(e.re) &&
+        fw_is_finite(e.im)) {
+        return fw_cconj(e);
+    }
+    return fw_cexpj(-a->th);
+}
+/* c->i_avg (period mean) and c->i_end from the samples of c->plan_cur and the slopes; mid2,
+ * when valid: the tracker's angle at the period's middle doubled with its fw_cexpj (else it is
+ * predicted here) */
+void fw_recon_current(fw_core_t *c, const fw_adc_t *adc, const fw_angle_t *mid2);
 /* mean over pattern pl of the product of the dq components of its current ripple, A^2 */
 real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl);
+/* the same with the tracker's angle at the next period's middle and its fw_cexpj given
+ * (the current loop's, fw_core.c) */
+real_t fw_recon_ripple_dq_product_at(const fw_core_t *c, const fw_plan_t *pl,
+                                     const fw_angle_t *mid_next);
 
 /* ---- outer_loop.c: the 1 kHz tasks -------------------------------------------------------- */
 /* ld_use, lq_use, lambda_use of the selected MTPA/FW mode */

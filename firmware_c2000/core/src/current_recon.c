@@ -8,12 +8,11 @@
  * + r(t), where r is the ripple of the pattern about its mean voltage, Gamma(theta) (v_seg -
  * v_mean) integrated, which needs no back-EMF; i0 and the mean slope s are fitted by least
  * squares to the samples minus r, and the period mean and end follow from the fit plus r. */
-static void recon_fit(fw_core_t *c, const fw_adc_t *adc)
+static void recon_fit(fw_core_t *c, const fw_adc_t *adc, const fw_angle_t *mid2)
 {
     const fw_plan_t *pl = &c->plan_cur;
     const real_t P = (real_t)FW_P_TICKS;
-    real_t th = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
-    fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
+    fw_cplx_t g;
     real_t gamma0 = c->pe.gamma0_f;
     fw_cplx_t vbar = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     fw_cplx_t v_seg[FW_MAX_SEG];
@@ -23,6 +22,12 @@ static void recon_fit(fw_core_t *c, const fw_adc_t *adc)
     fw_cplx_t y_sum = fw_c(FW_REAL(0.0), FW_REAL(0.0)), ty_sum = y_sum;
     real_t t_sum = FW_REAL(0.0), tt_sum = FW_REAL(0.0);
     int16_t s, k, n = 0;
+    if (mid2 != 0 && mid2->valid) {
+        g = fw_cscale(mid2->e, c->pe.gamma1_f);
+    } else {
+        real_t th = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
+        g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
+    }
     for (s = 0; s < pl->n_seg; s++) {
         real_t len = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
         v_seg[s] = fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc);
@@ -213,7 +218,7 @@ static real_t soft_sign_10ma(real_t i)
  * segment: measured slopes where measured, else s0 + Gamma*v (Gamma from the estimate). With
  * w(tau) = P - tau after the anchor and -tau before it, mean = i(t_a) + (1/P) sum s_seg *
  * integral_seg w. */
-void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
+void fw_recon_current(fw_core_t *c, const fw_adc_t *adc, const fw_angle_t *mid2)
 {
     const fw_plan_t *pl = &c->plan_cur;
     const int16_t n = pl->n_seg;
@@ -229,7 +234,7 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
     int16_t s;
 
     if (!c->slope_ok[FW_WIN_ZERO] && pl->layout != FW_LAYOUT_OFF && adc->n_soc >= 2) {
-        recon_fit(c, adc);
+        recon_fit(c, adc, mid2);
         return;
     }
     if (!c->slope_ok[FW_WIN_ZERO]) {
@@ -250,7 +255,11 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
         g = c->est.g;
     } else {
         gamma0 = c->pe.gamma0_f;
-        g = fw_cscale(fw_cexpj(FW_REAL(2.0) * c->theta_hat), c->pe.gamma1_f);
+        /* theta_hat is the middle's angle when the tracker was not updated (fw_core.c) */
+        g = fw_cscale((mid2 != 0 && mid2->valid && FW_REAL(2.0) * c->theta_hat == mid2->th)
+                          ? mid2->e
+                          : fw_cexpj(FW_REAL(2.0) * c->theta_hat),
+                      c->pe.gamma1_f);
     }
     /* the slope of every switching state: measured where it was (the last measured window
      * that covers it: windows and segments are both in time order, so each window's covered
@@ -405,7 +414,8 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc)
  * out). The A and B halves of a pair have opposite ripples and the same product. At
  * standstill it is ~1e-4 N*m and changes with the sector: unmodelled, it moved the shaft by
  * ~1 r/min against a position tracker of 0.5 Hz. */
-real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
+static real_t ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl,
+                                const fw_angle_t *mid_next)
 {
     const real_t P = (real_t)FW_P_TICKS;
     real_t th;
@@ -420,9 +430,14 @@ real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
     if (pl->layout == FW_LAYOUT_OFF) {
         return FW_REAL(0.0);
     }
-    th = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
+    if (mid_next != 0) {
+        th = mid_next->th;
+        rot = fw_angle_conj(mid_next);
+    } else {
+        th = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
+        rot = fw_cexpj(-th);
+    }
     g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
-    rot = fw_cexpj(-th);
     for (s = 0; s < pl->n_seg; s++) {
         len_seg[s] = (real_t)(pl->seg_t[s + 1] - pl->seg_t[s]);
         v_seg[s] = fw_svpwm_state_voltage(pl->seg_state[s], pl->vdc);
@@ -440,4 +455,15 @@ real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
         p00 = p11;
     }
     return acc / P;
+}
+
+real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
+{
+    return ripple_dq_product(c, pl, 0);
+}
+
+real_t fw_recon_ripple_dq_product_at(const fw_core_t *c, const fw_plan_t *pl,
+                                     const fw_angle_t *mid_next)
+{
+    return ripple_dq_product(c, pl, mid_next);
 }

@@ -445,10 +445,9 @@ static void ref_slope_solve(int16_t n_active, const int16_t vec[2], const fw_cpl
                         out->gamma1 < out->gamma0);
 }
 
-static real_t ref_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
+static real_t ref_ripple_at(const fw_core_t *c, const fw_plan_t *pl, real_t th)
 {
     const real_t P = (real_t)FW_P_TICKS;
-    real_t th = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
     fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th), c->pe.gamma1_f);
     fw_cplx_t rot = fw_cexpj(-th);
     fw_cplx_t vbar = fw_c(FW_REAL(0.0), FW_REAL(0.0));
@@ -473,6 +472,13 @@ static real_t ref_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
         r0 = r1;
     }
     return acc / P;
+}
+
+static real_t ref_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl)
+{
+    return ref_ripple_at(c, pl,
+                         c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS)
+                                     : FW_REAL(0.0));
 }
 
 /* the learnt Lq curve's slope as param_estimator.c computed it (its constants: 50 updates
@@ -740,7 +746,21 @@ static void reconstruction(void)
             fit++;
         }
         *r = *c;
-        fw_recon_current(c, &adc);
+        {
+            /* the middle angle handed over as fw_core.c does (when the tracker kept it) */
+            fw_angle_t mid2 = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
+            if (it % 2 == 0) {
+                real_t th = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
+                mid2.valid = 1;
+                mid2.th = FW_REAL(2.0) * th;
+                mid2.e = fw_cexpj(mid2.th);
+                if (it % 4 == 0) {
+                    c->theta_hat = th;
+                    r->theta_hat = th;
+                }
+            }
+            fw_recon_current(c, &adc, &mid2);
+        }
         ref_recon_current(r, &adc);
         CHECK(same_c(c->i_avg, r->i_avg) && same_c(c->i_end, r->i_end),
               "case %d: mean (%.9g, %.9g) vs (%.9g, %.9g), end (%.9g, %.9g) vs (%.9g, %.9g)", it,
@@ -834,6 +854,29 @@ static void ripple_products(void)
         c->pe.gamma1_f = rnd(-6.0f, 6.0f);
         CHECK(same(fw_recon_ripple_dq_product(c, &pl), ref_ripple_dq_product(c, &pl)),
               "ripple case %d", it);
+        {
+            /* with the current loop's angle and its fw_cexpj (fw_core.c), also at zero and
+             * whole quarter turns, where the conjugate differs from the rotation in a zero's
+             * sign (fw_angle_conj computes it there; the product hides that sign anyway) */
+            fw_angle_t at;
+            at.th = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
+            if (it % 10 == 0) {
+                at.th = (real_t)(it % 40 / 10) * FW_REAL(1.57080078125);
+                c->trk.init = 0;
+            }
+            at.e = fw_cexpj(at.th);
+            at.valid = 1;
+            if (it % 10 == 0) {
+                /* the reference predicts: give it the same angle */
+                CHECK(same(fw_recon_ripple_dq_product_at(c, &pl, &at),
+                           ref_ripple_at(c, &pl, at.th)),
+                      "ripple at a quarter turn, case %d", it);
+            } else {
+                CHECK(same(fw_recon_ripple_dq_product_at(c, &pl, &at),
+                           ref_ripple_dq_product(c, &pl)),
+                      "ripple with the loop's angle, case %d", it);
+            }
+        }
     }
     free(c);
 }
