@@ -267,7 +267,7 @@ void fw_recon_current(fw_core_t *c, const fw_adc_t *adc, const fw_angle_t *mid2)
     {
         int16_t found[FW_MAX_SEG];
         int16_t w;
-        for (s = 0; s < n; s++) {
+        for (s = 0; s < FW_MAX_SEG; s++) { /* (a fixed count: stores, not a memset call) */
             found[s] = -1;
         }
         for (w = 0; w < 3; w++) {

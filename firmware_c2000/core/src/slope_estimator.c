@@ -16,13 +16,19 @@ int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, i
     real_t sa, sb, ia, ib;
     int32_t a0, b0;
 
-    if (!win->measured || n < 2 || first + n > adc->n_soc) {
+    if (!win->measured || n < 2 || first + n > adc->n_soc || first + n > FW_MAX_SOC) {
         return 0;
     }
     a0 = adc->ia[first];
     b0 = adc->ib[first];
-    for (k = 0; k < n; k++) {
-        t_sum += (real_t)plan->soc[first + k];
+    {
+        /* at most FW_MAX_SOC (16) SOCs of 16 bits: every partial sum is a whole number below
+         * 2^24, so the integer sum is the float sum */
+        int32_t ticks = 0;
+        for (k = 0; k < n; k++) {
+            ticks += (int32_t)plan->soc[first + k];
+        }
+        t_sum = (real_t)ticks;
     }
     t_bar = t_sum / (real_t)n;
     /* Least squares on code differences: integer subtraction first, so a 24-bit converter
