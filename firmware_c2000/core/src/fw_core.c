@@ -165,8 +165,8 @@ int16_t fw_core_set_limits(fw_core_t *c, real_t i_max, real_t speed_max_rpm, rea
 /* Slopes, least-squares estimate and tracker for the period just measured; with by_flux the
  * flux estimator updates the tracker this period and only the branch is taken here. Returns 1
  * when the period counted as implausible. mid2: the tracker's angle at the period's middle,
- * doubled, with its fw_cexpj, and mid its fw_cexpj(-angle), valid while the tracker is as they
- * found it (the current reconstruction and the controlled current take them from here). */
+ * doubled, with its fw_cexpj, and mid_conj its fw_cexpj(-angle), valid while the tracker is as
+ * they found it (the current reconstruction and the controlled current take them from here). */
 static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_flux,
                                  fw_angle_t *mid2, fw_cplx_t *mid_conj)
 {
@@ -683,7 +683,8 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
                 rot_m = fw_cexpj(-th_mid);
             }
             g = fw_cscale(rot2, c->pe.gamma1_f);
-            i_ctl = fw_csub(c->i_avg, fw_cadd(fw_cscale(q, c->pe.gamma0_f), fw_cmul(g, fw_cconj(q))));
+            i_ctl = fw_csub(c->i_avg,
+                            fw_cadd(fw_cscale(q, c->pe.gamma0_f), fw_cmul(g, fw_cconj(q))));
             idq = fw_cmul(i_ctl, rot_m);
             c->id = idq.re;
             c->iq = idq.im;
