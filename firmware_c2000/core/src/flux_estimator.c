@@ -32,11 +32,8 @@ void fw_flux_reset(fw_flux_t *f, real_t lambda_nom)
 /* The low-pass estimate forgets its start (zero, or the flux of another speed) as
  * exp(-settle_tc): before a few time constants its angle is not the rotor's. Measured on the
  * paper profile, 2 N*m load step at 1 r/min: the speed swept through 300 r/min backwards within
- * 12 ms, the hand-over took the unsettled angle (66 deg off) and the drive tripped. */
-int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc)
-{
-    return (int16_t)(f->active && f->settle_tc >= settle_tc);
-}
+ * 12 ms, the hand-over took the unsettled angle (66 deg off) and the drive tripped. Hence
+ * fw_flux_settled (inline in fw_internal.h): active for settle_tc time constants. */
 
 void fw_flux_seed(fw_flux_t *f, fw_cplx_t psi, real_t omega, real_t ratio, real_t omega_min,
                   real_t settle_tc)

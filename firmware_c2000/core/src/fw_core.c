@@ -174,8 +174,11 @@ int16_t fw_core_set_limits(fw_core_t *c, real_t i_max, real_t speed_max_rpm, rea
 
 /* Slopes, least-squares estimate and tracker for the period just measured; with by_flux the
  * flux estimator updates the tracker this period and only the branch is taken here. Returns 1
- * when the period counted as implausible. */
-static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_flux)
+ * when the period counted as implausible. mid2: the tracker's angle at the period's middle,
+ * doubled, with its fw_cexpj, and mid_conj its fw_cexpj(-angle), valid while the tracker is as
+ * they found it (the current reconstruction and the controlled current take them from here). */
+static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_flux,
+                                 fw_angle_t *mid2, fw_cplx_t *mid_conj)
 {
     const real_t *p = c->p;
     fw_plan_t *pl = &c->plan_cur;
@@ -188,6 +191,7 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
     int16_t bad = 0;
     int16_t updated = 0;
 
+    mid2->valid = 0;
     for (w = 0; w < 3; w++) {
         c->slope_ok[w] = fw_slope_window(pl, w, adc, c->adc_half, c->adc_i_lsb, &c->slope[w],
                                          &c->slope_t[w], &c->i_win[w]);
@@ -206,6 +210,12 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
         real_t th_mid = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
         fw_cplx_t rot2 = fw_cexpj(FW_REAL(2.0) * th_mid);
         fw_cplx_t rot_m = fw_cexpj(-th_mid);
+        fw_cplx_t u0 = fw_c(FW_REAL(0.0), FW_REAL(0.0)); /* the zero window's drop, once */
+        int16_t have_u0 = 0;
+        mid2->valid = 1;
+        mid2->th = FW_REAL(2.0) * th_mid;
+        mid2->e = rot2;
+        *mid_conj = rot_m;
         for (w = FW_WIN_ODD; w <= FW_WIN_EVEN; w++) {
             if (c->slope_ok[w]) {
                 vec[n_act] = pl->win[w].vec;
@@ -218,8 +228,12 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
                      * N*m, 1 r/min: +-2.5 deg of raw bias for 0.3 s around each phase-current
                      * zero crossing) */
                     fw_cplx_t g_f = fw_cscale(rot2, c->pe.gamma1_f);
-                    fw_cplx_t du = fw_csub(fw_inverter_window_drop(c, w),
-                                           fw_inverter_window_drop(c, FW_WIN_ZERO));
+                    fw_cplx_t du;
+                    if (!have_u0) {
+                        u0 = fw_inverter_window_drop(c, FW_WIN_ZERO);
+                        have_u0 = 1;
+                    }
+                    du = fw_csub(fw_inverter_window_drop(c, w), u0);
                     di[n_act] = fw_csub(di[n_act], fw_slope_gamma_times(c->pe.gamma0_f, g_f, du));
                 }
                 if (kappa != FW_REAL(0.0)) {
@@ -286,11 +300,15 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
         if (updated) {
             c->stamp = (int16_t)stamp;
             c->theta_hat = c->trk.theta;
+            mid2->valid = 0; /* the tracker moved on */
         }
     }
     if (!updated) {
         c->stamp = (int16_t)FW_H_TICKS;
-        c->theta_hat = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
+        /* (half the doubled middle angle is the angle, exactly) */
+        c->theta_hat = mid2->valid ? FW_REAL(0.5) * mid2->th
+                                   : (c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS)
+                                                  : FW_REAL(0.0));
     }
     if (bad) {
         c->est_reject_count++;
@@ -638,8 +656,9 @@ static void output_voltage(fw_core_t *c, fw_cplx_t v_ab, uint32_t next_period, f
     fw_svpwm_to_pwm(&c->plan_next, next_period, 1, pwm);
 }
 
-/* current control in the estimated frame -> alpha-beta voltage for the next period */
-static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data)
+/* current control in the estimated frame -> alpha-beta voltage for the next period; the
+ * angle it is rotated with (the middle of the next period) and its fw_cexpj into *apply */
+static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data, fw_angle_t *apply)
 {
     const real_t *p = c->p;
     real_t theta_apply;
@@ -657,7 +676,10 @@ static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data)
     c->v_mag_f += FW_REAL(0.05) * (u_mag - c->v_mag_f);
     /* the voltage acts during period k+1: rotate with the angle at its middle */
     theta_apply = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
-    return fw_cmul(fw_c(vd, vq), fw_cexpj(theta_apply));
+    apply->th = theta_apply;
+    apply->e = fw_cexpj(theta_apply);
+    apply->valid = 1;
+    return fw_cmul(fw_c(vd, vq), apply->e);
 }
 
 void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
@@ -668,6 +690,9 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     int16_t bad_est = 0;
     fw_polarity_out_t pol_out;
     int16_t slow;
+    fw_angle_t mid2 = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
+    fw_angle_t apply = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
+    fw_cplx_t mid_conj = {FW_REAL(0.0), FW_REAL(0.0)};
 
     if (c == 0 || pwm == 0) {
         return;
@@ -758,18 +783,27 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     if (data_ok) {
         int16_t by_flux = flux_carries_position(c);
         c->flux_pos_active = by_flux;
-        bad_est = estimate_position(c, adc, by_flux);
-        fw_recon_current(c, adc);
+        bad_est = estimate_position(c, adc, by_flux, &mid2, &mid_conj);
+        fw_recon_current(c, adc, &mid2);
         {
             /* the controlled current: the period mean without the ripple the pattern's dipole
              * adds (Gamma(theta) Q, svpwm.c), i.e. the mean of the period's start and end
              * currents; an A/B pair's dipoles cancel, so its mean torque is this current's */
-            real_t th_mid = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
             fw_cplx_t q = c->plan_cur.dipole;
-            fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th_mid), c->pe.gamma1_f);
-            fw_cplx_t i_ctl = fw_csub(c->i_avg, fw_cadd(fw_cscale(q, c->pe.gamma0_f),
-                                                        fw_cmul(g, fw_cconj(q))));
-            fw_cplx_t idq = fw_cmul(i_ctl, fw_cexpj(-th_mid));
+            fw_cplx_t rot2, rot_m, g, i_ctl, idq;
+            if (mid2.valid) { /* the tracker is as estimate_position found it */
+                rot2 = mid2.e;
+                rot_m = mid_conj;
+            } else {
+                real_t th_mid =
+                    c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
+                rot2 = fw_cexpj(FW_REAL(2.0) * th_mid);
+                rot_m = fw_cexpj(-th_mid);
+            }
+            g = fw_cscale(rot2, c->pe.gamma1_f);
+            i_ctl = fw_csub(c->i_avg,
+                            fw_cadd(fw_cscale(q, c->pe.gamma0_f), fw_cmul(g, fw_cconj(q))));
+            idq = fw_cmul(i_ctl, rot_m);
             c->id = idq.re;
             c->iq = idq.im;
         }
@@ -859,13 +893,13 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             } else {
                 fw_outer_select_parameters(c);
             }
-            output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+            output_voltage(c, current_loop(c, data_ok, &apply), k + 1u, pwm);
             break;
         }
         fw_outer_select_parameters(c);
         c->id_ref = pol_out.id;
         c->iq_ref = pol_out.iq;
-        output_voltage(c, fw_cadd(current_loop(c, data_ok), pol_out.v_ff), k + 1u, pwm);
+        output_voltage(c, fw_cadd(current_loop(c, data_ok, &apply), pol_out.v_ff), k + 1u, pwm);
         break;
     }
     case FW_STATE_RUN:
@@ -881,7 +915,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         if (slow) {
             fw_outer_step(c);
         }
-        output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+        output_voltage(c, current_loop(c, data_ok, &apply), k + 1u, pwm);
         break;
     default:
         reset_control(c);
@@ -900,7 +934,8 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         /* plus the reluctance torque of the next pattern's current ripple (its mean over the
          * period, with the incremental inductances the ripple sees) */
         c->te_ripple = FW_REAL(1.5) * p[FW_IDX_POLE_PAIRS] * (c->pe.ld_inc - c->pe.lq_inc) *
-                       fw_recon_ripple_dq_product(c, &c->plan_next);
+                       (apply.valid ? fw_recon_ripple_dq_product_at(c, &c->plan_next, &apply)
+                                    : fw_recon_ripple_dq_product(c, &c->plan_next));
     } else {
         c->te_hat = FW_REAL(0.0);
         c->te_model = FW_REAL(0.0);
