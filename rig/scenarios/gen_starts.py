@@ -184,15 +184,26 @@ XFAIL: dict[tuple[str, str, str], str] = {
     ("start_fly_p3000", "ideal", "position error"): _FW_3000.format(v="1.04"),
     ("start_fly_m3000", "ideal", "position error"): _FW_3000.format(v="1.02"),
 }
+# Decided over their own seeds (worst of eight): at rated load the start sits at the edge of
+# the saliency the slopes need, where one draw of the noise can lose the position once
+OWN_SEEDS = {"start_load_p2nm_040deg": 8, "start_load_m2nm_200deg": 8}
+_EDGE = ("measured {v} worst of seeds 1-8 ({which}): at -2 N*m one start in eight (seed 3) "
+         "loses the position once and the shaft runs off to +1560 r/min before the flux "
+         "estimator turns the frame round (kick-back 1436 deg against 63-67 at the others): "
+         "the q current that holds 2 N*m lies where q saturation leaves the slopes little "
+         "saliency (saliency_min), and the back-EMF test's decision after ~7 ms can land on a "
+         "noisy estimate there")
+XFAIL[("start_load_m2nm_200deg", "paper", "no polarity loss")] = _EDGE.format(
+    v="1 episode", which="0 at seeds 1, 2, 4-8")
+XFAIL[("start_load_m2nm_200deg", "paper", "current within i_max")] = _EDGE.format(
+    v="4.88 A", which="4.27-4.60 A at the others")
 # Left out of the suite: their verdict depends on the noise seed (seeds 1-8 measured); what
-# fails is the reason (firmware_c2000/core/README.md, Limits known)
-NOT_IN_SUITE: dict[tuple[str, str], str] = {
-    ("start_load_p2nm_040deg", "paper"): "at the edge: 8 of seeds 1-8 pass, but before main's "
-        "fw_trig (numerically a little different) seed 2 ran off to -1586 r/min (one "
-        "polarity-loss episode, corrected; 4.83 A): the q current that holds 2 N*m lies at the "
-        "edge of the saliency the slopes need",
-    ("start_load_m2nm_200deg", "paper"): "the same (before fw_trig seed 7, +1563 r/min)",
-}
+# fails is the reason (firmware_c2000/core/README.md, Limits known). None now: the 2 N*m
+# starts on paper pass at seeds 1-8, at the edge (before the core's own trigonometry, a little
+# different numerically, seed 2 ran off to -1586 r/min at +2 N*m and seed 7 to +1563 r/min at
+# -2 N*m: one polarity-loss episode each, corrected; the q current that holds 2 N*m lies at the
+# edge of the saliency the slopes need); their baselines hold them where they are.
+NOT_IN_SUITE: dict[tuple[str, str], str] = {}
 
 
 def _fmt(v: float) -> str:
@@ -201,12 +212,14 @@ def _fmt(v: float) -> str:
 
 def _crit(name: str, metric: str, window: tuple[float, float | str], *, limit: float | None = None,
           comparison: str = "<=", profiles: tuple[str, ...] = (), params: str = "",
-          xfail: str = "") -> str:
+          xfail: str = "", better: str = "") -> str:
     w1 = f'"{window[1]}"' if isinstance(window[1], str) else _fmt(window[1])
     out = ["[[criteria]]", f'name = "{name}"', f'metric = "{metric}"',
            f"window = [{_fmt(window[0])}, {w1}]"]
     if comparison == "report":
         out.append('comparison = "report"')
+        if better:
+            out.append(f'better = "{better}"')
     else:
         out.append(f"limit = {_fmt(limit if limit is not None else 0.0)}")
         if comparison != "<=":
@@ -228,16 +241,20 @@ def _per_profile(name: str, metric: str, window: tuple[float, float | str],
 
 def _regression(scen: str, name: str, metric: str, window: tuple[float, float | str],
                 factor: float, floor: float, key: str = "", **kw: str) -> list[str]:
-    """One criterion per profile: the largest measured value (MEASURED[scen, profile:key],
-    key the metric unless given) times factor, at least floor."""
-    key = key or metric
-    limits = {p: round(max(MEASURED.get((scen, f"{p}:{key}"), 0.0) * factor, floor), 3)
-              for p in PROFILES}
-    return _per_profile(name, metric, window, limits, scen, **kw)
+    """A value held to what the drive does: reported, lower is better, and its committed
+    baseline (rig/baselines/starts.toml) fails a run that moves it beyond its spread over the
+    noise seeds. (It was a limit of factor times the largest value over seeds 1-8, at least
+    floor: a limit that close to the noise decided by the seed, as recording the baseline
+    with the seed's start-angle dither showed; the baseline's band is made for this.)"""
+    del factor, floor, key
+    return [_crit(name.replace(" (regression)", " (held by its baseline)"), metric, window,
+                  comparison="report", better="lower", **kw)]
 
 
 def load_start(name: str, torque: float, angle: float) -> str:
     back = "backwards" if torque > 0 else "forwards"
+    own_seeds = (f"\n[run]\n# decided on the worst of {OWN_SEEDS[name]} seeds (OWN_SEEDS)\n"
+                 f"seeds = {OWN_SEEDS[name]}\n") if name in OWN_SEEDS else ""
     head = f"""# Start against a load: {abs(torque):g} N*m already on the shaft at the enable
 # (t = 0), turning it {back}; start angle {angle:g} deg (electrical); the profile's noise
 # seed (verdicts checked over seeds 1-8). Generated by gen_starts.py (edit that, not this).
@@ -251,7 +268,7 @@ profile = "paper"
 duration = 1.0
 figure = "Starts"
 tags = ["starts", "load-start", "low-speed"]
-
+{own_seeds}
 [initial]
 theta_e_deg = {angle:g}
 
@@ -285,18 +302,17 @@ torque = {torque:g}
     crits: list[str] = []
     crits += _per_profile("torque within 20 ms", "torque_time_s", (0.0, "end"),
                           dict.fromkeys(PROFILES, 0.02), name)
-    crits += _regression(name, "torque time (regression)", "torque_time_s", (0.0, "end"),
-                         1.25, 0.004)
-    # (until the profile moves the shaft: from 0.4 s it turns forwards on its own)
-    crits.append(_crit("shaft kick-back", "kickback_deg", (0.0, 0.4), comparison="report"))
-    crits += _regression(name, "shaft kick-back (regression)", "kickback_deg", (0.0, 0.4),
-                         1.25, 5.0)
+    # (until the profile moves the shaft: from 0.4 s it turns forwards on its own; held by
+    # its baseline, as the torque time beside its limit)
+    crits.append(_crit("shaft kick-back", "kickback_deg", (0.0, 0.4), comparison="report",
+                       better="lower"))
     metric = "speed_min_rpm" if torque > 0 else "speed_max_rpm"
     crits.append(_crit("kick-back speed", metric, (0.0, 0.4), comparison="report"))
-    crits.append(_crit("no polarity loss", "polarity_loss_count", (0.05, "end"), limit=0,
-                       comparison="=="))
+    crits += _per_profile("no polarity loss", "polarity_loss_count", (0.05, "end"),
+                          dict.fromkeys(PROFILES, 0), name, comparison="==")
     crits.append(_crit("stays in RUN", "fw_state_end", (0.05, "end"), limit=3, comparison="=="))
-    crits.append(_crit("current within i_max", "i_mag_max_a", (0.0, "end"), limit=I_PEAK_BRAKE))
+    crits += _per_profile("current within i_max", "i_mag_max_a", (0.0, "end"),
+                          dict.fromkeys(PROFILES, I_PEAK_BRAKE), name)
     crits += _per_profile("position error after the recovery", "pos_err_max_deg", (0.5, "end"),
                           POS_LIMIT, name)
     return head + "\n".join(crits)
@@ -360,8 +376,8 @@ torque = 0
 
 """
     crits: list[str] = []
-    crits.append(_crit("in RUN", "run_time_s", (0.01, "end"), comparison="report"))
-    crits += _regression(name, "in RUN (regression)", "run_time_s", (0.01, "end"), 1.5, 0.002)
+    crits.append(_crit("in RUN", "run_time_s", (0.01, "end"), comparison="report",
+                       better="lower"))
     crits += _per_profile("current within i_max", "i_mag_max_a", (0.01, "end"),
                           dict.fromkeys(PROFILES, I_PEAK_FW if abs(speed) >= 2500 else I_PEAK),
                           name)
