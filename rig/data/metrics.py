@@ -376,6 +376,67 @@ _column_metric("speed_min_rpm", "r/min", "minimum true speed", "speed_true_rpm",
 _column_metric("speed_max_rpm", "r/min", "maximum true speed", "speed_true_rpm", "max")
 
 
+# --------------------------------------------------------------------------------------
+# Starts (window t0 = the enable): against a load already on the shaft, or a shaft turning
+
+
+def first_time_s(mask: npt.ArrayLike, ts: float) -> float:
+    """Seconds from the first sample to the first true one; inf when none is."""
+    return first_index(mask) * ts
+
+
+def load_direction(tl: npt.ArrayLike) -> float:
+    """+1 when the load torque (plant convention: it opposes positive rotation) is positive
+    at the first sample, -1 when negative, NaN without a load."""
+    t = np.asarray(tl, dtype=np.float64)
+    if t.size == 0 or not math.isfinite(t[0]) or t[0] == 0.0:
+        return math.nan
+    return math.copysign(1.0, float(t[0]))
+
+
+def kickback_deg(speed_rpm: npt.ArrayLike, direction: float, ts: float) -> float:
+    """Largest mechanical angle (degrees) the shaft turns in ``direction`` (+1/-1) from where
+    it was at the first sample: the running integral of the speed, at least 0."""
+    w = np.asarray(speed_rpm, dtype=np.float64)
+    if w.size == 0 or not math.isfinite(direction):
+        return math.nan
+    angle = np.cumsum(w) * (ts * 360.0 / 60.0)
+    return max(0.0, float(np.max(direction * angle)))
+
+
+@_register(
+    "torque_time_s", "s",
+    "start against a load (window t0 = the enable): time until the true torque first holds "
+    "fraction of the load torque there (same sign as the load, which opposes positive "
+    "rotation); inf: never within the window, NaN without a load",
+    params={"fraction": 0.5},
+)
+def _torque_time(w: Window, p: Mapping[str, float]) -> float:
+    tl = w.get("truth.tl")
+    d = load_direction(tl)
+    if not math.isfinite(d):
+        return math.nan
+    return first_time_s(d * w.get("truth.te") >= p["fraction"] * abs(float(tl[0])), w.ts)
+
+
+@_register(
+    "kickback_deg", "deg",
+    "start against a load (window t0 = the enable): the largest mechanical angle the shaft "
+    "turns the load's way (back) from where it was at t0 (true speed integrated)",
+)
+def _kickback(w: Window, p: Mapping[str, float]) -> float:
+    return kickback_deg(w.get("speed_true_rpm"), -load_direction(w.get("truth.tl")), w.ts)
+
+
+@_register(
+    "run_time_s", "s",
+    "time from the window's start (the enable) until the firmware is first in RUN "
+    "(FW_TRACE.state); inf: not within the window",
+)
+def _run_time(w: Window, p: Mapping[str, float]) -> float:
+    return first_time_s(w.get("fw.state") == firmware_state("RUN"), w.ts)
+
+
 _DIP_PARAMS = {"baseline_s": 0.05, "band_pct": 2.0, "band_rpm": 0.0}
 
 
@@ -578,6 +639,8 @@ def _dups(w: Window, p: Mapping[str, float]) -> float:
 # What an infinite value means, per metric (the criterion's note).
 INFINITE_NOTES: dict[str, str] = {
     "recovery_time_s": "never settled",
+    "torque_time_s": "the torque never held the load within the window",
+    "run_time_s": "never in RUN within the window",
     "detect_periods": "no FAULT state within the window (not detected)",
     "safe_state_periods": "no safe state within the window",
 }

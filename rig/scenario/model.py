@@ -246,6 +246,10 @@ class Scenario:
                     t += seg.hold
                     ramp(base, seg.fall)
                     t += seg.dwell
+        if self.initial_speed_rpm and (not out or out[0].t > 0.0):
+            # a shaft that turns at the start: the drive is told to hold that speed (a first
+            # hold segment commands nothing, and the reference the rig expects is this speed)
+            out.insert(0, SpeedCommand(0.0, self.initial_speed_rpm, accel_step))
         return out
 
     def speed_reference(self, t: npt.ArrayLike, step_accel: float) -> npt.NDArray[np.float64]:

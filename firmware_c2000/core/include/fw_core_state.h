@@ -152,6 +152,7 @@ typedef struct {
 typedef struct {
     int16_t phase;       /* polarity sub-state */
     int32_t count;       /* periods in the sub-state */
+    int32_t periods;     /* periods since the start */
     real_t id_pos, id_neg;      /* mean d current measured at the +d and -d bias, A */
     real_t l_pos, l_neg;        /* incremental Ld measured at the +d and -d bias, H */
     real_t ratio;               /* (l_neg - l_pos) / mean: > 0 when +d_hat is the magnet side */
@@ -161,9 +162,45 @@ typedef struct {
     real_t si[2];               /* [+d, -d]: sums of the measured d current, A */
     int32_t n[2];               /* [+d, -d]: periods summed */
     int16_t pairs;              /* +d/-d pairs of holds done */
+    /* back-EMF test (polarity_detect.c): the angle the back-EMF says the rotor turned
+     * against the raw slope angle */
+    int16_t emf_on;             /* 1 once the window has started */
+    int16_t emf_wait;           /* periods tracked before the window starts */
+    fw_cplx_t emf_psi_i;        /* the current's own flux L(theta_hat) i at the last period end, V*s */
+    real_t emf_phi;             /* sum of e_q Ts / lambda_m: +-(theta - theta0), rad */
+    real_t emf_phi_min, emf_phi_max;
+    real_t emf_raw;             /* raw slope angle continued across periods (modulo pi), rad */
+    real_t emf_raw0;
+    int32_t emf_m;              /* periods with a raw estimate: sums of phi, phi^2, raw, phi raw, raw^2 */
+    real_t emf_sp, emf_spp, emf_sr, emf_spr, emf_srr;
+    real_t emf_slope, emf_slope_se; /* raw against phi: +1 north pole, -1 south pole */
+    /* the q back-EMF of each period in the tracked frame, +-lambda_m omega: its straight line
+     * over the window's periods n = 1, 2, ... (sums of 1, n, n^2, e, n e) */
+    real_t emf_s0, emf_s1, emf_s2, emf_sy, emf_sny;
+    /* the catch (polarity_detect.c): a shaft turning fast at the enable */
+    int16_t catch_on;           /* 1 while the catch measures */
+    int16_t catch_n;            /* back-EMF vectors measured */
+    int16_t catch_k;            /* periods since the enable */
+    int16_t catch_rn;           /* raw angles among them */
+    real_t catch_rlast;         /* the last, continued modulo pi, rad */
+    real_t catch_rj, catch_rjj, catch_rt, catch_rjt, catch_rtt; /* sums of k, k^2, r, k r, r^2 */
+    real_t catch_wax;           /* the axes' turn per period last used, rad */
+    fw_cplx_t catch_i;          /* current at the end of the last period, A */
+    /* the vectors with the saliency axes turning forwards [0] and backwards [1] */
+    struct {
+        fw_cplx_t e;            /* the last one (alpha-beta, mean over its period), V */
+        fw_cplx_t e2;           /* the one before it */
+        real_t d2;              /* sum of |e_k - e_k-2|^2, V^2 */
+        real_t ang;             /* its angle continued across periods, rad */
+        real_t s1, s2, sp, skp, spp; /* sums of k, k^2, a, k a, a^2 */
+        real_t mag;             /* sum of |e_k|, V */
+    } catch_h[2];
+    real_t catch_w;             /* electrical rad/s, the vector's turn so far */
+    real_t catch_omega;         /* electrical rad/s (decided) */
+    real_t catch_theta;         /* rad, the magnet's angle at the end of the deciding period */
     real_t theta_start;  /* unwrapped angle at the start of the motion check */
     real_t moved;        /* rad */
-    int16_t method_used; /* 1 saturation, 2 motion */
+    int16_t method_used; /* 1 saturation, 2 motion, 3 back-EMF */
     int16_t flipped;
     int16_t result;      /* 0 running, 1 done, -1 failed */
 } fw_polarity_t;
@@ -225,6 +262,12 @@ struct fw_core {
     int16_t sensor_bad;          /* leaky count of implausible two-vector periods */
     uint32_t est_reject_count;
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
+    int16_t start_recover;       /* 1: the speed ramp brings the shaft back to start_speed_rpm */
+    int32_t start_gov;           /* periods left in which |iq| follows the measured saliency */
+    int16_t start_fw_hold;       /* periods left in which flux weakening's feedback holds */
+    real_t g1_fast;              /* 1/H, Gamma1 along d_hat of the two-vector estimates, ~1 ms filter */
+    real_t iq_gov;               /* A, q-current limit of the saliency governor */
+    real_t start_speed_rpm;      /* the shaft's speed at the enable (the start-up measured it) */
     int16_t flux_pos_active;     /* the flux estimator carried the PLL in the last period */
     int16_t est_param_ok;        /* the period's two-vector estimate is fit for Ld/Lq */
     real_t theta_raw_axes;       /* rad, the estimate's saliency-axis angle (before the

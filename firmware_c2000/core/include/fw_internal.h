@@ -13,12 +13,36 @@
 #define FW_RPM_PER_RADS ((real_t)9.54929658551372014613) /* 60 / (2 pi) */
 
 /* ---- svpwm.c: pattern, stretching, sampling plan ------------------------------------------ */
-/* Unit vector of active vector k (1..6) at phi_k = (k-1)*pi/3 and of 2*phi_k. */
-fw_cplx_t fw_svpwm_vec_unit(int16_t k);
-fw_cplx_t fw_svpwm_vec_unit2(int16_t k);
-int16_t fw_svpwm_vec_state(int16_t k); /* switching state bits (a = 1, b = 2, c = 4) */
-/* alpha-beta voltage of a switching state with an isolated neutral */
-fw_cplx_t fw_svpwm_state_voltage(int16_t state_bits, real_t vdc);
+/* cos/sin of phi_k = (k-1)*60 deg, k = 1..6 (svpwm.c) and the switching states of V1..V6 */
+extern const real_t fw_svpwm_vec_cos[6];
+extern const real_t fw_svpwm_vec_sin[6];
+extern const int16_t fw_svpwm_vec_bits[6];
+/* Unit vector of active vector k (1..6) at phi_k = (k-1)*pi/3 and of 2*phi_k (inline: the
+ * estimator and the modulator take them every period). */
+static inline fw_cplx_t fw_svpwm_vec_unit(int16_t k)
+{
+    const int16_t i = (int16_t)((k - 1) % 6);
+    return fw_c(fw_svpwm_vec_cos[i], fw_svpwm_vec_sin[i]);
+}
+static inline fw_cplx_t fw_svpwm_vec_unit2(int16_t k)
+{
+    const int16_t i = (int16_t)((2 * (k - 1)) % 6);
+    return fw_c(fw_svpwm_vec_cos[i], fw_svpwm_vec_sin[i]);
+}
+/* switching state bits (a = 1, b = 2, c = 4) of active vector k */
+static inline int16_t fw_svpwm_vec_state(int16_t k) { return fw_svpwm_vec_bits[(k - 1) % 6]; }
+/* alpha-beta voltage of a switching state with an isolated neutral: 2/3 vdc and vdc/sqrt3
+ * times the state's multipliers (0, +-1/2, +-1, exact), the bits of the phase sums
+ * (sa - (sb + sc)/2, sb - sc) they stand for; inline, as it is in every loop over a pattern */
+static inline fw_cplx_t fw_svpwm_state_voltage(int16_t state_bits, real_t vdc)
+{
+    static const real_t m_re[8] = {FW_REAL(0.0), FW_REAL(1.0),  FW_REAL(-0.5), FW_REAL(0.5),
+                                   FW_REAL(-0.5), FW_REAL(0.5), FW_REAL(-1.0), FW_REAL(0.0)};
+    static const real_t m_im[8] = {FW_REAL(0.0), FW_REAL(0.0),  FW_REAL(1.0), FW_REAL(1.0),
+                                   FW_REAL(-1.0), FW_REAL(-1.0), FW_REAL(0.0), FW_REAL(0.0)};
+    const int16_t s = (int16_t)(state_bits & 7);
+    return fw_c(vdc * (FW_REAL(2.0) / FW_REAL(3.0)) * m_re[s], vdc * FW_M_INV_SQRT3 * m_im[s]);
+}
 /* Largest voltage magnitude that still leaves a V7 window of tmin in every direction. */
 real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks);
 /* Plan period pattern for average voltage v_ref (alpha-beta, V). mod: carry and last sector
@@ -38,10 +62,29 @@ void fw_svpwm_to_pwm(const fw_plan_t *plan, uint32_t period, int16_t gate, fw_pw
 
 /* ---- inverter_model.c: dead time and device drop ------------------------------------------ */
 /* phase currents (a, b, c) of an alpha-beta current, and alpha-beta of phase voltages */
-void fw_inverter_phase_currents(fw_cplx_t i, real_t iph[3]);
-fw_cplx_t fw_inverter_phase_to_ab(const real_t v[3]);
+static inline real_t fw_inverter_phase_b(fw_cplx_t i)
+{
+    return FW_REAL(-0.5) * i.re + FW_REAL(0.5) * FW_M_SQRT3 * i.im;
+}
+static inline real_t fw_inverter_phase_c(fw_cplx_t i)
+{
+    return FW_REAL(-0.5) * i.re - FW_REAL(0.5) * FW_M_SQRT3 * i.im;
+}
+static inline void fw_inverter_phase_currents(fw_cplx_t i, real_t iph[3])
+{
+    iph[0] = i.re;
+    iph[1] = fw_inverter_phase_b(i);
+    iph[2] = fw_inverter_phase_c(i);
+}
+static inline fw_cplx_t fw_inverter_phase_to_ab(const real_t v[3])
+{
+    return fw_c((FW_REAL(2.0) / FW_REAL(3.0)) * (v[0] - FW_REAL(0.5) * (v[1] + v[2])),
+                (v[1] - v[2]) * FW_M_INV_SQRT3);
+}
 /* the device drop over a stretch in which the current moves linearly from i0 to i1, V */
 fw_cplx_t fw_inverter_drop_voltage(const fw_core_t *c, fw_cplx_t i0, fw_cplx_t i1);
+/* the current of window w of c->plan_cur at its first and last sample (its slope's stretch) */
+void fw_inverter_window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1);
 /* the device drop over the sampled stretch of window w of c->plan_cur, V */
 fw_cplx_t fw_inverter_window_drop(const fw_core_t *c, int16_t w);
 /* Mean inverter voltage error of the period of c->plan_cur at current c->i_avg (dead time
@@ -49,10 +92,34 @@ fw_cplx_t fw_inverter_window_drop(const fw_core_t *c, int16_t w);
 fw_cplx_t fw_inverter_error(const fw_core_t *c);
 
 /* ---- current_recon.c: the period's current from its samples ------------------------------- */
-/* c->i_avg (period mean) and c->i_end from the samples of c->plan_cur and the slopes */
-void fw_recon_current(fw_core_t *c, const fw_adc_t *adc);
+/* an angle and its fw_cexpj, once computed, for the others who need it in the same period */
+typedef struct {
+    int16_t valid; /* e is fw_cexpj(th) (th is always set) */
+    real_t th;     /* rad */
+    fw_cplx_t e;
+} fw_angle_t;
+/* fw_cexpj(-a->th) without its own reduction when a is valid: the conjugate of a->e, bit for
+ * bit, where both its components are nonzero and finite (fw_sincos is odd in x except where
+ * its reduced argument is zero, which leaves one component a zero) */
+static inline fw_cplx_t fw_angle_conj(const fw_angle_t *a)
+{
+    const fw_cplx_t e = a->e;
+    if (a->valid && e.re != FW_REAL(0.0) && e.im != FW_REAL(0.0) && fw_is_finite(e.re) &&
+        fw_is_finite(e.im)) {
+        return fw_cconj(e);
+    }
+    return fw_cexpj(-a->th);
+}
+/* c->i_avg (period mean) and c->i_end from the samples of c->plan_cur and the slopes; mid2,
+ * when valid: the tracker's angle at the period's middle doubled with its fw_cexpj (else it is
+ * predicted here) */
+void fw_recon_current(fw_core_t *c, const fw_adc_t *adc, const fw_angle_t *mid2);
 /* mean over pattern pl of the product of the dq components of its current ripple, A^2 */
 real_t fw_recon_ripple_dq_product(const fw_core_t *c, const fw_plan_t *pl);
+/* the same with the tracker's angle at the next period's middle and its fw_cexpj given
+ * (the current loop's, fw_core.c) */
+real_t fw_recon_ripple_dq_product_at(const fw_core_t *c, const fw_plan_t *pl,
+                                     const fw_angle_t *mid_next);
 
 /* ---- outer_loop.c: the 1 kHz tasks -------------------------------------------------------- */
 /* ld_use, lq_use, lambda_use of the selected MTPA/FW mode */
@@ -63,7 +130,10 @@ void fw_outer_step(fw_core_t *c);
 /* ---- slope_estimator.c: slopes and the least-squares position estimate --------------------- */
 /* LS slope of window w: A/s alpha-beta, mean sample time (ticks), current at that time (A). */
 /* Gamma(theta) v = Gamma0 v + g conj(v), g = Gamma1 exp(j 2 theta) */
-fw_cplx_t fw_slope_gamma_times(real_t gamma0, fw_cplx_t g, fw_cplx_t v);
+static inline fw_cplx_t fw_slope_gamma_times(real_t gamma0, fw_cplx_t g, fw_cplx_t v)
+{
+    return fw_cadd(fw_cscale(v, gamma0), fw_cmul(g, fw_cconj(v)));
+}
 int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, int32_t adc_half,
                         real_t lsb, fw_cplx_t *slope, real_t *t_mean_ticks, fw_cplx_t *i_mean);
 /* Section 4.5: rotate the zero-state slope to the active window's time before differencing. */
@@ -130,7 +200,16 @@ void fw_flux_reset(fw_flux_t *f, real_t lambda_nom);
 int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gate, real_t ratio,
                        real_t omega_min, real_t omega_learn_min, real_t theta_end,
                        fw_cplx_t i_end, real_t ld_app, real_t lambda_nom, real_t alpha);
-int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc); /* active, start forgotten */
+/* active, its start forgotten: exp(-settle_tc) (flux_estimator.c) */
+static inline int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc)
+{
+    return (int16_t)(f->active && f->settle_tc >= settle_tc);
+}
+/* Starts the estimator at the stator flux psi (V*s, alpha-beta) at electrical speed omega, as
+ * if it had run settle_tc time constants (the flux is known, e.g. from the start-up's
+ * back-EMF test); omega_min, ratio as fw_flux_update. */
+void fw_flux_seed(fw_flux_t *f, fw_cplx_t psi, real_t omega, real_t ratio, real_t omega_min,
+                  real_t settle_tc);
 
 /* ---- current_refs.c (paper eqs. 10, 50, 53) ----------------------------------------------------- */
 real_t fw_refs_mtpa_id(real_t iq, real_t ld, real_t lq, real_t lambda);
@@ -158,7 +237,13 @@ real_t fw_speed_ctrl_ramp(real_t y, real_t target, real_t step);
 real_t fw_speed_ctrl(fw_pi_t *pi, real_t ref_rpm, real_t speed_rpm, real_t iq_lim, real_t ts);
 
 /* ---- protection.c ------------------------------------------------------------------------- */
-real_t fw_protection_adc_offset(int32_t code, int32_t adc_half); /* code - adc_half, no int overflow */
+/* A code minus the mid-scale code, for any int32 input: the subtraction is done in real_t (an
+ * int32 difference overflows for codes near INT32_MIN). Exact for every code of a converter of
+ * up to 24 bits (the float mantissa). */
+static inline real_t fw_protection_adc_offset(int32_t code, int32_t adc_half)
+{
+    return (real_t)code - (real_t)adc_half;
+}
 int16_t fw_protection_codes_in_range(const fw_adc_t *adc, int32_t adc_half); /* all in 0..2^N-1 */
 uint16_t fw_protection_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb, real_t oc_trip,
                             real_t *i_peak);
@@ -167,8 +252,18 @@ uint16_t fw_protection_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);
 /* ---- polarity_detect.c -------------------------------------------------------------------- */
 typedef struct {
     real_t id, iq;     /* current references along the estimated frame, A */
+    fw_cplx_t v_ff;    /* alpha-beta voltage added to the current loop's (the catch), V */
 } fw_polarity_out_t;
+#define FW_POL_METHOD_SATURATION 1
+#define FW_POL_METHOD_MOTION 2
+#define FW_POL_METHOD_EMF 3 /* the back-EMF test: the shaft was turning */
+#define FW_POL_METHOD_CATCH 4 /* the catch: the shaft turned fast, its back-EMF gave the angle */
 void fw_polarity_start(fw_polarity_t *pol);
+/* After a decision: the shaft's electrical speed at the start of the back-EMF window (the
+ * enable), now (the end of the last period) and its acceleration, from the straight line
+ * through the window's q back-EMF; 0 when the window is too short. */
+int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
+                           real_t *omega_now, real_t *accel);
 /* One period; returns pol->result (0 running, 1 done, -1 failed). */
 int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                     fw_polarity_out_t *out);

@@ -26,9 +26,52 @@ typedef struct {
 
 static inline real_t fw_sqrt(real_t x) { return (x > FW_REAL(0.0)) ? sqrtf(x) : FW_REAL(0.0); }
 static inline real_t fw_fabs(real_t x) { return (x < FW_REAL(0.0)) ? -x : x; }
-/* sine, cosine (both of one angle: one reduction) and atan2 are the core's own (fw_trig.c):
- * the same bits on every target whatever its C library */
-void fw_sincos(real_t x, real_t *s, real_t *c);
+/* sine, cosine (both of one angle: one reduction) and atan2 are the core's own (fw_sincos
+ * here, inline: a dozen per period; the rest in fw_trig.c): the same bits on every target
+ * whatever its C library. They use only float additions and multiplications, each rounded as
+ * IEEE 754 prescribes on every target (built without contraction into fused multiply-adds).
+ * Accuracy: within about one unit in the last place for |x| < 6400 rad (the reduction is
+ * exact there); the core's angles are wrapped or products of a speed and a period.
+ * pi/2 = PIO2_1 + PIO2_2 + PIO2_3: the first two have 12 significant bits, so k * PIO2_1 and
+ * k * PIO2_2 are exact for |k| < 2^12 (Cody and Waite's reduction). */
+#define FW_TRIG_PIO2_1 FW_REAL(1.57080078125)
+#define FW_TRIG_PIO2_2 FW_REAL(-4.453584551811218e-06)
+#define FW_TRIG_PIO2_3 FW_REAL(-8.705515752716053e-10)
+#define FW_TRIG_TWO_OVER_PI FW_REAL(0.63661977236758134308)
+#define FW_TRIG_QUARTER_TURNS_MAX FW_REAL(1.0e6) /* beyond: no angle the core holds */
+static inline void fw_sincos(real_t x, real_t *s, real_t *c)
+{
+    const real_t q = x * FW_TRIG_TWO_OVER_PI;
+    real_t r, r2, sr, cr;
+    int32_t k;
+    if (!(q > -FW_TRIG_QUARTER_TURNS_MAX && q < FW_TRIG_QUARTER_TURNS_MAX)) {
+        const real_t z = x - x; /* NaN for NaN and infinities, as the C library's */
+        *s = z;
+        *c = FW_REAL(1.0) + z;
+        return;
+    }
+    k = (int32_t)(q >= FW_REAL(0.0) ? q + FW_REAL(0.5) : q - FW_REAL(0.5));
+    r = x - (real_t)k * FW_TRIG_PIO2_1;
+    r = r - (real_t)k * FW_TRIG_PIO2_2;
+    r = r - (real_t)k * FW_TRIG_PIO2_3; /* |r| <= pi/4 */
+    r2 = r * r;
+    /* Taylor series: the first omitted terms are below 2e-9 on |r| <= pi/4 */
+    sr = r + r * r2 *
+                 (FW_REAL(-1.0 / 6.0) +
+                  r2 * (FW_REAL(1.0 / 120.0) +
+                        r2 * (FW_REAL(-1.0 / 5040.0) + r2 * FW_REAL(1.0 / 362880.0))));
+    cr = FW_REAL(1.0) - FW_REAL(0.5) * r2 +
+         r2 * r2 *
+             (FW_REAL(1.0 / 24.0) +
+              r2 * (FW_REAL(-1.0 / 720.0) +
+                    r2 * (FW_REAL(1.0 / 40320.0) + r2 * FW_REAL(-1.0 / 3628800.0))));
+    switch (k & 3) {
+    case 0: *s = sr; *c = cr; break;
+    case 1: *s = cr; *c = -sr; break;
+    case 2: *s = -sr; *c = -cr; break;
+    default: *s = -cr; *c = sr; break;
+    }
+}
 real_t fw_sin(real_t x);
 real_t fw_cos(real_t x);
 real_t fw_atan2(real_t y, real_t x);

@@ -32,10 +32,30 @@ void fw_flux_reset(fw_flux_t *f, real_t lambda_nom)
 /* The low-pass estimate forgets its start (zero, or the flux of another speed) as
  * exp(-settle_tc): before a few time constants its angle is not the rotor's. Measured on the
  * paper profile, 2 N*m load step at 1 r/min: the speed swept through 300 r/min backwards within
- * 12 ms, the hand-over took the unsettled angle (66 deg off) and the drive tripped. */
-int16_t fw_flux_settled(const fw_flux_t *f, real_t settle_tc)
+ * 12 ms, the hand-over took the unsettled angle (66 deg off) and the drive tripped. Hence
+ * fw_flux_settled (inline in fw_internal.h): active for settle_tc time constants. */
+
+void fw_flux_seed(fw_flux_t *f, fw_cplx_t psi, real_t omega, real_t ratio, real_t omega_min,
+                  real_t settle_tc)
 {
-    return (int16_t)(f->active && f->settle_tc >= settle_tc);
+    /* the filter state whose compensated output (fw_flux_update) is psi at this speed:
+     * psi_f = psi b (z - 1) / (z - a) */
+    real_t w_abs = fw_max(fw_fabs(omega), omega_min);
+    real_t wc_half = FW_REAL(0.5) * ratio * w_abs * FW_TS;
+    real_t a = (FW_REAL(1.0) - wc_half) / (FW_REAL(1.0) + wc_half);
+    real_t b = FW_REAL(1.0) / (FW_REAL(1.0) + wc_half);
+    fw_cplx_t z = fw_cexpj(omega * FW_TS);
+    fw_cplx_t num = fw_cscale(fw_c(z.re - FW_REAL(1.0), z.im), b);
+    fw_cplx_t den = fw_c(z.re - a, z.im);
+    real_t den2 = fw_cabs2(den);
+    if (!(den2 > FW_REAL(0.0))) {
+        return;
+    }
+    f->psi_f = fw_cmul(psi, fw_cscale(fw_cmul(num, fw_cconj(den)), FW_REAL(1.0) / den2));
+    f->psi = psi;
+    f->active = 1;
+    f->neg_count = 0;
+    f->settle_tc = settle_tc;
 }
 
 int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gate, real_t ratio,

@@ -14,6 +14,13 @@
 #define FW_RPM(omega_e, pp) ((omega_e) / (pp) * FW_RPM_PER_RADS)
 #define FW_FLUX_NEG_PERIODS 50   /* 5 ms of negative lambda_d: polarity lost */
 #define FW_EST_VALID_MAX_RUN 50  /* est_valid drops after 5 ms without a good estimate */
+/* start's saliency governor (start_after_motion): filter per two-vector estimate (~1 ms),
+ * headroom above the load's current, step of the limit per period (10/20 A/s down/up) */
+#define FW_START_GOV_ALPHA FW_REAL(0.2)
+#define FW_START_GOV_HEADROOM_A FW_REAL(0.25)
+#define FW_START_GOV_STEP_A FW_REAL(0.001)
+/* periods after a catch in which the flux-weakening feedback holds while the currents settle */
+#define FW_START_FW_HOLD 50
 #define FW_FULL_LEARNT_UPDATES 150 /* Lq bin updates before FULL mode stops measuring there */
 /* the current loop's response (400 Hz design bandwidth) per period, for the torque model */
 #define FW_TE_MODEL_ALPHA ((real_t)0.222)
@@ -45,6 +52,9 @@ static void reset_estimation(fw_core_t *c)
     fw_paramest_reset(&c->pe, p[FW_IDX_LD_H], p[FW_IDX_LQ_H], p[FW_IDX_I_MAX_A]);
     fw_flux_reset(&c->flux, p[FW_IDX_LAMBDA_M_WB]);
     c->flux_pos_active = 0;
+    c->start_recover = 0;
+    c->start_gov = 0;
+    c->start_fw_hold = 0;
     c->est_valid = 0;
     c->est_fail_run = 0;
     c->sensor_bad = 0;
@@ -164,8 +174,11 @@ int16_t fw_core_set_limits(fw_core_t *c, real_t i_max, real_t speed_max_rpm, rea
 
 /* Slopes, least-squares estimate and tracker for the period just measured; with by_flux the
  * flux estimator updates the tracker this period and only the branch is taken here. Returns 1
- * when the period counted as implausible. */
-static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_flux)
+ * when the period counted as implausible. mid2: the tracker's angle at the period's middle,
+ * doubled, with its fw_cexpj, and mid_conj its fw_cexpj(-angle), valid while the tracker is as
+ * they found it (the current reconstruction and the controlled current take them from here). */
+static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_flux,
+                                 fw_angle_t *mid2, fw_cplx_t *mid_conj)
 {
     const real_t *p = c->p;
     fw_plan_t *pl = &c->plan_cur;
@@ -178,6 +191,7 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
     int16_t bad = 0;
     int16_t updated = 0;
 
+    mid2->valid = 0;
     for (w = 0; w < 3; w++) {
         c->slope_ok[w] = fw_slope_window(pl, w, adc, c->adc_half, c->adc_i_lsb, &c->slope[w],
                                          &c->slope_t[w], &c->i_win[w]);
@@ -196,6 +210,12 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
         real_t th_mid = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
         fw_cplx_t rot2 = fw_cexpj(FW_REAL(2.0) * th_mid);
         fw_cplx_t rot_m = fw_cexpj(-th_mid);
+        fw_cplx_t u0 = fw_c(FW_REAL(0.0), FW_REAL(0.0)); /* the zero window's drop, once */
+        int16_t have_u0 = 0;
+        mid2->valid = 1;
+        mid2->th = FW_REAL(2.0) * th_mid;
+        mid2->e = rot2;
+        *mid_conj = rot_m;
         for (w = FW_WIN_ODD; w <= FW_WIN_EVEN; w++) {
             if (c->slope_ok[w]) {
                 vec[n_act] = pl->win[w].vec;
@@ -208,8 +228,12 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
                      * N*m, 1 r/min: +-2.5 deg of raw bias for 0.3 s around each phase-current
                      * zero crossing) */
                     fw_cplx_t g_f = fw_cscale(rot2, c->pe.gamma1_f);
-                    fw_cplx_t du = fw_csub(fw_inverter_window_drop(c, w),
-                                           fw_inverter_window_drop(c, FW_WIN_ZERO));
+                    fw_cplx_t du;
+                    if (!have_u0) {
+                        u0 = fw_inverter_window_drop(c, FW_WIN_ZERO);
+                        have_u0 = 1;
+                    }
+                    du = fw_csub(fw_inverter_window_drop(c, w), u0);
                     di[n_act] = fw_csub(di[n_act], fw_slope_gamma_times(c->pe.gamma0_f, g_f, du));
                 }
                 if (kappa != FW_REAL(0.0)) {
@@ -276,11 +300,15 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
         if (updated) {
             c->stamp = (int16_t)stamp;
             c->theta_hat = c->trk.theta;
+            mid2->valid = 0; /* the tracker moved on */
         }
     }
     if (!updated) {
         c->stamp = (int16_t)FW_H_TICKS;
-        c->theta_hat = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
+        /* (half the doubled middle angle is the angle, exactly) */
+        c->theta_hat = mid2->valid ? FW_REAL(0.5) * mid2->th
+                                   : (c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS)
+                                                  : FW_REAL(0.0));
     }
     if (bad) {
         c->est_reject_count++;
@@ -411,6 +439,114 @@ static void update_full_mod(fw_core_t *c)
     }
 }
 
+/* RUN after a start that the back-EMF decided: the shaft was turning (a load already on it
+ * at the enable, a hoist or a conveyor on a slope, has turned it back meanwhile; or it was
+ * still turning). The back-EMF's straight line over the start (fw_polarity_motion) gives the
+ * speed the shaft had at the enable, its speed now and its acceleration, which with no torque
+ * from the start-up's currents is the load's: J a / p.
+ *  - The tracker takes that speed and acceleration: from the bandwidth a reset leaves it,
+ *    meant for the noise at standstill, it lagged by half the speed after 6 ms at 2 N*m.
+ *  - The speed PI starts with the current that holds the load (from zero its integral took
+ *    ~20 ms while the shaft ran on backwards: 2 N*m on paper to -415 r/min) and the ramp
+ *    from the speed the shaft has now back to the one it had at the enable, at least as fast
+ *    as start_recover_rpm_s, then on to the command (outer_loop.c). Braking at i_max instead
+ *    ran the slopes where q saturation takes their saliency (2 N*m on paper: single periods
+ *    40-75 deg off at 4.2 A, the position lost in 1 of 10 starts).
+ *  - The flux estimator starts from the flux the test measured, settled for the
+ *    polarity-loss check (pol_loss_settle_tc), not for the hand-over (flux_settle_tc): at
+ *    2 N*m its angle needs Lq_app at 4 A, which is not learnt yet (17 deg off on paper).
+ *  - For start_gov_ms the q current follows the saliency the slopes measure, where the
+ *    learnt Lq curve (the saliency cap, outer_loop.c) has no data yet: it stops rising while
+ *    Gamma1 along d_hat (~1 ms filter) is below saliency_min of the nominal. */
+static void start_after_motion(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    real_t pp = p[FW_IDX_POLE_PAIRS];
+    real_t kt = FW_REAL(1.5) * pp * p[FW_IDX_LAMBDA_M_WB];
+    real_t i_max = p[FW_IDX_I_MAX_A];
+    real_t w_start, w_now, accel, te_hold;
+    if (!fw_polarity_motion(&c->pol, p[FW_IDX_LAMBDA_M_WB], &w_start, &w_now, &accel)) {
+        return;
+    }
+    c->trk.omega = w_now;
+    c->trk.a_d = accel - c->trk.a_ff;
+    c->trk.a_d_lo = FW_REAL(0.0);
+    {
+        real_t rpm_to_we = pp / FW_RPM_PER_RADS;
+        fw_cplx_t u = fw_cexpj(fw_tracker_predict(&c->trk, FW_P_TICKS));
+        fw_cplx_t idq = fw_cmul(c->i_end, fw_cconj(u));
+        fw_cplx_t psi = fw_cmul(u, fw_c(p[FW_IDX_LAMBDA_M_WB] + c->pe.ld_app * idq.re,
+                                        c->pe.lq_app * idq.im));
+        fw_flux_seed(&c->flux, psi, w_now, p[FW_IDX_FLUX_LPF_RATIO],
+                     fw_min(p[FW_IDX_FLUX_MIN_RPM], p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM]) * rpm_to_we,
+                     p[FW_IDX_POL_LOSS_SETTLE_TC]);
+    }
+    te_hold = c->te_model - p[FW_IDX_INERTIA_KGM2] * accel / pp;
+    c->speed_f_rpm = FW_RPM(w_now, pp);
+    c->speed_ref_ramped = c->speed_f_rpm;
+    c->start_speed_rpm = FW_RPM(w_start, pp);
+    c->start_recover = 1;
+    if (c->cmd.ctrl_mode == FW_CTRL_SPEED) {
+        c->pi_spd.x = fw_clamp(te_hold / kt, -i_max, i_max);
+    }
+    c->start_gov = (int32_t)(p[FW_IDX_START_GOV_MS] * FW_REAL(10.0));
+    c->g1_fast = c->pe.gamma1_f;
+    c->iq_gov = fw_min(fw_fabs(c->pi_spd.x) + FW_START_GOV_HEADROOM_A, i_max);
+}
+
+/* RUN after the catch (a shaft turning fast at the enable, polarity_detect.c): the tracker
+ * starts from the magnet's angle and speed the back-EMF gave, the speed loop at that speed,
+ * and the flux estimator from the flux they give, settled (above full_mod_min_rpm FULL
+ * modulation and the flux hand-over need it at once: the back-EMF exceeds the measurable
+ * voltage range from ~2000 r/min) */
+static void start_after_catch(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    real_t pp = p[FW_IDX_POLE_PAIRS];
+    real_t w = c->pol.catch_omega;
+    fw_cplx_t u = fw_cexpj(c->pol.catch_theta);
+    fw_cplx_t idq = fw_cmul(c->i_end, fw_cconj(u));
+    fw_cplx_t psi = fw_cmul(u, fw_c(p[FW_IDX_LAMBDA_M_WB] + c->pe.ld_app * idq.re,
+                                    c->pe.lq_app * idq.im));
+    fw_tracker_reset(&c->trk, c->pol.catch_theta, w, (uint16_t)(FW_P_TICKS - 1));
+    fw_flux_seed(&c->flux, psi, w, p[FW_IDX_FLUX_LPF_RATIO],
+                 fw_min(p[FW_IDX_FLUX_MIN_RPM], p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM]) * pp /
+                     FW_RPM_PER_RADS,
+                 fw_max(p[FW_IDX_FLUX_SETTLE_TC], p[FW_IDX_POL_LOSS_SETTLE_TC]));
+    c->theta_hat = c->pol.catch_theta;
+    if (c->cmd.ctrl_mode == FW_CTRL_SPEED) {
+        /* the torque that holds a coasting shaft at its speed: its friction */
+        c->pi_spd.x = fw_clamp(p[FW_IDX_FRICTION_NMS] * w / pp /
+                                   (FW_REAL(1.5) * pp * p[FW_IDX_LAMBDA_M_WB]),
+                               -p[FW_IDX_I_MAX_A], p[FW_IDX_I_MAX_A]);
+    }
+    c->speed_f_rpm = FW_RPM(w, pp);
+    c->speed_ref_ramped = c->speed_f_rpm;
+    c->start_speed_rpm = c->speed_f_rpm;
+    c->start_fw_hold = FW_START_FW_HOLD;
+    update_full_mod(c);
+}
+
+/* the q-current limit of the start's saliency governor (start_after_motion), per period */
+static void start_governor(fw_core_t *c, int16_t data_ok)
+{
+    const real_t *p = c->p;
+    real_t g1_nom = FW_REAL(0.5) * (FW_REAL(1.0) / p[FW_IDX_LD_H] - FW_REAL(1.0) / p[FW_IDX_LQ_H]);
+    if (c->start_gov <= 0) {
+        return;
+    }
+    c->start_gov--;
+    if (data_ok && c->est.n_active == 2 && c->est_param_ok) {
+        c->g1_fast += FW_START_GOV_ALPHA *
+                      (fw_paramest_gamma1_at(&c->est, c->theta_hat) - c->g1_fast);
+    }
+    if (c->g1_fast < p[FW_IDX_SALIENCY_MIN] * g1_nom) {
+        c->iq_gov = fw_max(fw_min(c->iq_gov, fw_fabs(c->iq)) - FW_START_GOV_STEP_A, FW_REAL(0.0));
+    } else {
+        c->iq_gov = fw_min(c->iq_gov + FW_START_GOV_STEP_A * FW_REAL(2.0), p[FW_IDX_I_MAX_A]);
+    }
+}
+
 static void polarity_lost_check(fw_core_t *c)
 {
     const real_t *p = c->p;
@@ -520,8 +656,9 @@ static void output_voltage(fw_core_t *c, fw_cplx_t v_ab, uint32_t next_period, f
     fw_svpwm_to_pwm(&c->plan_next, next_period, 1, pwm);
 }
 
-/* current control in the estimated frame -> alpha-beta voltage for the next period */
-static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data)
+/* current control in the estimated frame -> alpha-beta voltage for the next period; the
+ * angle it is rotated with (the middle of the next period) and its fw_cexpj into *apply */
+static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data, fw_angle_t *apply)
 {
     const real_t *p = c->p;
     real_t theta_apply;
@@ -539,7 +676,10 @@ static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data)
     c->v_mag_f += FW_REAL(0.05) * (u_mag - c->v_mag_f);
     /* the voltage acts during period k+1: rotate with the angle at its middle */
     theta_apply = c->trk.init ? fw_tracker_predict(&c->trk, FW_P_TICKS + FW_H_TICKS) : FW_REAL(0.0);
-    return fw_cmul(fw_c(vd, vq), fw_cexpj(theta_apply));
+    apply->th = theta_apply;
+    apply->e = fw_cexpj(theta_apply);
+    apply->valid = 1;
+    return fw_cmul(fw_c(vd, vq), apply->e);
 }
 
 void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
@@ -550,6 +690,9 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     int16_t bad_est = 0;
     fw_polarity_out_t pol_out;
     int16_t slow;
+    fw_angle_t mid2 = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
+    fw_angle_t apply = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
+    fw_cplx_t mid_conj = {FW_REAL(0.0), FW_REAL(0.0)};
 
     if (c == 0 || pwm == 0) {
         return;
@@ -640,18 +783,27 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     if (data_ok) {
         int16_t by_flux = flux_carries_position(c);
         c->flux_pos_active = by_flux;
-        bad_est = estimate_position(c, adc, by_flux);
-        fw_recon_current(c, adc);
+        bad_est = estimate_position(c, adc, by_flux, &mid2, &mid_conj);
+        fw_recon_current(c, adc, &mid2);
         {
             /* the controlled current: the period mean without the ripple the pattern's dipole
              * adds (Gamma(theta) Q, svpwm.c), i.e. the mean of the period's start and end
              * currents; an A/B pair's dipoles cancel, so its mean torque is this current's */
-            real_t th_mid = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
             fw_cplx_t q = c->plan_cur.dipole;
-            fw_cplx_t g = fw_cscale(fw_cexpj(FW_REAL(2.0) * th_mid), c->pe.gamma1_f);
-            fw_cplx_t i_ctl = fw_csub(c->i_avg, fw_cadd(fw_cscale(q, c->pe.gamma0_f),
-                                                        fw_cmul(g, fw_cconj(q))));
-            fw_cplx_t idq = fw_cmul(i_ctl, fw_cexpj(-th_mid));
+            fw_cplx_t rot2, rot_m, g, i_ctl, idq;
+            if (mid2.valid) { /* the tracker is as estimate_position found it */
+                rot2 = mid2.e;
+                rot_m = mid_conj;
+            } else {
+                real_t th_mid =
+                    c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
+                rot2 = fw_cexpj(FW_REAL(2.0) * th_mid);
+                rot_m = fw_cexpj(-th_mid);
+            }
+            g = fw_cscale(rot2, c->pe.gamma1_f);
+            i_ctl = fw_csub(c->i_avg,
+                            fw_cadd(fw_cscale(q, c->pe.gamma0_f), fw_cmul(g, fw_cconj(q))));
+            idq = fw_cmul(i_ctl, rot_m);
             c->id = idq.re;
             c->iq = idq.im;
         }
@@ -732,17 +884,29 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             c->state = FW_STATE_RUN;
             reset_control(c);
             c->speed_ref_ramped = c->speed_f_rpm;
-            fw_outer_select_parameters(c);
-            output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+            if (c->pol.method_used == FW_POL_METHOD_EMF) {
+                start_after_motion(c);
+                fw_outer_step(c); /* the load's current now, not at the next 1 kHz tick */
+            } else if (c->pol.method_used == FW_POL_METHOD_CATCH) {
+                start_after_catch(c);
+                fw_outer_step(c);
+            } else {
+                fw_outer_select_parameters(c);
+            }
+            output_voltage(c, current_loop(c, data_ok, &apply), k + 1u, pwm);
             break;
         }
         fw_outer_select_parameters(c);
         c->id_ref = pol_out.id;
         c->iq_ref = pol_out.iq;
-        output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+        output_voltage(c, fw_cadd(current_loop(c, data_ok, &apply), pol_out.v_ff), k + 1u, pwm);
         break;
     }
     case FW_STATE_RUN:
+        start_governor(c, data_ok);
+        if (c->start_fw_hold > 0) {
+            c->start_fw_hold--;
+        }
         polarity_lost_check(c);
         if (c->state != FW_STATE_RUN) {
             output_off(c, k + 1u, pwm);
@@ -751,7 +915,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         if (slow) {
             fw_outer_step(c);
         }
-        output_voltage(c, current_loop(c, data_ok), k + 1u, pwm);
+        output_voltage(c, current_loop(c, data_ok, &apply), k + 1u, pwm);
         break;
     default:
         reset_control(c);
@@ -770,7 +934,8 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         /* plus the reluctance torque of the next pattern's current ripple (its mean over the
          * period, with the incremental inductances the ripple sees) */
         c->te_ripple = FW_REAL(1.5) * p[FW_IDX_POLE_PAIRS] * (c->pe.ld_inc - c->pe.lq_inc) *
-                       fw_recon_ripple_dq_product(c, &c->plan_next);
+                       (apply.valid ? fw_recon_ripple_dq_product_at(c, &c->plan_next, &apply)
+                                    : fw_recon_ripple_dq_product(c, &c->plan_next));
     } else {
         c->te_hat = FW_REAL(0.0);
         c->te_model = FW_REAL(0.0);

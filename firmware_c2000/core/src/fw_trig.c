@@ -7,54 +7,14 @@
  * rounded as IEEE 754 prescribes on every target (built without contraction into fused
  * multiply-adds), so the host and the target compute the same bits. Accuracy: within about
  * one unit in the last place for |x| < 6400 rad (the reduction below is exact there); the
- * core's angles are wrapped or products of a speed and a period, far inside that.
+ * core's angles are wrapped or products of a speed and a period, far inside that. The sine
+ * and cosine (fw_sincos) are inline in fw_math.h: a dozen per period, and the call with its
+ * results through memory cost a fifth of each on a Cortex-M4F.
  *
  * On a C28x with TMU the three map to its sin/cos/atan instructions (per-unit angles), on a
  * fixed-point part to IQmath's _IQsin/_IQcos/_IQatan2 (fw_math.h).
  */
 #include "fw_math.h"
-
-/* pi/2 = PIO2_1 + PIO2_2 + PIO2_3: the first two have 12 significant bits, so k * PIO2_1
- * and k * PIO2_2 are exact for |k| < 2^12 (Cody and Waite's reduction) */
-#define PIO2_1 FW_REAL(1.57080078125)
-#define PIO2_2 FW_REAL(-4.453584551811218e-06)
-#define PIO2_3 FW_REAL(-8.705515752716053e-10)
-#define TWO_OVER_PI FW_REAL(0.63661977236758134308)
-#define QUARTER_TURNS_MAX FW_REAL(1.0e6) /* beyond: no angle the core holds */
-
-void fw_sincos(real_t x, real_t *s, real_t *c)
-{
-    const real_t q = x * TWO_OVER_PI;
-    real_t r, r2, sr, cr;
-    int32_t k;
-    if (!(q > -QUARTER_TURNS_MAX && q < QUARTER_TURNS_MAX)) {
-        const real_t z = x - x; /* NaN for NaN and infinities, as the C library's */
-        *s = z;
-        *c = FW_REAL(1.0) + z;
-        return;
-    }
-    k = (int32_t)(q >= FW_REAL(0.0) ? q + FW_REAL(0.5) : q - FW_REAL(0.5));
-    r = x - (real_t)k * PIO2_1;
-    r = r - (real_t)k * PIO2_2;
-    r = r - (real_t)k * PIO2_3; /* |r| <= pi/4 */
-    r2 = r * r;
-    /* Taylor series: the first omitted terms are below 2e-9 on |r| <= pi/4 */
-    sr = r + r * r2 *
-                 (FW_REAL(-1.0 / 6.0) +
-                  r2 * (FW_REAL(1.0 / 120.0) +
-                        r2 * (FW_REAL(-1.0 / 5040.0) + r2 * FW_REAL(1.0 / 362880.0))));
-    cr = FW_REAL(1.0) - FW_REAL(0.5) * r2 +
-         r2 * r2 *
-             (FW_REAL(1.0 / 24.0) +
-              r2 * (FW_REAL(-1.0 / 720.0) +
-                    r2 * (FW_REAL(1.0 / 40320.0) + r2 * FW_REAL(-1.0 / 3628800.0))));
-    switch (k & 3) {
-    case 0: *s = sr; *c = cr; break;
-    case 1: *s = cr; *c = -sr; break;
-    case 2: *s = -sr; *c = -cr; break;
-    default: *s = -cr; *c = sr; break;
-    }
-}
 
 real_t fw_sin(real_t x)
 {

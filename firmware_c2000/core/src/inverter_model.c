@@ -5,50 +5,56 @@
  */
 #include "fw_internal.h"
 
-/* Phase currents (a, b, c) of an alpha-beta current */
-void fw_inverter_phase_currents(fw_cplx_t i, real_t iph[3])
-{
-    iph[0] = i.re;
-    iph[1] = FW_REAL(-0.5) * i.re + FW_REAL(0.5) * FW_M_SQRT3 * i.im;
-    iph[2] = FW_REAL(-0.5) * i.re - FW_REAL(0.5) * FW_M_SQRT3 * i.im;
-}
-
-/* Alpha-beta voltage of per-phase voltages (isolated neutral) */
-fw_cplx_t fw_inverter_phase_to_ab(const real_t v[3])
-{
-    return fw_c((FW_REAL(2.0) / FW_REAL(3.0)) * (v[0] - FW_REAL(0.5) * (v[1] + v[2])),
-                (v[1] - v[2]) * FW_M_INV_SQRT3);
-}
-
 /* The devices' forward drop over a stretch of time in which the current moves linearly from
  * i0 to i1 (alpha-beta): every leg loses vdrop in the direction of its current in every
  * switching state (transistor or diode), so it only shapes the current where a phase current
  * changes sign within the period. Per leg the mean of sign(i) over a linear stretch is
  * (|i1| - |i0|) / (i1 - i0); within 1 mA of a zero the sign goes soft. */
+/* mean sign of a leg's current moving linearly from a to b near a zero (leg_sign) */
+static real_t leg_sign_near_zero(real_t a, real_t b)
+{
+    real_t d = b - a;
+    return (fw_fabs(d) > FW_REAL(1e-3))
+               ? (fw_fabs(b) - fw_fabs(a)) / d
+               : fw_clamp((a + b) / FW_REAL(2e-3), FW_REAL(-1.0), FW_REAL(1.0));
+}
+
+/* mean sign of a leg's current moving linearly from a to b: with both ends at least 2 mA on
+ * one side the formula gives exactly +-1 */
+static inline real_t leg_sign(real_t a, real_t b)
+{
+    if (a >= FW_REAL(2e-3) && b >= FW_REAL(2e-3)) {
+        return FW_REAL(1.0);
+    }
+    if (a <= FW_REAL(-2e-3) && b <= FW_REAL(-2e-3)) {
+        return FW_REAL(-1.0);
+    }
+    return leg_sign_near_zero(a, b);
+}
+
 fw_cplx_t fw_inverter_drop_voltage(const fw_core_t *c, fw_cplx_t i0, fw_cplx_t i1)
 {
-    real_t a[3], b[3], v[3];
-    int16_t x;
-    fw_inverter_phase_currents(i0, a);
-    fw_inverter_phase_currents(i1, b);
-    for (x = 0; x < 3; x++) {
-        real_t d = b[x] - a[x];
-        real_t sgn = (fw_fabs(d) > FW_REAL(1e-3))
-                         ? (fw_fabs(b[x]) - fw_fabs(a[x])) / d
-                         : fw_clamp((a[x] + b[x]) / FW_REAL(2e-3), FW_REAL(-1.0), FW_REAL(1.0));
-        v[x] = -c->p[FW_IDX_VDROP_V] * sgn;
-    }
+    const real_t vdrop = c->p[FW_IDX_VDROP_V];
+    real_t v[3];
+    v[0] = -vdrop * leg_sign(i0.re, i1.re);
+    v[1] = -vdrop * leg_sign(fw_inverter_phase_b(i0), fw_inverter_phase_b(i1));
+    v[2] = -vdrop * leg_sign(fw_inverter_phase_c(i0), fw_inverter_phase_c(i1));
     return fw_inverter_phase_to_ab(v);
 }
 
 /* the current of window w at its first and last sample (the stretch its slope was fitted on) */
-static void window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1)
+static inline void window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1)
 {
     const fw_window_t *win = &c->plan_cur.win[w];
     real_t t0 = (real_t)c->plan_cur.soc[win->soc_first] - c->slope_t[w];
     real_t t1 = (real_t)c->plan_cur.soc[win->soc_first + win->soc_count - 1] - c->slope_t[w];
     *i0 = fw_cadd(c->i_win[w], fw_cscale(c->slope[w], t0 * FW_TICK_S));
     *i1 = fw_cadd(c->i_win[w], fw_cscale(c->slope[w], t1 * FW_TICK_S));
+}
+
+void fw_inverter_window_span(const fw_core_t *c, int16_t w, fw_cplx_t *i0, fw_cplx_t *i1)
+{
+    window_span(c, w, i0, i1);
 }
 
 /* drop voltage over the sampled stretch of window w */

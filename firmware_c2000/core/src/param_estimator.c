@@ -230,50 +230,90 @@ int16_t fw_paramest_iq_learnt(const fw_param_est_t *pe, real_t iq, int16_t min_u
     return (int16_t)(pe->lq_bin_seen[b] >= min_updates);
 }
 
+/* the learnt bin (not n1) whose point lies nearest to n1's, the lowest of equally near ones */
+static int16_t nearest_learnt(const fw_param_est_t *pe, const int16_t *learnt, int16_t n,
+                              int16_t n1)
+{
+    int16_t n2 = -1;
+    int16_t j;
+    for (j = 0; j < n; j++) {
+        int16_t b = learnt[j];
+        if (b != n1 && (n2 < 0 || fw_fabs(pe->lq_bin_x[b] - pe->lq_bin_x[n1]) <
+                                      fw_fabs(pe->lq_bin_x[n2] - pe->lq_bin_x[n1]))) {
+            n2 = b;
+        }
+    }
+    return n2;
+}
+
 real_t fw_paramest_inv_lq_slope(const fw_param_est_t *pe, real_t iq)
 {
     /* the two learnt points nearest |iq| (one on each side when there are), at least
-     * FW_KAPPA_MIN_DX apart so that bin noise does not become a steep slope */
+     * FW_KAPPA_MIN_DX apart so that bin noise does not become a steep slope. The learnt bins
+     * are listed once; their points normally rise with the bin (each is a mean of currents
+     * within its bin), and then the nearest ones on each side are neighbours in the list. */
+    const real_t *x = pe->lq_bin_x;
     real_t a = fw_fabs(iq);
+    real_t x_prev = FW_REAL(0.0);
+    int16_t learnt[FW_LQ_BINS];
+    int32_t n = 0, below = 0; /* learnt bins, of them at or below |iq| */
+    int16_t rising = 1;
     int16_t lo = -1, hi = -1;
-    int16_t b;
+    int32_t b, j;
     real_t k, lim;
     for (b = 0; b < FW_LQ_BINS; b++) {
-        if (pe->lq_bin_seen[b] < FW_LQ_BIN_MIN) {
-            continue;
-        }
-        if (pe->lq_bin_x[b] <= a) {
-            if (lo < 0 || pe->lq_bin_x[b] > pe->lq_bin_x[lo]) {
-                lo = b;
+        if (pe->lq_bin_seen[b] >= FW_LQ_BIN_MIN) {
+            const real_t xb = x[b];
+            if (n > 0 && !(xb > x_prev)) {
+                rising = 0;
             }
-        } else if (hi < 0 || pe->lq_bin_x[b] < pe->lq_bin_x[hi]) {
-            hi = b;
+            below += (xb <= a) ? 1 : 0;
+            x_prev = xb;
+            learnt[n++] = (int16_t)b;
+        }
+    }
+    if (rising) {
+        /* the last point at or below |iq| and the first above it (no two are equal) */
+        lo = (below > 0) ? learnt[below - 1] : (int16_t)-1;
+        hi = (below < n) ? learnt[below] : (int16_t)-1;
+    } else {
+        for (j = 0; j < n; j++) {
+            int16_t lb = learnt[j];
+            if (x[lb] <= a) {
+                if (lo < 0 || x[lb] > x[lo]) {
+                    lo = lb;
+                }
+            } else if (hi < 0 || x[lb] < x[hi]) {
+                hi = lb;
+            }
         }
     }
     if (lo < 0 || hi < 0) {
         /* one side only: the two nearest learnt points on it */
         int16_t n1 = (lo >= 0) ? lo : hi;
-        int16_t n2 = -1;
-        if (n1 < 0) {
+        int16_t n2;
+        if (n1 < 0 || n < 2) {
             return FW_REAL(0.0);
         }
-        for (b = 0; b < FW_LQ_BINS; b++) {
-            if (b != n1 && pe->lq_bin_seen[b] >= FW_LQ_BIN_MIN &&
-                (n2 < 0 || fw_fabs(pe->lq_bin_x[b] - pe->lq_bin_x[n1]) <
-                               fw_fabs(pe->lq_bin_x[n2] - pe->lq_bin_x[n1]))) {
-                n2 = b;
-            }
+        if (rising && hi >= 0) {
+            /* n1 the first point: its distances to the next ones grow (rounded: do not
+             * fall), and equal ones go to the lower bin, the next one */
+            n2 = learnt[1];
+        } else if (rising && (n < 3 || !(fw_fabs(x[learnt[n - 3]] - x[n1]) ==
+                                        fw_fabs(x[learnt[n - 2]] - x[n1])))) {
+            /* n1 the last point: the one before it is nearest unless an earlier one rounds
+             * to the same distance (then the lowest of those: the search below) */
+            n2 = learnt[n - 2];
+        } else {
+            n2 = nearest_learnt(pe, learnt, (int16_t)n, n1);
         }
-        if (n2 < 0) {
-            return FW_REAL(0.0);
-        }
-        lo = (pe->lq_bin_x[n1] < pe->lq_bin_x[n2]) ? n1 : n2;
+        lo = (x[n1] < x[n2]) ? n1 : n2;
         hi = (lo == n1) ? n2 : n1;
     }
-    if (!(pe->lq_bin_x[hi] - pe->lq_bin_x[lo] >= FW_KAPPA_MIN_DX)) {
+    if (!(x[hi] - x[lo] >= FW_KAPPA_MIN_DX)) {
         return FW_REAL(0.0);
     }
-    k = (pe->lq_bin[hi] - pe->lq_bin[lo]) / (pe->lq_bin_x[hi] - pe->lq_bin_x[lo]);
+    k = (pe->lq_bin[hi] - pe->lq_bin[lo]) / (x[hi] - x[lo]);
     /* a plausible saturation slope: below 0.6 of 1/Lq per ampere */
     lim = FW_REAL(0.6) * fw_max(pe->lq_bin[lo], pe->lq_bin[hi]);
     k = fw_clamp(k, -lim, lim);

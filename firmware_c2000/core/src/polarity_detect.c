@@ -31,7 +31,34 @@
  *    only if d_hat points to the north pole; otherwise the rotor turns backwards. The core
  *    applies +iq then -iq (accelerate, brake) and looks at the sign of the angle travelled.
  *
- * pol_method 0 runs 1 and falls back to 2 when 1 is inconclusive.
+ * 3. Back-EMF (any profile, whenever the rotor turns: an overhauling load at enable, a shaft
+ *    still turning, the motion check itself): the flux linkage of the magnet is
+ *    lambda_m exp(j theta) in the true frame. Over a window the volt-seconds less rs i less
+ *    the change of the current's own flux L(theta_hat) i (a function of 2 theta: the same in
+ *    either frame) is the change of the magnet's flux, lambda_m (exp(j theta1) - exp(j theta0))
+ *    when theta_hat points to the north pole and the negative of it when it points south.
+ *    Projected on the chord of the tracked angle it gives +-lambda_m; once the chord spans
+ *    pol_emf_min_deg and the projection lies within half of +-lambda_m it decides, whichever
+ *    test is running. Voltage-model errors integrate as dv t against lambda_m times the angle
+ *    turned; the errors along the current (rs, dead time, the saturation test's d current)
+ *    are at right angles to the chord while the angle is small.
+ *
+ * 4. Catch (a shaft turning fast at the enable): from the third period with the gates on the
+ *    back-EMF vector of each period comes from its volt-seconds, e = v - rs i less the change
+ *    of the current's own flux L(theta) i (saliency axes on a straight line through the raw
+ *    angles, turning at |e| / lambda_m one way and the other: two measurements), and is fed
+ *    forward into the next period so that the current stays small (with zero volts it rose
+ *    by 0.9 A per period at 3000 r/min: 136 V over 15 mH). It turns at the rotor's speed,
+ *    omega Ts per period, and points along j omega lambda_m exp(j theta): its angle less
+ *    sign(omega) pi/2 is the magnet's angle, polarity included. Decided once the raw angles
+ *    show which way the rotor turns, the measurement with the axes turning that way turns the
+ *    same way clear of its noise, |e| / lambda_m agrees with that turn, and the turn gives the
+ *    speed within 2 % (or 30 vectors have passed, or the back-EMF exceeds the voltage the
+ *    start-up may apply: then |e| / lambda_m); given up after POL_CATCH_MAX periods (a slow
+ *    shaft: the tests above decide).
+ *
+ * pol_method 0 runs 1 and falls back to 2 when 1 is inconclusive; 3 and 4 decide in any
+ * method.
  */
 #include "fw_internal.h"
 
@@ -51,11 +78,52 @@ enum {
 #define POL_K_SIGMA FW_REAL(4.0)
 /* +/- pairs of holds at most (a noisy measurement averages longer before it gives up) */
 #define POL_MAX_PAIRS 4
+/* back-EMF test: the raw angle's slope against the back-EMF's angle is +1 on the north pole,
+ * -1 on the south pole; decided within POL_EMF_TOL of one of them with a standard error
+ * below POL_EMF_SE_MAX (then the other lies 6 standard errors away), from POL_EMF_MIN_N
+ * raw estimates on */
+#define POL_EMF_TOL FW_REAL(0.5)
+#define POL_EMF_SE_MAX FW_REAL(0.25)
+#define POL_EMF_MIN_N 10
+/* catch: the vector's angle must turn at a slope POL_CATCH_K_SIGMA standard errors clear of
+ * zero over at least POL_CATCH_MIN_N vectors and agree with |e| / lambda_m within
+ * POL_CATCH_AGREE of it, at most POL_CATCH_MAX periods (the vector scatters by ~0.2 rad per
+ * period on harsh at 2000 r/min: the dead time of a near-zero current) */
+#define POL_CATCH_K_SIGMA FW_REAL(5.0)
+#define POL_CATCH_MIN_N 6
+#define POL_CATCH_AGREE FW_REAL(0.5)
+#define POL_CATCH_MAX 60
+/* ... the speed from that turn once its standard error is below POL_CATCH_TURN_REL of it;
+ * from |e| / lambda_m (which carries the errors of lambda_m and of the current's modelled
+ * flux: -3..-6 % on harsh, +6..+9 % at 3000 r/min on paper) only after POL_CATCH_MAG_N
+ * vectors or where the back-EMF exceeds the voltage the start-up may apply (the current
+ * then grows while the catch waits) */
+#define POL_CATCH_TURN_REL FW_REAL(0.02)
+#define POL_CATCH_MAG_N 30
+/* ... and the raw angles must turn the same way, POL_CATCH_RAW_K_SIGMA standard errors clear
+ * of zero over at least POL_CATCH_RAW_MIN_N of them */
+#define POL_CATCH_RAW_K_SIGMA FW_REAL(3.0)
+#define POL_CATCH_RAW_MIN_N 3
+/* ... and fed forward where its mean magnitude exceeds POL_CATCH_FF_MIN_V or POL_CATCH_FF_K
+ * times its scatter per component (a vector of noise alone has a mean magnitude of 1.25 of
+ * it; on harsh at standstill the vectors scatter by tens of volts, the dead time of a
+ * near-zero current, and fed forward they shook the start-up) */
+#define POL_CATCH_FF_MIN_V FW_REAL(60.0)
+#define POL_CATCH_FF_K FW_REAL(3.0)
+/* ... and never below POL_CATCH_FF_FLOOR_V: the voltage model's own errors at standstill (rs,
+ * dead time under the saturation test's 3 A) are a few volts, quiet enough for the test
+ * above (~250 r/min of back-EMF on the paper machine) */
+#define POL_CATCH_FF_FLOOR_V FW_REAL(12.0)
+/* periods of tracking before the window starts (the tracker's convergence, 60 Hz: a reset
+ * takes one raw estimate, 10-20 deg off on harsh at standstill) */
+#define POL_EMF_WAIT 20
 
 void fw_polarity_start(fw_polarity_t *pol)
 {
+    int16_t h;
     pol->phase = POL_SETTLE;
     pol->count = 0;
+    pol->periods = 0;
     pol->id_pos = FW_REAL(0.0);
     pol->id_neg = FW_REAL(0.0);
     pol->l_pos = FW_REAL(0.0);
@@ -68,6 +136,37 @@ void fw_polarity_start(fw_polarity_t *pol)
     pol->si[0] = pol->si[1] = FW_REAL(0.0);
     pol->n[0] = pol->n[1] = 0;
     pol->pairs = 0;
+    pol->emf_on = 0;
+    pol->emf_wait = 0;
+    pol->emf_psi_i = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    pol->emf_phi = pol->emf_phi_min = pol->emf_phi_max = FW_REAL(0.0);
+    pol->emf_raw = pol->emf_raw0 = FW_REAL(0.0);
+    pol->emf_m = 0;
+    pol->emf_sp = pol->emf_spp = pol->emf_sr = pol->emf_spr = pol->emf_srr = FW_REAL(0.0);
+    pol->emf_s0 = pol->emf_s1 = pol->emf_s2 = pol->emf_sy = pol->emf_sny = FW_REAL(0.0);
+    pol->emf_slope = FW_REAL(0.0);
+    pol->emf_slope_se = FW_REAL(0.0);
+    pol->catch_on = 1;
+    /* the period the enable sees has the gates off, and the first one with them on starts
+     * from a current measured in the off period (pulses through the diodes at high speed):
+     * neither counts */
+    pol->catch_n = -2;
+    pol->catch_k = 0;
+    pol->catch_rn = 0;
+    pol->catch_rlast = FW_REAL(0.0);
+    pol->catch_rj = pol->catch_rjj = pol->catch_rt = pol->catch_rjt = pol->catch_rtt =
+        FW_REAL(0.0);
+    pol->catch_wax = FW_REAL(0.0);
+    pol->catch_i = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    for (h = 0; h < 2; h++) {
+        pol->catch_h[h].e = pol->catch_h[h].e2 = pol->catch_i;
+        pol->catch_h[h].d2 = pol->catch_h[h].ang = pol->catch_h[h].mag = FW_REAL(0.0);
+        pol->catch_h[h].s1 = pol->catch_h[h].s2 = pol->catch_h[h].sp = pol->catch_h[h].skp =
+            pol->catch_h[h].spp = FW_REAL(0.0);
+    }
+    pol->catch_w = FW_REAL(0.0);
+    pol->catch_omega = FW_REAL(0.0);
+    pol->catch_theta = FW_REAL(0.0);
     pol->theta_start = FW_REAL(0.0);
     pol->moved = FW_REAL(0.0);
     pol->method_used = 0;
@@ -83,7 +182,7 @@ static void next_phase(fw_polarity_t *pol, int16_t phase)
 
 static void start_motion(fw_polarity_t *pol, const fw_core_t *c)
 {
-    pol->method_used = 2;
+    pol->method_used = FW_POL_METHOD_MOTION;
     pol->theta_start = c->trk.theta_unwrapped;
     next_phase(pol, POL_MOTION_ACC);
 }
@@ -162,6 +261,311 @@ static int16_t verdict(fw_polarity_t *pol, const real_t *p)
     return 0;
 }
 
+/* the flux of current i in the frame whose d axis is u = exp(j theta): Ld along u, Lq across */
+static fw_cplx_t current_flux(fw_cplx_t u, fw_cplx_t i, real_t ld, real_t lq)
+{
+    fw_cplx_t idq = fw_cmul(i, fw_cconj(u));
+    return fw_cmul(u, fw_c(ld * idq.re, lq * idq.im));
+}
+
+/* back-EMF test, once per period with data (test 3 above): 1 the frame points to the north
+ * pole, -1 to the south pole, 0 not decided yet */
+static int16_t emf_step(fw_polarity_t *pol, const fw_core_t *c)
+{
+    const real_t *p = c->p;
+    real_t span_min = p[FW_IDX_POL_EMF_MIN_DEG] * (FW_M_PI / FW_REAL(180.0));
+    fw_cplx_t u1, psi_i1, du;
+    real_t n, e_q, s_pp, s_pr, s_rr, slope, rss, se;
+    if (!(p[FW_IDX_POL_EMF_MIN_DEG] > FW_REAL(0.0)) || !c->trk.init) {
+        return 0;
+    }
+    if (pol->emf_wait < POL_EMF_WAIT) {
+        pol->emf_wait++; /* the tracked frame first converges (its q axis projects the EMF) */
+        return 0;
+    }
+    /* the current's own flux at the end of this period, in the tracked frame */
+    u1 = fw_cexpj(fw_tracker_predict(&c->trk, FW_P_TICKS));
+    psi_i1 = current_flux(u1, c->i_end, p[FW_IDX_LD_H], p[FW_IDX_LQ_H]);
+    if (!pol->emf_on) {
+        pol->emf_on = 1;
+        pol->emf_psi_i = psi_i1;
+        pol->emf_phi = pol->emf_phi_min = pol->emf_phi_max = FW_REAL(0.0);
+        pol->emf_raw = FW_REAL(0.0);
+        pol->emf_m = 0;
+        pol->emf_sp = pol->emf_spp = pol->emf_sr = pol->emf_spr = pol->emf_srr = FW_REAL(0.0);
+        pol->emf_s0 = pol->emf_s1 = pol->emf_s2 = pol->emf_sy = pol->emf_sny = FW_REAL(0.0);
+        return 0;
+    }
+    /* this period's magnet flux change across the tracked d axis at mid-period: the q
+     * back-EMF, lambda_m omega in a frame on the north pole, its negative on the south pole */
+    du = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_IDX_RS_OHM])), FW_TS);
+    du = fw_csub(du, fw_csub(psi_i1, pol->emf_psi_i));
+    pol->emf_psi_i = psi_i1;
+    e_q = fw_cmul(du, fw_cexpj(-fw_tracker_predict(&c->trk, FW_H_TICKS))).im / FW_TS;
+    /* its straight line over the window's periods (the shaft's speed and acceleration) */
+    pol->emf_s0 += FW_REAL(1.0);
+    n = pol->emf_s0;
+    pol->emf_s1 += n;
+    pol->emf_s2 += n * n;
+    pol->emf_sy += e_q;
+    pol->emf_sny += n * e_q;
+    /* the angle it says the rotor has turned, with the frame's sign: +-(theta - theta0) */
+    pol->emf_phi += e_q * FW_TS / p[FW_IDX_LAMBDA_M_WB];
+    pol->emf_phi_min = fw_min(pol->emf_phi_min, pol->emf_phi);
+    pol->emf_phi_max = fw_max(pol->emf_phi_max, pol->emf_phi);
+    if (!c->est.ok) {
+        return 0;
+    }
+    /* the raw slope angle against it, on the branch the tracker chose (its prediction plus
+     * the innovation; differences of raw estimates wrapped by pi slipped by pi on harsh,
+     * where one scatters by up to 35 deg at zero current), relative to the window start */
+    {
+        real_t raw_u = c->trk.theta_unwrapped + (FW_REAL(1.0) - c->trk.l1) * c->trk.last_err;
+        if (pol->emf_m == 0) {
+            pol->emf_raw0 = raw_u;
+        }
+        pol->emf_raw = raw_u - pol->emf_raw0;
+    }
+    pol->emf_m++;
+    pol->emf_sp += pol->emf_phi;
+    pol->emf_spp += pol->emf_phi * pol->emf_phi;
+    pol->emf_sr += pol->emf_raw;
+    pol->emf_spr += pol->emf_phi * pol->emf_raw;
+    pol->emf_srr += pol->emf_raw * pol->emf_raw;
+    if (pol->emf_m < POL_EMF_MIN_N || pol->emf_phi_max - pol->emf_phi_min < span_min) {
+        return 0;
+    }
+    n = (real_t)pol->emf_m;
+    s_pp = pol->emf_spp - pol->emf_sp * pol->emf_sp / n;
+    s_pr = pol->emf_spr - pol->emf_sp * pol->emf_sr / n;
+    s_rr = pol->emf_srr - pol->emf_sr * pol->emf_sr / n;
+    if (!(s_pp > FW_REAL(0.0))) {
+        return 0;
+    }
+    slope = s_pr / s_pp;
+    rss = fw_max(s_rr - slope * s_pr, FW_REAL(0.0));
+    se = fw_sqrt(rss / ((n - FW_REAL(2.0)) * s_pp));
+    pol->emf_slope = slope;
+    pol->emf_slope_se = se;
+    if (se > POL_EMF_SE_MAX) {
+        return 0;
+    }
+    if (fw_fabs(slope - FW_REAL(1.0)) < POL_EMF_TOL) {
+        return 1;
+    }
+    if (fw_fabs(slope + FW_REAL(1.0)) < POL_EMF_TOL) {
+        return -1;
+    }
+    return 0;
+}
+
+/* The catch's raw angles: each period's (if the slopes gave one) at the period's end,
+ * continued modulo pi, on a straight line against the period index. Returns the way they
+ * turn, +1 or -1, once that is POL_CATCH_RAW_K_SIGMA standard errors clear of zero, else 0
+ * (the rotor's direction: the slopes see the saliency, which turns with the rotor; only its
+ * polarity is ambiguous). */
+static int16_t catch_raw(fw_polarity_t *pol, const fw_core_t *c)
+{
+    real_t rn, k = (real_t)pol->catch_k;
+    if (c->est.ok) {
+        /* (its reference instant lies within the period) */
+        real_t r = c->est.theta_raw +
+                   pol->catch_wax * (real_t)(FW_P_TICKS - c->stamp) / (real_t)FW_P_TICKS;
+        if (pol->catch_rn == 0) {
+            pol->catch_rlast = r;
+        } else {
+            pol->catch_rlast += FW_REAL(0.5) * fw_wrap_pi(FW_REAL(2.0) * (r - pol->catch_rlast));
+        }
+        pol->catch_rn++;
+        pol->catch_rj += k;
+        pol->catch_rjj += k * k;
+        pol->catch_rt += pol->catch_rlast;
+        pol->catch_rjt += k * pol->catch_rlast;
+        pol->catch_rtt += pol->catch_rlast * pol->catch_rlast;
+    }
+    rn = (real_t)pol->catch_rn;
+    if (pol->catch_rn >= POL_CATCH_RAW_MIN_N) {
+        real_t s_kk = pol->catch_rjj - pol->catch_rj * pol->catch_rj / rn;
+        real_t s_kr = pol->catch_rjt - pol->catch_rj * pol->catch_rt / rn;
+        real_t s_rr = pol->catch_rtt - pol->catch_rt * pol->catch_rt / rn;
+        if (s_kk > FW_REAL(0.0)) {
+            real_t sl = s_kr / s_kk;
+            real_t se = fw_sqrt(fw_max(s_rr - sl * s_kr, FW_REAL(0.0)) / ((rn - FW_REAL(2.0)) * s_kk));
+            if (fw_fabs(sl) > POL_CATCH_RAW_K_SIGMA * se) {
+                return (sl > FW_REAL(0.0)) ? 1 : -1;
+            }
+        }
+    }
+    return 0;
+}
+
+/* One period's back-EMF vector with the saliency axes turning by dth per period: v - rs i
+ * less the current's own flux change L(theta) i at the period's end less at its start
+ * (either frame: L depends on 2 theta), both ends on the straight line with that slope
+ * through the raw angles; with no raw angle yet, the mean inductance. Both ends from one
+ * line: the flux term changes by (Lq - Ld)/2 |i| 2 dtheta where the axes jump by dtheta,
+ * 420 V per rad at 2.5 A on the paper machine, so neither the raw angle's jitter from period
+ * to period (1-3 deg at 3000 r/min) nor axes turned at a wrong speed may enter it. */
+static fw_cplx_t catch_vector(const fw_polarity_t *pol, const fw_core_t *c, real_t dth)
+{
+    const real_t *p = c->p;
+    real_t ld = p[FW_IDX_LD_H], lq = p[FW_IDX_LQ_H];
+    fw_cplx_t di;
+    if (pol->catch_rn > 0) {
+        real_t rn = (real_t)pol->catch_rn;
+        real_t th = (pol->catch_rt - dth * pol->catch_rj) / rn + dth * (real_t)pol->catch_k;
+        fw_cplx_t u1 = fw_cexpj(th), u0 = fw_cexpj(th - dth);
+        fw_cplx_t i1 = fw_cmul(c->i_end, fw_cconj(u1)), i0 = fw_cmul(pol->catch_i, fw_cconj(u0));
+        di = fw_csub(fw_cmul(u1, fw_c(ld * i1.re, lq * i1.im)),
+                     fw_cmul(u0, fw_c(ld * i0.re, lq * i0.im)));
+    } else {
+        di = fw_cscale(fw_csub(c->i_end, pol->catch_i), FW_REAL(0.5) * (ld + lq));
+    }
+    return fw_csub(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_IDX_RS_OHM])),
+                   fw_cscale(di, FW_REAL(1.0) / FW_TS));
+}
+
+/* The catch (test 4 above), once per period with data: 1 when decided, 0 otherwise; the
+ * feed-forward for the next period in *v_ff. The vectors are measured twice, with the
+ * saliency axes turning forwards and backwards at the speed their own magnitude gives; the
+ * raw angles' turn picks one (turned at the vector's own turn instead, a first few vectors
+ * that seemed to turn the wrong way, the start's transient, turned the axes that way and the
+ * vectors after them further: 3000 r/min read as +3340 on paper, 1 seed in 8, 10 A and the
+ * position lost) */
+static int16_t catch_step(fw_polarity_t *pol, const fw_core_t *c, fw_cplx_t *v_ff)
+{
+    const real_t *p = c->p;
+    real_t lambda = p[FW_IDX_LAMBDA_M_WB];
+    fw_cplx_t e_ff[2];
+    real_t n, slope[2], dth[2];
+    int16_t sgn, h, pick, ff[2];
+    *v_ff = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    if (!pol->catch_on) {
+        return 0;
+    }
+    sgn = catch_raw(pol, c);
+    pick = (sgn > 0) ? 0 : 1;
+    for (h = 0; h < 2; h++) {
+        real_t w = (pol->catch_n > 0) ? pol->catch_h[h].mag / (real_t)pol->catch_n
+                                      : fw_cabs(pol->catch_h[h].e);
+        fw_cplx_t e;
+        dth[h] = ((h == 0) ? FW_REAL(1.0) : FW_REAL(-1.0)) * w / lambda * FW_TS;
+        e = catch_vector(pol, c, dth[h]);
+        e_ff[h] = fw_cscale(fw_cadd(e, pol->catch_h[h].e), FW_REAL(0.5));
+        if (pol->catch_n >= 2) {
+            /* the scatter of the vectors: same-parity differences two periods apart */
+            pol->catch_h[h].d2 += fw_cabs2(fw_csub(e, pol->catch_h[h].e2));
+        }
+        pol->catch_h[h].e2 = pol->catch_h[h].e;
+        pol->catch_h[h].e = e;
+    }
+    pol->catch_wax = (sgn != 0) ? dth[pick] : FW_REAL(0.0);
+    pol->catch_i = c->i_end;
+    pol->catch_k++;
+    if (pol->catch_n < 0) {
+        pol->catch_n++;
+        return 0;
+    }
+    /* the angle of each, continued across periods, against the period index: a straight
+     * line whose slope is omega Ts */
+    n = (real_t)pol->catch_n;
+    for (h = 0; h < 2; h++) {
+        fw_cplx_t e = pol->catch_h[h].e;
+        real_t ang = fw_atan2(e.im, e.re);
+        real_t s_kk, s_kp;
+        if (pol->catch_n == 0) {
+            pol->catch_h[h].ang = ang;
+        } else {
+            pol->catch_h[h].ang += fw_wrap_pi(ang - fw_wrap_pi(pol->catch_h[h].ang));
+        }
+        pol->catch_h[h].mag += fw_cabs(e);
+        pol->catch_h[h].s1 += n;
+        pol->catch_h[h].s2 += n * n;
+        pol->catch_h[h].sp += pol->catch_h[h].ang;
+        pol->catch_h[h].skp += n * pol->catch_h[h].ang;
+        pol->catch_h[h].spp += pol->catch_h[h].ang * pol->catch_h[h].ang;
+        s_kk = pol->catch_h[h].s2 - pol->catch_h[h].s1 * pol->catch_h[h].s1 / (n + FW_REAL(1.0));
+        s_kp = pol->catch_h[h].skp - pol->catch_h[h].s1 * pol->catch_h[h].sp / (n + FW_REAL(1.0));
+        slope[h] = (s_kk > FW_REAL(0.0)) ? s_kp / s_kk : FW_REAL(0.0);
+        /* fed forward where its mean magnitude stands out (POL_CATCH_FF_*) */
+        ff[h] = (int16_t)(pol->catch_h[h].mag >= POL_CATCH_FF_MIN_V * (n + FW_REAL(1.0)) ||
+                          (pol->catch_n >= 3 &&
+                           pol->catch_h[h].mag >= POL_CATCH_FF_FLOOR_V * (n + FW_REAL(1.0)) &&
+                           pol->catch_h[h].mag / (n + FW_REAL(1.0)) >=
+                               POL_CATCH_FF_K * fw_sqrt(pol->catch_h[h].d2 /
+                                                        (FW_REAL(4.0) * (n - FW_REAL(1.0))))));
+    }
+    pol->catch_n++;
+    n = (real_t)pol->catch_n;
+    if (sgn != 0) {
+        pol->catch_w = slope[pick] / FW_TS;
+    }
+    /* the next period's mean voltage sits 1.5 periods after this one's middle; the mean of
+     * two periods (an A/B pair, svpwm.c: their volt-second errors differ) half a period
+     * before it; while the turn's way is unknown, the mean of both measurements and no lead */
+    if (sgn != 0 && ff[pick]) {
+        real_t lead = (pol->catch_n >= POL_CATCH_MIN_N) ? FW_REAL(2.0) * slope[pick]
+                                                         : FW_REAL(0.0);
+        *v_ff = fw_cmul(e_ff[pick], fw_cexpj(lead));
+    } else if (sgn == 0 && (ff[0] || ff[1])) {
+        *v_ff = fw_cscale(fw_cadd(e_ff[0], e_ff[1]), FW_REAL(0.5));
+    }
+    if (sgn != 0 && pol->catch_n >= POL_CATCH_MIN_N &&
+        pol->catch_h[pick].mag >= POL_CATCH_FF_FLOOR_V * n &&
+        ((slope[pick] > FW_REAL(0.0)) ? 1 : -1) == sgn) {
+        /* (a slower shaft, e.g. one a load accelerates from rest, is the back-EMF test's:
+         * the start after it holds the load) */
+        real_t sl = slope[pick];
+        real_t s_kk = pol->catch_h[pick].s2 - pol->catch_h[pick].s1 * pol->catch_h[pick].s1 / n;
+        real_t s_kp = sl * s_kk;
+        real_t s_pp = pol->catch_h[pick].spp - pol->catch_h[pick].sp * pol->catch_h[pick].sp / n;
+        real_t w_mag = pol->catch_h[pick].mag / n / lambda;
+        real_t se = fw_sqrt(fw_max(s_pp - sl * s_kp, FW_REAL(0.0)) / ((n - FW_REAL(2.0)) * s_kk));
+        int16_t turn_ok = (int16_t)(se <= POL_CATCH_TURN_REL * fw_fabs(sl));
+        int16_t mag_ok = (int16_t)(pol->catch_n >= POL_CATCH_MAG_N || w_mag * lambda >= c->v_lim);
+        if (s_kk > FW_REAL(0.0) && fw_fabs(sl) >= POL_CATCH_K_SIGMA * se &&
+            fw_fabs(fw_fabs(sl) / FW_TS - w_mag) <= POL_CATCH_AGREE * w_mag &&
+            (turn_ok || mag_ok)) {
+            /* e is j omega lambda exp(j theta) at mid-period: the magnet half a period on,
+             * on the fitted line. The speed from the vector's turn where that is known to
+             * 2 %, else from its magnitude: with current flowing |e| / lambda_m carries the
+             * errors of the current's modelled flux (nominal L) and of lambda_m (3324 r/min
+             * at 3000 with 2.5 A from the diodes of the idle inverter; the turn gave 3000) */
+            real_t w = turn_ok ? sl / FW_TS : (real_t)sgn * w_mag;
+            real_t th = pol->catch_h[pick].sp / n +
+                        sl * (n - FW_REAL(1.0) - pol->catch_h[pick].s1 / n) +
+                        FW_REAL(0.5) * w * FW_TS - (real_t)sgn * FW_REAL(0.5) * FW_M_PI;
+            pol->catch_omega = w;
+            pol->catch_theta = fw_wrap_2pi(th);
+            pol->catch_on = 0;
+            return 1;
+        }
+    }
+    if (pol->catch_n >= POL_CATCH_MAX) {
+        pol->catch_on = 0; /* slow: the standstill tests decide */
+        *v_ff = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    }
+    return 0;
+}
+
+int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
+                           real_t *omega_now, real_t *accel)
+{
+    real_t n = pol->emf_s0;
+    real_t det = n * pol->emf_s2 - pol->emf_s1 * pol->emf_s1;
+    real_t b0, b1, k;
+    if (!pol->emf_on || n < FW_REAL(10.0) || !(det > FW_REAL(0.0)) || pol->result != 1) {
+        return 0;
+    }
+    b1 = (n * pol->emf_sny - pol->emf_s1 * pol->emf_sy) / det;
+    b0 = (pol->emf_sy - b1 * pol->emf_s1) / n;
+    k = (pol->flipped ? -FW_REAL(1.0) : FW_REAL(1.0)) / lambda_m;
+    *omega_start = k * b0;
+    *omega_now = k * (b0 + b1 * (n + FW_REAL(0.5)));
+    *accel = k * b1 / FW_TS;
+    return 1;
+}
+
 int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                     fw_polarity_out_t *out)
 {
@@ -175,6 +579,7 @@ int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t 
 
     out->id = FW_REAL(0.0);
     out->iq = FW_REAL(0.0);
+    out->v_ff = fw_c(FW_REAL(0.0), FW_REAL(0.0));
     if (pol->result != 0) {
         return pol->result;
     }
@@ -185,7 +590,25 @@ int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t 
         n_ramp = 1;
     }
     pol->count++;
+    pol->periods++;
     /* the measurements come from the core's per-period results (adc == 0: none this period) */
+    if (adc != 0 && catch_step(pol, c, &out->v_ff)) {
+        pol->method_used = FW_POL_METHOD_CATCH;
+        pol->flipped = 0; /* the catch's angle is the magnet's: the tracker starts from it */
+        pol->result = 1;
+        return pol->result;
+    }
+    /* (not while the motion check runs: the rotor turns because the check turns it, and the
+     * check decides by the angle it travelled) */
+    if (adc != 0 && pol->phase < POL_MOTION_ACC) {
+        int16_t emf = emf_step(pol, c);
+        if (emf != 0) {
+            pol->method_used = FW_POL_METHOD_EMF;
+            pol->flipped = (int16_t)(emf < 0);
+            pol->result = 1;
+            return pol->result;
+        }
+    }
 
     switch (pol->phase) {
     case POL_SETTLE:
@@ -200,7 +623,7 @@ int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t 
             if (method == 2) {
                 start_motion(pol, c);
             } else {
-                pol->method_used = 1;
+                pol->method_used = FW_POL_METHOD_SATURATION;
                 pol->g_ref = FW_REAL(1.0) / p[FW_IDX_LD_H];
                 next_phase(pol, POL_BIAS_P);
                 pol->count = 1;

@@ -16,13 +16,19 @@ int16_t fw_slope_window(const fw_plan_t *plan, int16_t w, const fw_adc_t *adc, i
     real_t sa, sb, ia, ib;
     int32_t a0, b0;
 
-    if (!win->measured || n < 2 || first + n > adc->n_soc) {
+    if (!win->measured || n < 2 || first + n > adc->n_soc || first + n > FW_MAX_SOC) {
         return 0;
     }
     a0 = adc->ia[first];
     b0 = adc->ib[first];
-    for (k = 0; k < n; k++) {
-        t_sum += (real_t)plan->soc[first + k];
+    {
+        /* at most FW_MAX_SOC (16) SOCs of 16 bits: every partial sum is a whole number below
+         * 2^24, so the integer sum is the float sum */
+        int32_t ticks = 0;
+        for (k = 0; k < n; k++) {
+            ticks += (int32_t)plan->soc[first + k];
+        }
+        t_sum = (real_t)ticks;
     }
     t_bar = t_sum / (real_t)n;
     /* Least squares on code differences: integer subtraction first, so a 24-bit converter
@@ -85,11 +91,19 @@ void fw_slope_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2
         real_t t_ref = FW_REAL(0.5) * (t[0] + t[1]);
         fw_cplx_t w[2], v[2], d, dw;
         real_t d2;
-        for (k = 0; k < 2; k++) {
-            fw_cplx_t rc = fw_cconj(fw_cexpj(FW_REAL(2.0) * omega * (t[k] - t_ref)));
-            w[k] = fw_cmul(y[k], rc);
-            v[k] = fw_cmul(u[k], rc);
-        }
+        real_t arg0 = FW_REAL(2.0) * omega * (t[0] - t_ref);
+        real_t arg1 = FW_REAL(2.0) * omega * (t[1] - t_ref);
+        fw_cplx_t rc0 = fw_cconj(fw_cexpj(arg0));
+        /* the windows lie symmetric about t_ref whenever t0 + t1 is exact: then the second
+         * rotation is the conjugate of the first, bit for bit (fw_sincos is odd in x for
+         * 0 < |x| < pi/4, where it reduces nothing) */
+        fw_cplx_t rc1 = (arg1 == -arg0 && arg0 != FW_REAL(0.0) && fw_fabs(arg0) < FW_REAL(0.78))
+                            ? fw_cconj(rc0)
+                            : fw_cconj(fw_cexpj(arg1));
+        w[0] = fw_cmul(y[0], rc0);
+        v[0] = fw_cmul(u[0], rc0);
+        w[1] = fw_cmul(y[1], rc1);
+        v[1] = fw_cmul(u[1], rc1);
         d = fw_csub(v[0], v[1]);
         dw = fw_csub(w[0], w[1]);
         d2 = fw_cabs2(d);
@@ -116,10 +130,4 @@ void fw_slope_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2
     out->theta_raw = FW_REAL(0.5) * fw_atan2(out->g.im, out->g.re);
     out->ok = (int16_t)(out->gamma0 > FW_REAL(0.0) && out->gamma1 > FW_REAL(0.0) &&
                         out->gamma1 < out->gamma0);
-}
-
-/* Gamma(theta) v = Gamma0 v + g conj(v), g = Gamma1 exp(j 2 theta) */
-fw_cplx_t fw_slope_gamma_times(real_t gamma0, fw_cplx_t g, fw_cplx_t v)
-{
-    return fw_cadd(fw_cscale(v, gamma0), fw_cmul(g, fw_cconj(v)));
 }

@@ -53,38 +53,15 @@
  */
 #include "fw_internal.h"
 
-/* cos/sin of phi_k = (k-1)*60 deg and of 2*phi_k, k = 1..6 */
-static const real_t vec_cos[6] = {FW_REAL(1.0), FW_REAL(0.5), FW_REAL(-0.5),
-                                  FW_REAL(-1.0), FW_REAL(-0.5), FW_REAL(0.5)};
-static const real_t vec_sin[6] = {FW_REAL(0.0), FW_REAL(0.86602540378443864676),
-                                  FW_REAL(0.86602540378443864676), FW_REAL(0.0),
-                                  FW_REAL(-0.86602540378443864676),
-                                  FW_REAL(-0.86602540378443864676)};
+/* cos/sin of phi_k = (k-1)*60 deg, k = 1..6 (fw_svpwm_vec_unit, fw_svpwm_vec_unit2) */
+const real_t fw_svpwm_vec_cos[6] = {FW_REAL(1.0), FW_REAL(0.5), FW_REAL(-0.5),
+                                    FW_REAL(-1.0), FW_REAL(-0.5), FW_REAL(0.5)};
+const real_t fw_svpwm_vec_sin[6] = {FW_REAL(0.0), FW_REAL(0.86602540378443864676),
+                                    FW_REAL(0.86602540378443864676), FW_REAL(0.0),
+                                    FW_REAL(-0.86602540378443864676),
+                                    FW_REAL(-0.86602540378443864676)};
 /* switching states of V1..V6: 100, 110, 010, 011, 001, 101 (bit0 = a, bit1 = b, bit2 = c) */
-static const int16_t vec_bits[6] = {1, 3, 2, 6, 4, 5};
-
-fw_cplx_t fw_svpwm_vec_unit(int16_t k)
-{
-    int16_t i = (int16_t)((k - 1) % 6);
-    return fw_c(vec_cos[i], vec_sin[i]);
-}
-
-fw_cplx_t fw_svpwm_vec_unit2(int16_t k)
-{
-    int16_t i = (int16_t)((2 * (k - 1)) % 6);
-    return fw_c(vec_cos[i], vec_sin[i]);
-}
-
-int16_t fw_svpwm_vec_state(int16_t k) { return vec_bits[(k - 1) % 6]; }
-
-fw_cplx_t fw_svpwm_state_voltage(int16_t s, real_t vdc)
-{
-    real_t sa = (real_t)(s & 1);
-    real_t sb = (real_t)((s >> 1) & 1);
-    real_t sc = (real_t)((s >> 2) & 1);
-    return fw_c(vdc * (FW_REAL(2.0) / FW_REAL(3.0)) * (sa - FW_REAL(0.5) * (sb + sc)),
-                vdc * FW_M_INV_SQRT3 * (sb - sc));
-}
+const int16_t fw_svpwm_vec_bits[6] = {1, 3, 2, 6, 4, 5};
 
 real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks)
 {
@@ -93,58 +70,65 @@ real_t fw_svpwm_vmax(real_t vdc, uint16_t tmin_ticks)
 
 static uint16_t u16(int32_t x) { return (uint16_t)((x < 0) ? 0 : ((x > 65535) ? 65535 : x)); }
 
-/* Turn the three on-intervals into the time-ordered list of switching states. */
+/* Turn the three on-intervals into the time-ordered list of switching states: the edges
+ * sorted with the phase each one toggles (an interval from 0 is on from the start, so no
+ * edge lies at 0); the state after the last edge of an instant is the state from there on
+ * (simultaneous edges make one boundary, a state like the one before makes none). */
 static void plan_segments(fw_plan_t *pl)
 {
-    uint16_t t[8];
-    int16_t n = 0;
-    int16_t i;
-    int16_t j;
-    t[n++] = 0;
+    uint16_t t[6];
+    int16_t mask[6];
+    int32_t n = 0;
+    int32_t i, j;
+    int16_t state = 0;
+    int16_t n_seg;
     for (i = 0; i < 3; i++) {
         if (pl->on[i] < pl->off[i]) {
             if (pl->on[i] > 0u) {
-                t[n++] = pl->on[i];
+                t[n] = pl->on[i];
+                mask[n++] = (int16_t)(1 << i);
+            } else {
+                state = (int16_t)(state | (1 << i)); /* on from the start */
             }
             if (pl->off[i] < (uint16_t)FW_P_TICKS) {
-                t[n++] = pl->off[i];
+                t[n] = pl->off[i];
+                mask[n++] = (int16_t)(1 << i);
             }
         }
     }
-    /* insertion sort, at most 7 entries */
+    /* insertion sort, at most 6 edges */
     for (i = 1; i < n; i++) {
         uint16_t key = t[i];
-        j = (int16_t)(i - 1);
+        int16_t key_mask = mask[i];
+        j = i - 1;
         while (j >= 0 && t[j] > key) {
             t[j + 1] = t[j];
+            mask[j + 1] = mask[j];
             j--;
         }
         t[j + 1] = key;
+        mask[j + 1] = key_mask;
     }
-    pl->n_seg = 0;
+    pl->seg_t[0] = 0;
+    pl->seg_state[0] = state;
+    n_seg = 1;
     for (i = 0; i < n; i++) {
-        uint16_t start = t[i];
-        int16_t bits = 0;
-        int16_t x;
-        if (i + 1 < n && t[i + 1] == start) {
+        state = (int16_t)(state ^ mask[i]);
+        if (i + 1 < n && t[i + 1] == t[i]) {
             continue; /* simultaneous edges */
         }
-        for (x = 0; x < 3; x++) {
-            if (pl->on[x] <= start && start < pl->off[x]) {
-                bits = (int16_t)(bits | (1 << x));
-            }
-        }
-        if (pl->n_seg > 0 && pl->seg_state[pl->n_seg - 1] == bits) {
+        if (pl->seg_state[n_seg - 1] == state) {
             continue;
         }
-        pl->seg_t[pl->n_seg] = start;
-        pl->seg_state[pl->n_seg] = bits;
-        pl->n_seg++;
+        pl->seg_t[n_seg] = t[i];
+        pl->seg_state[n_seg] = state;
+        n_seg++;
     }
-    pl->seg_t[pl->n_seg] = (uint16_t)FW_P_TICKS;
+    pl->n_seg = n_seg;
+    pl->seg_t[n_seg] = (uint16_t)FW_P_TICKS;
     /* dipole of the volt-seconds about the centre (see the header) */
     pl->dipole = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    for (i = 0; i < pl->n_seg; i++) {
+    for (i = 0; i < n_seg; i++) {
         real_t len = (real_t)(pl->seg_t[i + 1] - pl->seg_t[i]);
         real_t arm = (real_t)FW_H_TICKS - FW_REAL(0.5) * (real_t)(pl->seg_t[i + 1] + pl->seg_t[i]);
         pl->dipole = fw_cadd(pl->dipole, fw_cscale(fw_svpwm_state_voltage(pl->seg_state[i], pl->vdc),
@@ -182,8 +166,16 @@ static void plan_socs(fw_plan_t *pl, const fw_pwm_cfg_t *cfg)
         }
         win->soc_first = n;
         win->soc_count = ns;
-        for (k = 0; k < ns; k++) {
-            pl->soc[n++] = u16(first + ((last - first) * (int32_t)k) / (int32_t)(ns - 1));
+        {
+            /* first <= every instant <= last, both within 0..65535: no clamping */
+            const int32_t span = last - first;
+            const int32_t den = (int32_t)(ns - 1);
+            int32_t num = 0;
+            for (k = 0; k < ns; k++) {
+                pl->soc[n + k] = (uint16_t)(first + num / den);
+                num += span;
+            }
+            n = (int16_t)(n + ns);
         }
     }
     pl->n_soc = n;
@@ -562,15 +554,21 @@ void fw_svpwm_plan(const fw_pwm_cfg_t *cfg, real_t vdc, fw_cplx_t v_ref, fw_mod_
 
 void fw_svpwm_to_pwm(const fw_plan_t *pl, uint32_t period, int16_t gate, fw_pwm_t *pwm)
 {
-    int16_t i;
+    const int32_t n = (pl->n_soc < 0) ? 0 : ((pl->n_soc > FW_MAX_SOC) ? FW_MAX_SOC : pl->n_soc);
+    int32_t i;
     pwm->period = period;
-    for (i = 0; i < 3; i++) {
-        pwm->cmp_up[i] = pl->cmp_up[i];
-        pwm->cmp_dn[i] = pl->cmp_dn[i];
-    }
+    pwm->cmp_up[0] = pl->cmp_up[0];
+    pwm->cmp_up[1] = pl->cmp_up[1];
+    pwm->cmp_up[2] = pl->cmp_up[2];
+    pwm->cmp_dn[0] = pl->cmp_dn[0];
+    pwm->cmp_dn[1] = pl->cmp_dn[1];
+    pwm->cmp_dn[2] = pl->cmp_dn[2];
     pwm->n_soc = pl->n_soc;
-    for (i = 0; i < FW_MAX_SOC; i++) {
-        pwm->soc[i] = (i < pl->n_soc) ? pl->soc[i] : 0u;
+    for (i = 0; i < n; i++) {
+        pwm->soc[i] = pl->soc[i];
+    }
+    for (; i < FW_MAX_SOC; i++) {
+        pwm->soc[i] = 0u;
     }
     pwm->gate_enable = gate;
 }

@@ -189,3 +189,40 @@ def test_flux_min_max_ratio() -> None:
     cols = {"period": np.arange(lam.size), "fw.lambda_hat": lam}
     w = metrics.Window(cols, 0.0, 0.2, ts=TS)
     assert metrics.compute("lambda_min_max_ratio", w) == pytest.approx(0.98 / 1.02, rel=1e-4)
+
+
+def test_start_metrics_against_a_constant_load() -> None:
+    # A load of +2 N*m (it opposes positive rotation) on J = 0.0005 kg*m^2 from t = 0 with no
+    # torque until t_d, then a torque of 3 N*m: the shaft runs back at a1 = TL/J, then brakes
+    # at a2 = (Te - TL)/J. It turns back by a1 t_d^2/2 + (a1 t_d)^2/(2 a2) rad before it
+    # reverses; the torque holds half the load from t_d on; RUN from t_run on.
+    j, tl, te, t_d, t_run = 0.0005, 2.0, 3.0, 0.006, 0.004
+    n = 1000
+    t = np.arange(n) * TS
+    a1, a2 = tl / j, (te - tl) / j
+    omega = np.where(t < t_d, -a1 * t, -a1 * t_d + a2 * (t - t_d))  # rad/s mechanical
+    cols = {
+        "period": np.arange(n),
+        # the metric integrates the speed sample by sample: the speed of each period's end
+        "speed_true_rpm": np.append(omega[1:], omega[-1] + a2 * TS) * 60 / (2 * math.pi),
+        "truth.tl": np.full(n, tl),
+        "truth.te": np.where(t < t_d, 0.0, te),
+        "fw.state": np.where(t < t_run, 2.0, float(metrics.firmware_state("RUN"))),
+    }
+    w = metrics.Window(cols, 0.0, (n - 1) * TS, ts=TS)
+    back = a1 * t_d**2 / 2 + (a1 * t_d) ** 2 / (2 * a2)
+    assert metrics.compute("kickback_deg", w) == pytest.approx(math.degrees(back), rel=0.01)
+    assert metrics.compute("torque_time_s", w) == pytest.approx(t_d)
+    assert metrics.compute("torque_time_s", w, {"fraction": 2.0}) == math.inf
+    assert metrics.compute("run_time_s", w) == pytest.approx(t_run)
+    # the load the other way round: the shaft turns back the other way, the same angle
+    other = dict(cols, **{"speed_true_rpm": -cols["speed_true_rpm"], "truth.tl": -cols["truth.tl"],
+                          "truth.te": -cols["truth.te"]})
+    wo = metrics.Window(other, 0.0, (n - 1) * TS, ts=TS)
+    assert metrics.compute("kickback_deg", wo) == pytest.approx(math.degrees(back), rel=0.01)
+    assert metrics.compute("torque_time_s", wo) == pytest.approx(t_d)
+    # no load at the enable: neither is defined (a criterion on them fails: NaN)
+    none = dict(cols, **{"truth.tl": np.zeros(n)})
+    wn = metrics.Window(none, 0.0, (n - 1) * TS, ts=TS)
+    assert math.isnan(metrics.compute("torque_time_s", wn))
+    assert math.isnan(metrics.compute("kickback_deg", wn))

@@ -82,3 +82,20 @@ def test_cli_exits_2_before_starting_anything(tmp_path: Path,
     latin.write_bytes(b'description = "caf\xe9"\n')
     assert rig_main(["run", str(latin), "--out", str(tmp_path / "o")]) == 2
     assert "UTF-8" in capsys.readouterr().err
+
+
+def test_a_shaft_turning_at_the_start_is_commanded_its_speed(tmp_path: Path) -> None:
+    """[initial] speed_rpm with a first hold segment: the drive gets the initial speed as its
+    reference at t = 0 (a hold commands nothing), which is the reference the rig expects."""
+    from rig.scenario import load_scenario
+
+    path = tmp_path / "fly.toml"
+    path.write_text('description = "fly"\nprofile = "paper"\nduration = 0.5\n'
+                    '[initial]\nspeed_rpm = 800.0\n'
+                    '[[speed]]\nkind = "hold"\nduration = 0.2\n'
+                    '[[speed]]\nkind = "ramp"\nto = 400.0\nduration = 0.3\n')
+    sc = load_scenario(path)
+    cmds = sc.speed_commands(3000.0)
+    assert (cmds[0].t, cmds[0].target) == (0.0, 800.0)
+    assert sc.speed_reference([0.0, 0.1, 0.2], 3000.0).tolist() == [800.0, 800.0, 800.0]
+    assert cmds[-1].target == 400.0

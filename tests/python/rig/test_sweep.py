@@ -61,11 +61,13 @@ def test_local_pool_sweep_writes_table_and_summary(tmp_path: Path) -> None:
     out = tmp_path / "sweep"
     r = subprocess.run(
         [sys.executable, "-m", "rig", "sweep", "smoke", "--param", "rs=1.8,2.1",
-         "--param", "noise=0,0.002", "--workers", "2", "--out", str(out), "--quiet"],
+         "--param", "noise=0,0.03", "--workers", "2", "--out", str(out), "--quiet"],
         capture_output=True, text=True, check=False, timeout=600)
     rows = table.read(out / "sweep.parquet")
     assert len(rows) == 4, r.stderr
-    # noise of 2 mA on the 24-bit `ideal` converter breaks the smoke's speed tracking
+    # 30 mA of current-sensor noise drowns the slopes of a 10 us state on `ideal`: the start
+    # loses the pole (measured: ~20 polarity losses, 180 deg, ~300 r/min of speed error, far
+    # from every limit; 2, 4 and 8 mA pass)
     assert [bool(x["passed"]) for x in rows] == [True, False, True, False], r.stderr
     assert r.returncode == 1
     failed = [x for x in rows if not x["passed"]]

@@ -106,3 +106,20 @@ def test_budget_tells_the_paths_apart(tmp_path: Path) -> None:
     assert abs(b["run_1khz"]["n"] - n_run / 10) <= 1
     assert b["run_1khz"]["median"] > b["run_10khz"]["median"]
     assert all(b[p]["max"] >= b[p]["p99"] >= b[p]["median"] > 0 for p in b)
+
+
+def test_budget_names_the_last_isr_with_the_largest_count() -> None:
+    """worst_at is the last ISR (over all comparisons, in order) whose count equals the
+    path's maximum; the statistics are those of every ISR of the path."""
+    def costs(*rows: tuple[int, str, int]) -> list[replay.IsrCost]:
+        return [replay.IsrCost(isr, state, False, n) for isr, state, n in rows]
+
+    a, b = replay.Comparison("a"), replay.Comparison("b")
+    a.costs = costs((1, "RUN", 500), (2, "RUN", 900), (3, "RUN", 700), (4, "IDLE", 40))
+    b.costs = costs((1, "RUN", 900), (2, "RUN", 300), (3, "IDLE", 50), (4, "IDLE", 10))
+    paths = run.budget([a, b])["paths"]
+    assert paths["run_10khz"]["worst_at"] == "b ISR 1"
+    assert paths["run_10khz"]["max"] == 900 and paths["run_10khz"]["n"] == 5
+    assert paths["idle"]["worst_at"] == "b ISR 3"
+    assert paths["idle"]["median"] == 40
+
