@@ -361,6 +361,17 @@ def test_table2_files_are_what_the_generator_writes() -> None:
         assert "not measured yet" not in text, f"{name}: run the grid, then --measured"
 
 
+def test_start_files_are_what_the_generator_writes() -> None:
+    """The starts' scenarios and suite are generated (rig/scenario/starts.py is their source)."""
+    from rig.scenario import SCENARIO_DIR, starts
+
+    files = starts.files()
+    assert len(files) == 14  # 5 starts against a load, 8 flying starts, the suite
+    for name, text in files.items():
+        assert (SCENARIO_DIR / name).read_text() == text, \
+            f"{name} is stale: rerun python -m rig.scenario.starts"
+
+
 COMPARED = '''description = "two runs compared"
 scenarios = ["ok_one", "ok_two"]
 
