@@ -21,13 +21,13 @@ show: the baseline of SUITE (or a baseline file) as a table.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "baseline", help="record or show a suite's accepted values and their seed spread",
+    p = cliargs.verb(
+        sub, "baseline", help="record or show a suite's accepted values and their seed spread",
         description="Baselines hold every criterion's accepted value with a tolerance band "
         "from its spread over the plant's noise seeds (rig/baselines/<suite>.toml). `rig run` "
         "compares with them: a value beyond its band on the worse side fails the run even "
         "inside the criterion's limit.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     verbs = p.add_subparsers(dest="verb", metavar="VERB", required=True)
     r = verbs.add_parser("record", help="run a suite over several seeds and write its baseline")
     r.add_argument("suite", metavar="SUITE", help="a suite name or file (rig list)")

@@ -15,8 +15,8 @@ from rig.benchmarks import bus, gate, isr, plant, sil, startup
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser("bench", help="benchmarks (one JSON object on stdout)",
-                       description="Benchmarks; each prints one JSON object.")
+    p = cliargs.verb(sub, "bench", help="benchmarks (one JSON object on stdout)",
+                     description="Benchmarks; each prints one JSON object.")
     bsub = p.add_subparsers(dest="bench_command", metavar="TARGET", required=True)
     b = bsub.add_parser("bus", help=bus.HELP, description=bus.__doc__)
     bus.add_arguments(b)

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig import cliargs
+
 EPILOG = """\
 which runs: rig run / rig sweep without --out write a new folder NAME-YYYYmmdd-HHMMSS under
 $HIL_OUT (else ./out) each time; those pile up. rig clean lists every run folder under the
@@ -23,11 +25,11 @@ NOTICE_RUNS = 20
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "clean", help="list old run folders under the output root; remove them with --yes",
+    p = cliargs.verb(
+        sub, "clean", help="list old run folders under the output root; remove them with --yes",
         description="List the run folders under the output root (size, age, verdict, whether "
         "they still hold full-rate traces) and remove the old auto-named ones.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
     )
     p.add_argument("root", nargs="?", type=Path, default=None, metavar="ROOT",
                    help="the output root (default: $HIL_OUT, else ./out)")

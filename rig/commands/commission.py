@@ -33,12 +33,12 @@ interrupted.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "commission", help="commissioning scripts (virtual or real bench)",
+    p = cliargs.verb(
+        sub, "commission", help="commissioning scripts (virtual or real bench)",
         description="Run commissioning steps against the bench a description names "
         "(rig/benches/virtual.toml starts plant_rt, fw_host and the Modbus load bench in "
         "lockstep; a real bench runs on the wall clock).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("step", nargs="+", metavar="STEP",
                    help="a step (listed below) or 'all'; several allowed")
     cliargs.add_shared(p, "bench", required=True,

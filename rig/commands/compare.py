@@ -19,12 +19,12 @@ exit status: 0 nothing regressed or changed; 1 something did; 2 usage.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "compare", help="two runs, suites or baselines side by side, against the seed spread",
+    p = cliargs.verb(
+        sub, "compare", help="two runs, suites or baselines side by side, against the seed spread",
         description="Per scenario run and criterion: A's value, B's, the difference and "
         "whether it is beyond the spread the plant's noise seeds give (the baseline's band). "
         "What a reviewer reads before a firmware change is merged.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("a", metavar="A")
     p.add_argument("b", metavar="B")
     p.add_argument("--all", action="store_true",

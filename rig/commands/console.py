@@ -22,12 +22,12 @@ exit status: 0 every reply OK; 1 an ERR reply (scripted: stops at the first one 
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "console", help="talk to the drive's SCI console (serial port, pty or URL)",
+    p = cliargs.verb(
+        sub, "console", help="talk to the drive's SCI console (serial port, pty or URL)",
         description="Client of the drive's SCI console (protocols/console.md): 115200 8N1 on "
         "a serial device, a pseudo-terminal (fw_host --pty-link) or a pyserial URL "
         "(rfc2217://host:port, socket://host:port).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     where = p.add_mutually_exclusive_group()
     where.add_argument("--port", metavar="PORT|URL",
                        help="device, pty path or pyserial URL (this or --bench)")

@@ -13,8 +13,9 @@ EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "loadbench", help="virtual load bench (Modbus TCP server) and a Modbus look at a bench",
+    p = cliargs.verb(
+        sub, "loadbench",
+        help="virtual load bench (Modbus TCP server) and a Modbus look at a bench",
         description="The load machine and torque sensor over Modbus "
         "(protocols/modbus_load_bench.json).")
     ls = p.add_subparsers(dest="loadbench_command", metavar="ACTION", required=True)

@@ -30,11 +30,10 @@ exit status: 0 the campaign ran (whatever the score); 1 the unmutated tree fails
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "mutate", help="mutation testing: does the gate catch realistic firmware bugs?",
+    p = cliargs.verb(
+        sub, "mutate", help="mutation testing: does the gate catch realistic firmware bugs?",
         description="Apply realistic firmware bugs one at a time and check that the gate or "
-        "the C tests catch each of them.", epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        "the C tests catch each of them.", epilog=EPILOG)
     p.add_argument("--only", default=None, metavar="IDS",
                    help="comma-separated mutant ids (default: the whole catalogue)")
     p.add_argument("--catalogue", type=Path, default=None, metavar="FILE",

@@ -11,8 +11,8 @@ EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "param", help="read, write, list, save and load drive parameters over CAN",
+    p = cliargs.verb(
+        sub, "param", help="read, write, list, save and load drive parameters over CAN",
         description="Drive parameters (protocols/parameters.csv) through PARAM_REQ / "
         "PARAM_RESP: every request has a sequence number and a time-out; a write is "
         "range-checked here and by the drive and then read back.",

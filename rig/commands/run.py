@@ -34,12 +34,12 @@ $HIL_OUT or ./out, plus name and time; `rig clean` lists and removes old runs.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "run", help="run a scenario or a suite and assert on its criteria",
+    p = cliargs.verb(
+        sub, "run", help="run a scenario or a suite and assert on its criteria",
         description="Start plant_rt and fw_host on the bus, run the scenario's speed and load "
         "profile (lockstep by default), capture every PWM period losslessly, evaluate the "
         "pass criteria and write result.json, report.md and recording.rrd.",
-        epilog=EPILOG_RUN, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG_RUN,
     )
     p.add_argument("target", metavar="SCENARIO|SUITE",
                    help="a scenario or suite name (see `rig list`) or a path to its TOML file")
@@ -94,8 +94,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     cliargs.add_shared(p, "quiet", help="no progress line")
     cliargs.command(p, cmd_run)
 
-    ls = sub.add_parser(
-        "list", help="list scenarios and suites (name, profile, duration, description)",
+    ls = cliargs.verb(
+        sub, "list", help="list scenarios and suites (name, profile, duration, description)",
         description="List the scenario and suite files shipped in rig/scenarios "
         "(schema-checked: an invalid file is reported with its file, line and field and the "
         "command exits 2).",
@@ -105,8 +105,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     ls.add_argument("--json", action="store_true", help="machine-readable output")
     cliargs.command(ls, cmd_list)
 
-    v = sub.add_parser(
-        "view", help="open a run's recording.rrd in the Rerun viewer",
+    v = cliargs.verb(
+        sub, "view", help="open a run's recording.rrd in the Rerun viewer",
         description="Open DIR/recording.rrd (or every scenario's recording of a suite "
         "folder, or an .rrd file) in the Rerun viewer.",
     )
