@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from rig.scenario.files import SCENARIO_DIR
+from rig.scenario.files import SCENARIO_DIR, write_generated
 
 I_MAX = 4.5
 I_PEAK = 4.7  # i_max plus the PWM ripple the Fig. 10 scenarios allow at the voltage limit
@@ -431,14 +431,7 @@ def main(argv: list[str]) -> int:
     check = "--check" in argv
     args = [a for a in argv if not a.startswith("--")]
     folder = Path(args[0]) if args else SCENARIO_DIR
-    stale = []
-    for name, text in files().items():
-        path = folder / name
-        if check:
-            if not path.is_file() or path.read_text() != text:
-                stale.append(name)
-        else:
-            path.write_text(text)
+    stale = write_generated(files(), folder, check)
     if stale:
         print("stale: " + ", ".join(stale) + " (run python -m rig.scenario.starts)")
         return 1

@@ -14,7 +14,7 @@ import re
 import sys
 from pathlib import Path
 
-from rig.scenario.files import SCENARIO_DIR
+from rig.scenario.files import SCENARIO_DIR, write_generated
 
 GRID = [(1, 0), (1, 1), (1, 2), (100, 0), (100, 1), (100, 2), (600, 0), (600, 1), (600, 2),
         (1000, 0), (1000, 1), (1000, 2), (2000, 0), (2000, 1), (2000, 2), (3000, 0), (3000, 1.5)]
@@ -197,14 +197,7 @@ def main(argv: list[str]) -> int:
         return refresh(Path(argv[1]))
     check = "--check" in argv
     out = Path(next(a for a in argv if a != "--check"))
-    stale = []
-    for name, text in render().items():
-        path = out / name
-        if check:
-            if not path.is_file() or path.read_text() != text:
-                stale.append(name)
-        else:
-            path.write_text(text)
+    stale = write_generated(render(), out, check)
     if stale:
         print("stale (run python -m rig.scenario.table2 rig/scenarios):", *stale)
         return 1
