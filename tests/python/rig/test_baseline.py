@@ -10,6 +10,7 @@ import random
 from pathlib import Path
 
 import pytest
+import scenario_text
 
 from rig import cli, scenario
 from rig.regression import baseline
@@ -86,29 +87,12 @@ def test_band_catches_a_four_times_worse_cell() -> None:
 
 # -- building and the file ---------------------------------------------------------------
 
-SCENARIO = """\
-description = "baseline test scenario"
-profile = "paper"
-duration = 0.3
-[[speed]]
-kind = "ramp"
-to = 300.0
-duration = 0.2
-[[speed]]
-kind = "hold"
-duration = 0.1
-[[criteria]]
-name = "position"
-metric = "pos_err_max_deg"
-window = [0.2, "end"]
-limit = 5
-[[criteria]]
-name = "no polarity loss"
-metric = "polarity_loss_count"
-window = [0.05, "end"]
-limit = 0
-comparison = "=="
-"""
+SCENARIO = scenario_text.scenario(
+    "baseline test scenario", profile="paper", duration=0.3,
+    speed=[scenario_text.ramp(300.0, 0.2), scenario_text.hold(0.1)],
+    criteria=[scenario_text.criterion("position", "pos_err_max_deg", (0.2, "end"), 5),
+              scenario_text.criterion("no polarity loss", "polarity_loss_count", (0.05, "end"),
+                                      0, "==")])
 
 
 @pytest.fixture

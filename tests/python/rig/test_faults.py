@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scenario_text
 
 from rig import protocols
 from rig import scenario as sc
@@ -25,26 +26,12 @@ from rig.link.drive_master import DriveCommand, DriveLimits, DriveMaster
 from rig.run.plan import Plan
 from rig.scenario import faults
 
-BASE = """\
-description = "a fault scenario of the tests"
-profile = "{profile}"
-duration = {duration}
-
-[[speed]]
-kind = "ramp"
-to = 300.0
-duration = 0.1
-
-{faults}
-[[criteria]]
-name = "report"
-metric = "pos_err_max_deg"
-comparison = "report"
-"""
-
 
 def _text(faults_toml: str, duration: float = 0.3, profile: str = "ideal") -> str:
-    return BASE.format(faults=faults_toml, duration=duration, profile=profile)
+    return scenario_text.scenario(
+        "a fault scenario of the tests", profile=profile, duration=duration,
+        speed=[scenario_text.ramp(300.0, 0.1)], other=faults_toml,
+        criteria=[scenario_text.criterion("report", "pos_err_max_deg", comparison="report")])
 
 
 def _parse(tmp: Path, faults_toml: str, **kw: object) -> sc.Scenario:

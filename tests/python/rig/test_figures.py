@@ -12,6 +12,7 @@ from pathlib import Path
 import matplotlib.image
 import numpy as np
 import pytest
+import scenario_text
 from matplotlib.patches import Polygon, Rectangle
 
 from rig import cli
@@ -19,19 +20,10 @@ from rig.data import capture
 from rig.results import figures
 
 SMOKE = Path(__file__).resolve().parents[3] / "rig" / "scenarios" / "smoke.toml"
-TIGHT = """
-[[criteria]]
-name = "too tight"
-metric = "pos_err_max_deg"
-window = [0.3, "end"]
-limit = 0.01
-
-[[criteria]]
-name = "speed too tight"
-metric = "speed_track_err_max_rpm"
-window = [0.35, "end"]
-limit = 1.0
-"""
+TIGHT = scenario_text.tables("criteria", [
+    scenario_text.criterion("too tight", "pos_err_max_deg", (0.3, "end"), 0.01),
+    scenario_text.criterion("speed too tight", "speed_track_err_max_rpm", (0.35, "end"), 1.0),
+])
 
 
 def test_the_envelope_keeps_every_peak_in_time_order() -> None:

@@ -18,6 +18,7 @@ import numpy as np
 import psutil
 import pytest
 import rerun as rr
+import scenario_text
 
 from rig import scenario as sc
 from rig.results import recording, verdict
@@ -26,49 +27,27 @@ from rig.run import runner
 from rig.run.plan import Plan
 from rig.run.suite import evaluate_comparison
 
-TINY = """\
-description = "tiny closed loop for the runner's tests"
-profile = "ideal"
-duration = {duration}
 
-[[speed]]
-kind = "ramp"
-to = 200.0
-duration = 0.1
-
-[[load]]
-at = 0.12
-kind = "step"
-torque = 0.2
-
-[run]
-ready_timeout_s = 120.0  # the Python stand-ins start slowly inside the (emulated) VM
-
-[[criteria]]
-name = "position error"
-metric = "pos_err_max_deg"
-window = [0.05, "end"]
-limit = 0.6
-
-[[criteria]]
-name = "error is the stand-in's offset"
-metric = "pos_err_mean_deg"
-window = [0.05, "end"]
-limit = {mean_limit}
-comparison = ">="
-
-[[criteria]]
-name = "no capture loss"
-metric = "capture_lost"
-limit = 0
-comparison = "=="
-"""
+def _tiny(duration: float, mean_limit: float) -> str:
+    return scenario_text.scenario(
+        "tiny closed loop for the runner's tests", profile="ideal", duration=duration,
+        speed=[scenario_text.ramp(200.0, 0.1)],
+        load=[{"at": 0.12, "kind": "step", "torque": 0.2}],
+        # the Python stand-ins start slowly inside the (emulated) VM
+        other="[run]\nready_timeout_s = 120.0\n",
+        criteria=[
+            scenario_text.criterion("position error", "pos_err_max_deg", (0.05, "end"), 0.6),
+            scenario_text.criterion("error is the stand-in's offset", "pos_err_mean_deg",
+                                    (0.05, "end"), mean_limit, ">="),
+            scenario_text.criterion("no capture loss", "capture_lost", limit=0,
+                                    comparison="=="),
+        ])
 
 
 def _scenario(tmp: Path, name: str = "tiny", duration: float = 0.2,
               mean_limit: float = 0.49) -> Path:
     p = tmp / f"{name}.toml"
-    p.write_text(TINY.format(duration=duration, mean_limit=mean_limit))
+    p.write_text(_tiny(duration, mean_limit))
     return p
 
 
@@ -88,7 +67,7 @@ def _ready_pid(path: Path, timeout: float = 10.0) -> int:
 
 
 def test_plan_grants_end_on_breakpoints() -> None:
-    s = sc.parse_scenario(Path("plan.toml"), TINY.format(duration=0.35, mean_limit=0))
+    s = sc.parse_scenario(Path("plan.toml"), _tiny(0.35, 0))
     plan = Plan.build(s)
     grants = plan.grants()
     assert grants[0][0] == 0 and grants[-1][1] == 3500

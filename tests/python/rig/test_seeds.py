@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
+import scenario_text
 
 from rig import cli, scenario
 from rig.regression import stats
@@ -15,35 +16,15 @@ from rig.run import multi_seed
 from rig.run.suite import evaluate_comparison
 from rig.scenario import Comparison
 
-SCENARIO = """\
-description = "seed test scenario"
-profile = "paper"
-duration = 0.25
-{run}
-[[speed]]
-kind = "ramp"
-to = 300.0
-duration = 0.15
-[[speed]]
-kind = "hold"
-duration = 0.1
-[[criteria]]
-name = "position"
-metric = "pos_err_max_deg"
-window = [0.15, "end"]
-limit = {limit}
-[[criteria]]
-name = "mean speed"
-metric = "speed_mean_rpm"
-window = [0.15, "end"]
-limit = 150
-comparison = ">="
-"""
-
 
 def write(folder: Path, name: str, run: str = "", limit: float = 5.0) -> Path:
     path = folder / f"{name}.toml"
-    path.write_text(SCENARIO.format(run=run, limit=limit))
+    path.write_text(scenario_text.scenario(
+        "seed test scenario", profile="paper", duration=0.25,
+        speed=[scenario_text.ramp(300.0, 0.15), scenario_text.hold(0.1)], other=run,
+        criteria=[scenario_text.criterion("position", "pos_err_max_deg", (0.15, "end"), limit),
+                  scenario_text.criterion("mean speed", "speed_mean_rpm", (0.15, "end"), 150,
+                                          ">=")]))
     return path
 
 
