@@ -1,6 +1,7 @@
-/* Minimal assertion helpers for the plant C tests. */
-#ifndef PLANT_CHECK_H
-#define PLANT_CHECK_H
+/* Minimal assertion helpers for the C tests of the plant, hilbus and hilnode: a failed check
+ * prints where and what, the test goes on, check_report gives the exit status. */
+#ifndef TESTS_CHECK_H
+#define TESTS_CHECK_H
 
 #include <math.h>
 #include <stdio.h>

@@ -8,7 +8,7 @@
 
 #include "hil_bench.h"
 #include "hil_vio.h"
-#include "plant_check.h"
+#include "../check.h"
 #include "plant_internal.h"
 #include "plant_link.h"
 #include "plant_vio.h"

@@ -3,7 +3,7 @@
  * determinism of the noise. */
 #include <string.h>
 
-#include "plant_check.h"
+#include "../check.h"
 #include "plant_internal.h"
 
 #define PI 3.14159265358979323846
