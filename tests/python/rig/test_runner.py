@@ -21,6 +21,7 @@ import rerun as rr
 import scenario_text
 
 from rig import scenario as sc
+from rig.link.clock import STALL_S
 from rig.results import recording, verdict
 from rig.results.result import RunResult
 from rig.run import runner
@@ -215,13 +216,20 @@ def test_realtime_mode(with_fakes: Path, channel: str, tmp_path: Path) -> None:
     # else its trace starts after the window began: it joined the bus late
 
 
+# A rig that missed a crash or a kill would notice only when the lockstep stalls (STALL_S
+# without progress); one that watches its children ends within ~0.3 s of CPU, 1-2.5 s of
+# wall time on a loaded 2-core machine. Half the stall time tells the two apart without
+# timing the machine.
+PROMPT_S = STALL_S / 2
+
+
 def _rig(args: list[str], env_extra: dict[str, str]) -> subprocess.Popen[str]:
     env = dict(os.environ, **env_extra)
     return subprocess.Popen([sys.executable, "-m", "rig", "run", *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def test_firmware_crash_ends_the_run_within_2s(with_fakes: Path, channel: str,
+def test_firmware_crash_ends_the_run_before_the_stall_timeout(with_fakes: Path, channel: str,
                                                tmp_path: Path) -> None:
     path = _scenario(tmp_path, duration=1.0)
     out = tmp_path / "out"
@@ -233,7 +241,7 @@ def test_firmware_crash_ends_the_run_within_2s(with_fakes: Path, channel: str,
     crash = re.search(r"injected crash at period 3000 \(t=([0-9.]+)\)",
                       (out / "fw_host.stderr.log").read_text())
     assert crash is not None
-    assert t_end - float(crash.group(1)) < 2.0
+    assert t_end - float(crash.group(1)) < PROMPT_S
     assert "fw_host: exited unexpectedly (exit status 3)" in text
     assert "injected crash at period 3000" in text  # the log tail
     data = json.loads((out / "result.json").read_text())
@@ -242,7 +250,7 @@ def test_firmware_crash_ends_the_run_within_2s(with_fakes: Path, channel: str,
 
 
 @pytest.mark.parametrize("target", ["plant", "rig"])
-def test_kill_mid_run_ends_within_2s(with_fakes: Path, channel: str, tmp_path: Path,
+def test_kill_mid_run_ends_before_the_stall_timeout(with_fakes: Path, channel: str, tmp_path: Path,
                                      target: str) -> None:
     path = _scenario(tmp_path, duration=5.0)
     out = tmp_path / "out"
@@ -258,7 +266,7 @@ def test_kill_mid_run_ends_within_2s(with_fakes: Path, channel: str, tmp_path: P
     text, _ = proc.communicate(timeout=30)
     elapsed = time.monotonic() - t0
     print(f"ended {elapsed:.3f} s after the {target} event")
-    assert elapsed < 2.0, text
+    assert elapsed < PROMPT_S, text
     data = json.loads((out / "result.json").read_text())
     if target == "plant":
         assert proc.returncode == 1
