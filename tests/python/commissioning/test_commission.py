@@ -172,7 +172,9 @@ def test_standstill_from_12_start_angles(make_desc: MakeDesc, tmp_path: Path,
     starts = angle_errors_per_start(tmp_path / "run" / "bus.log")
     assert len(starts) == (1 if facts["polarity_first"] == "correct" else 2), facts
     # the commissioning's verdict on each start agrees with the plant's true angle
-    verdicts = [facts["polarity_first"], facts["polarity_final"]][:len(starts)]
+    # (a retry that raised leaves no final verdict: compared as such, with its facts)
+    final = facts.get("polarity_final", f"none: the retry did not finish, {facts}")
+    verdicts = [facts["polarity_first"], final][:len(starts)]
     for errs, verdict in zip(starts, verdicts, strict=True):
         assert errs.size >= 20
         truly = "correct" if np.max(np.abs(errs[-20:])) < 10.0 else (
