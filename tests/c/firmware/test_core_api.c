@@ -394,6 +394,25 @@ static void out_of_range_codes(void)
         CHECK(fw_protection_samples(&a, half, lsb, 9.5f, &peak) == FW_FAULT_NONE &&
                   fabsf(peak - 5.0f) < 0.01f, "ia = -ib = 5 A: peak %g A", (double)peak);
     }
+    /* the same on a converter whose lsb has more bits than its products keep exact (+-10.3 A:
+     * the sample-by-sample path, not the integer codes') */
+    {
+        fw_adc_t a;
+        real_t peak = 0.0f;
+        const int32_t half = (int32_t)1 << 15;
+        const real_t lsb = 10.3f / (real_t)half;
+        memset(&a, 0, sizeof a);
+        a.n_soc = 1;
+        a.ia[0] = half + (int32_t)(5.0f / lsb);
+        a.ib[0] = half + (int32_t)(5.0f / lsb);
+        CHECK(fw_protection_samples(&a, half, lsb, 9.5f, &peak) == FW_FAULT_OVERCURRENT &&
+                  fabsf(peak - 10.0f) < 0.01f,
+              "ia = ib = 5 A, sample path: peak %g A, phase c not watched", (double)peak);
+        a.ib[0] = half - (int32_t)(5.0f / lsb);
+        CHECK(fw_protection_samples(&a, half, lsb, 9.5f, &peak) == FW_FAULT_NONE &&
+                  fabsf(peak - 5.0f) < 0.01f, "ia = -ib = 5 A, sample path: peak %g A",
+              (double)peak);
+    }
 }
 
 static void idle_outputs_off(void)
