@@ -17,6 +17,7 @@
 #include "hil_bench.h"
 #include "hil_drive.h"
 #include "hil_vio.h"
+#include "hil_wire.h"
 #include "hiltrace.h"
 #include "param_file.h"
 #include "plant_core.h"
@@ -361,7 +362,7 @@ int sil_bench_frame(sil_bench_t *b, uint32_t can_id, int fd, const uint8_t *data
         b->st.load_cmds++;
         return 0;
     }
-    if (id >= 0x100u && id <= 0x1FFu) {
+    if (hil_drive_id_in_range(id)) {
         return drive_frame(b, &f, fd, err, errlen);
     }
     return 1;

@@ -18,14 +18,6 @@
 #include "hil_vio.h"
 #include "vio_codec.h"
 
-#define VIO_RANGE_LO 0x10u
-#define VIO_RANGE_HI 0x2Fu
-
-int fwh_bus_is_vio(uint32_t id)
-{
-    return id >= VIO_RANGE_LO && id <= VIO_RANGE_HI;
-}
-
 /* ------------------------------------------------------------------------ PWM out */
 
 static void send_pwm(fwh_t *app, const fw_pwm_t *p, uint32_t want_period)

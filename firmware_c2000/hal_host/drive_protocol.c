@@ -20,14 +20,7 @@
 #include "hil_drive.h"
 #include "param_file.h"
 
-#define DRIVE_RANGE_LO 0x100u
-#define DRIVE_RANGE_HI 0x1FFu
 #define PARAM_VALUE_LIMIT 1.0e9f /* PARAM_RESP.value range */
-
-int fwh_drive_is_drive(uint32_t id)
-{
-    return id >= DRIVE_RANGE_LO && id <= DRIVE_RANGE_HI;
-}
 
 static void send_classic(fwh_t *app, uint32_t id, const uint8_t *data, uint8_t len)
 {

@@ -90,12 +90,11 @@ void fwh_reject(fwh_t *app, int reason, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 void fwh_log(fwh_t *app, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 
-/* bus_io.c: virtual I/O (ADC in, PWM out, FW_TRACE, telemetry) */
-int fwh_bus_is_vio(uint32_t id);
+/* bus_io.c: virtual I/O (ADC in, PWM out, FW_TRACE, telemetry); a frame whose id is in
+ * vio.dbc's range (hil_vio_id_in_range, hil_wire.h) */
 void fwh_bus_vio_frame(fwh_t *app, const struct canfd_frame *f, int fd, int64_t t_rx_ns);
 
-/* drive_protocol.c */
-int fwh_drive_is_drive(uint32_t id);
+/* drive_protocol.c: frames whose id is in drive.dbc's range (hil_drive_id_in_range) */
 void fwh_drive_frame(fwh_t *app, const struct canfd_frame *f, int fd);
 void fwh_drive_send_status(fwh_t *app);
 void fwh_drive_send_heartbeat(fwh_t *app);

@@ -210,16 +210,22 @@ static int load_parameters(const fwh_param_list_t *sets)
 
 static int open_bus(void)
 {
-    /* 11-bit data frames of the drive (0x100-0x1FF) and virtual-I/O (0x00-0x3F) ranges */
-    const struct can_filter filters[2] = {
-        {.can_id = 0x100u, .can_mask = 0x700u | CAN_EFF_FLAG | CAN_RTR_FLAG},
-        {.can_id = 0x000u, .can_mask = 0x7C0u | CAN_EFF_FLAG | CAN_RTR_FLAG},
-    };
+    /* 11-bit data frames of the drive and virtual-I/O ranges (drive.dbc, vio.dbc: hil_wire.h) */
+    struct can_filter filters[HIL_DRIVE_ID_BLOCKS + HIL_VIO_ID_BLOCKS];
+    int n = 0, k;
+    for (k = 0; k < HIL_DRIVE_ID_BLOCKS; k++, n++) {
+        filters[n].can_id = hil_drive_id_blocks[k].id;
+        filters[n].can_mask = hil_drive_id_blocks[k].mask | CAN_EFF_FLAG | CAN_RTR_FLAG;
+    }
+    for (k = 0; k < HIL_VIO_ID_BLOCKS; k++, n++) {
+        filters[n].can_id = hil_vio_id_blocks[k].id;
+        filters[n].can_mask = hil_vio_id_blocks[k].mask | CAN_EFF_FLAG | CAN_RTR_FLAG;
+    }
     app.bus = hil_node_open_bus(&app.opt.node);
     if (app.bus == NULL) {
         return -1;
     }
-    if (hilbus_set_filters(app.bus, filters, 2) != 0) {
+    if (hilbus_set_filters(app.bus, filters, n) != 0) {
         fprintf(stderr, "fw_host: bus filters: %s\n", strerror(errno));
         return -1;
     }
@@ -239,9 +245,9 @@ static void handle_frame(const struct canfd_frame *f, int fd)
         app.cnt.non_data_frames++; /* outside this protocol's 11-bit data frames */
         return;
     }
-    if (fwh_bus_is_vio(id)) {
+    if (hil_vio_id_in_range(id)) {
         fwh_bus_vio_frame(&app, f, fd, t_rx);
-    } else if (fwh_drive_is_drive(id)) {
+    } else if (hil_drive_id_in_range(id)) {
         fwh_drive_frame(&app, f, fd);
     }
 }

@@ -24,7 +24,7 @@ typedef struct {
     int32_t ia[FWH_VIO_ADC_MAX_SAMPLES], ib[FWH_VIO_ADC_MAX_SAMPLES];
 } fwh_vio_adc_t;
 
-/* A virtual-I/O frame (id 0x10-0x2F, flags already checked by the caller):
+/* A virtual-I/O frame (id in vio.dbc's range, flags already checked by the caller):
  *   1  a VIO_ADC frame, *out filled;
  *   0  not ADC data (VIO_PWM, FW_TRACE, VIO_SYNC_ACK: what a firmware sends; VIO_SYNC:
  *      the plant's lockstep barrier, answered by the HAL);

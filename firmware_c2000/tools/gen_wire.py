@@ -12,9 +12,13 @@ whose facts disagree with each other (the build stops with the reason):
   ``FW_FWMODE_*``, ``FW_STATUS_*`` (CORE_TABLES below);
 * ``host OUT_DIR PROTOCOLS_DIR``: ``hil_wire.h`` / ``hil_wire.c`` for the programs on the bus
   (plant_rt, fw_host, the in-process bench): ``HIL_TBCLK_HZ``, ``HIL_TBPRD``,
-  ``HIL_PERIOD_TICKS``, ``HIL_PERIOD_NS``, ``HIL_SPEED_LOOP_DIVIDER``, ``HIL_MAX_SOC`` and,
-  for every value table, ``const char *hil_<db>_<message>_<signal>_name(long value)`` (NULL
-  for a value the table does not name);
+  ``HIL_PERIOD_TICKS``, ``HIL_PERIOD_NS``, ``HIL_SPEED_LOOP_DIVIDER``, ``HIL_MAX_SOC``; per
+  database its CAN ID range (database attributes ``HilIdFirst``, ``HilIdLast``):
+  ``HIL_<DB>_ID_FIRST``, ``HIL_<DB>_ID_LAST``, ``hil_<db>_id_in_range(id)`` and the receive
+  filter blocks ``hil_<db>_id_blocks[HIL_<DB>_ID_BLOCKS]`` (``(id & mask) == id`` blocks
+  that make up the range exactly); and, for every value table,
+  ``const char *hil_<db>_<message>_<signal>_name(long value)`` (NULL for a value the table
+  does not name);
 * ``trace OUT_DIR PROTOCOLS_DIR``: ``fw_trace_gen.h`` / ``fw_trace_gen.c``:
   ``fwh_trace_from_status()``, FW_TRACE (vio.dbc) filled from ``fw_status_t``, every signal
   from the status field of the same name (a signal without such a field does not compile).
@@ -99,6 +103,60 @@ def attribute(db: Database, file: str, name: str) -> int:
     if not isinstance(value, int) or value < 1:
         raise WireError(f"{file}: {name} = {value!r}: a positive integer")
     return value
+
+
+SFF_MASK = 0x7FF  # 11-bit identifiers
+
+
+@dataclass(frozen=True)
+class IdRange:
+    """The CAN IDs a database owns, first..last (11-bit, both included)."""
+
+    db: str
+    first: int
+    last: int
+
+    def blocks(self) -> list[tuple[int, int]]:
+        """(id, mask) pairs, each matching the ids with ``(x & mask) == id``, that together
+        match exactly first..last (largest aligned power-of-two blocks, lowest first)."""
+        out: list[tuple[int, int]] = []
+        lo = self.first
+        while lo <= self.last:
+            size = lo & -lo if lo else SFF_MASK + 1
+            while size > self.last - lo + 1:
+                size //= 2
+            out.append((lo, SFF_MASK & ~(size - 1)))
+            lo += size
+        return out
+
+
+def id_ranges(dbs: dict[str, Database]) -> list[IdRange]:
+    """Every database's declared ID range, checked: 11-bit, holding all its messages (standard
+    frames), no two overlapping."""
+    ranges: list[IdRange] = []
+    for db in DATABASES:
+        attrs = dbs[db].dbc.attributes if dbs[db].dbc is not None else {}
+        ends = []
+        for name in ("HilIdFirst", "HilIdLast"):
+            if name not in attrs:
+                raise WireError(f"{db}.dbc: database attribute {name} missing (BA_ \"{name}\" ...)")
+            value = attrs[name].value
+            if not isinstance(value, int) or not 0 <= value <= SFF_MASK:
+                raise WireError(f"{db}.dbc: {name} = {value!r}: an 11-bit CAN ID")
+            ends.append(value)
+        r = IdRange(db, ends[0], ends[1])
+        if r.first > r.last:
+            raise WireError(f"{db}.dbc: HilIdFirst 0x{r.first:X} after HilIdLast 0x{r.last:X}")
+        for message in dbs[db].messages:
+            if message.is_extended_frame or not r.first <= message.frame_id <= r.last:
+                raise WireError(f"{db}.dbc: {message.name} (0x{message.frame_id:X}) outside "
+                                f"the database's ID range 0x{r.first:X}..0x{r.last:X}")
+        for other in ranges:
+            if r.first <= other.last and other.first <= r.last:
+                raise WireError(f"{db}.dbc: ID range 0x{r.first:X}..0x{r.last:X} overlaps "
+                                f"{other.db}.dbc's 0x{other.first:X}..0x{other.last:X}")
+        ranges.append(r)
+    return ranges
 
 
 def timebase(dbs: dict[str, Database]) -> TimeBase:
@@ -194,6 +252,7 @@ def host_files(dbs: dict[str, Database]) -> tuple[str, str]:
     check_same_values(dbs)
     src = "protocols/drive.dbc, vio.dbc and bench.dbc"
     h = [*banner("gen_wire.py", src), "#ifndef HIL_WIRE_H", "#define HIL_WIRE_H", "",
+         "#include <stdint.h>", "",
          "/* PWM time base (vio.dbc HilTbclkHz, HilTbprd; drive.dbc HilSpeedLoopDivider) */",
          f"#define HIL_TBCLK_HZ {c_float(tb.tbclk_hz, '')} /* ticks per second */",
          f"#define HIL_TBPRD {tb.tbprd} /* up-down count half period, ticks */",
@@ -202,8 +261,22 @@ def host_files(dbs: dict[str, Database]) -> tuple[str, str]:
          f"#define HIL_SPEED_LOOP_DIVIDER {tb.speed_loop_divider} /* PWM periods per speed-loop "
          "period */",
          f"#define HIL_MAX_SOC {max_soc(dbs)} /* ADC conversions per period (VIO_PWM.n_soc) */", "",
-         "/* The name a value table gives a value, NULL when it names none. */"]
+         "/* CAN ID ranges (database attributes HilIdFirst, HilIdLast): the 11-bit ids a",
+         " * database owns. A receive filter matches (id & mask) == id for one of the blocks. */",
+         "typedef struct {", "    uint32_t id, mask;", "} hil_id_block_t;"]
     c = [*banner("gen_wire.py", src), '#include "hil_wire.h"', "", "#include <stddef.h>"]
+    for r in id_ranges(dbs):
+        up, blocks = r.db.upper(), r.blocks()
+        h += ["", f"#define HIL_{up}_ID_FIRST 0x{r.first:03X}u /* {r.db}.dbc */",
+              f"#define HIL_{up}_ID_LAST 0x{r.last:03X}u",
+              f"#define HIL_{up}_ID_BLOCKS {len(blocks)}",
+              f"extern const hil_id_block_t hil_{r.db}_id_blocks[HIL_{up}_ID_BLOCKS];",
+              f"static inline int hil_{r.db}_id_in_range(uint32_t id)", "{",
+              f"    return id - HIL_{up}_ID_FIRST <= HIL_{up}_ID_LAST - HIL_{up}_ID_FIRST;", "}"]
+        c += ["", f"const hil_id_block_t hil_{r.db}_id_blocks[HIL_{up}_ID_BLOCKS] = {{"]
+        c += [f"    {{0x{i:03X}u, 0x{m:03X}u}}," for i, m in blocks]
+        c.append("};")
+    h += ["", "/* The name a value table gives a value, NULL when it names none. */"]
     for db in DATABASES:
         for message in dbs[db].messages:
             for sig in message.signals:
