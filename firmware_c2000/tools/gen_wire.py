@@ -19,13 +19,19 @@ whose facts disagree with each other (the build stops with the reason):
   that make up the range exactly); and, for every value table,
   ``const char *hil_<db>_<message>_<signal>_name(long value)`` (NULL for a value the table
   does not name);
+* ``arrays OUT_DIR PROTOCOLS_DIR``: ``hil_arrays.h`` / ``hil_arrays.c``: the signals a DBC
+  spells as one array, ``<name>_<k>`` for consecutive k (``VIO_ADC_0.ia_0`` .. ``ia_6``,
+  ``VIO_PWM.soc_0`` .. ``soc_15``), read and written by index:
+  ``hil_<db>_<message>_<name>_get(const struct *m, int j)`` and ``_set(struct *m, int j, v)``
+  for element j = signal ``<name>_<FIRST + j>``, with ``HIL_<DB>_<MESSAGE>_<NAME>_FIRST`` and
+  ``_COUNT``;
 * ``trace OUT_DIR PROTOCOLS_DIR``: ``fw_trace_gen.h`` / ``fw_trace_gen.c``:
   ``fwh_trace_from_status()``, FW_TRACE (vio.dbc) filled from ``fw_status_t``, every signal
   from the status field of the same name (a signal without such a field does not compile).
   Float signals are assigned; integer signals (scale 1, offset 0) are saturated into their
   DBC range.
 
-Usage: gen_wire.py core|host|trace OUT_DIR PROTOCOLS_DIR
+Usage: gen_wire.py core|host|arrays|trace OUT_DIR PROTOCOLS_DIR
 """
 
 from __future__ import annotations
@@ -38,10 +44,11 @@ from pathlib import Path
 import cantools
 from c_codegen import banner, write_if_changed
 from cantools.database.can import Database, Message, Signal
-from cantools.database.can.c_source import camel_to_snake_case
+from cantools.database.can.c_source import CodeGenSignal, camel_to_snake_case
 
 DATABASES = ("drive", "vio", "bench")
 IDENT = re.compile(r"^[A-Z][A-Z0-9_]*$")
+ELEMENT = re.compile(r"^(?P<name>[A-Za-z][A-Za-z0-9_]*?)_(?P<k>[0-9]+)$")
 
 # (database, message, signal, C prefix): the value tables the control core uses.
 CORE_TABLES = (
@@ -293,6 +300,76 @@ def host_files(dbs: dict[str, Database]) -> tuple[str, str]:
     return "\n".join(h), "\n".join(c)
 
 
+@dataclass(frozen=True)
+class SignalArray:
+    """Signals ``<name>_<first>`` .. ``<name>_<first + count - 1>`` of one message, one C type."""
+
+    db: str
+    message: Message
+    name: str
+    first: int
+    signals: tuple[Signal, ...]
+
+    @property
+    def c_type(self) -> str:
+        return CodeGenSignal(self.signals[0]).type_name
+
+    @property
+    def prefix(self) -> str:
+        return f"hil_{self.db}_{camel_to_snake_case(self.message.name)}_{self.name}"
+
+
+def signal_arrays(dbs: dict[str, Database]) -> list[SignalArray]:
+    """Every run of two or more signals ``<name>_<k>``, k consecutive, of one C type."""
+    out: list[SignalArray] = []
+    for db in DATABASES:
+        for message in dbs[db].messages:
+            groups: dict[str, list[tuple[int, Signal]]] = {}
+            for sig in message.signals:
+                m = ELEMENT.match(sig.name)
+                if m is not None:
+                    groups.setdefault(m["name"], []).append((int(m["k"]), sig))
+            for name, members in groups.items():
+                members.sort(key=lambda x: x[0])
+                ks = [k for k, _ in members]
+                sigs = tuple(s for _, s in members)
+                if len(members) < 2 or ks != list(range(ks[0], ks[0] + len(ks))):
+                    continue
+                if len({CodeGenSignal(s).type_name for s in sigs}) != 1:
+                    raise WireError(f"{db}.dbc: {message.name}.{name}_<k> signals of different "
+                                    "C types cannot be one array")
+                out.append(SignalArray(db, message, camel_to_snake_case(name), ks[0], sigs))
+    return out
+
+
+def array_files(dbs: dict[str, Database]) -> tuple[str, str]:
+    src = "protocols/drive.dbc, vio.dbc and bench.dbc"
+    h = [*banner("gen_wire.py", src), "#ifndef HIL_ARRAYS_H", "#define HIL_ARRAYS_H", "",
+         '#include "hil_bench.h"', '#include "hil_drive.h"', '#include "hil_vio.h"', "",
+         "/* Signals <name>_<k> as arrays: element j is signal <name>_<FIRST + j>. get returns 0",
+         " * and set does nothing for a j outside 0 .. COUNT-1. */"]
+    c = [*banner("gen_wire.py", src), '#include "hil_arrays.h"']
+    for a in signal_arrays(dbs):
+        msg = f"struct hil_{a.db}_{camel_to_snake_case(a.message.name)}_t"
+        up = a.prefix.upper()
+        members = [camel_to_snake_case(s.name) for s in a.signals]
+        first, last = a.signals[0].name, a.signals[-1].name
+        h += ["", f"/* {a.message.name}.{first} .. {last} ({a.db}.dbc) */",
+              f"#define {up}_FIRST {a.first}", f"#define {up}_COUNT {len(a.signals)}",
+              f"{a.c_type} {a.prefix}_get(const {msg} *m, int j);",
+              f"void {a.prefix}_set({msg} *m, int j, {a.c_type} value);"]
+        c += ["", f"{a.c_type} {a.prefix}_get(const {msg} *m, int j)", "{", "    switch (j) {"]
+        c += [f"    case {j}: return m->{n};" for j, n in enumerate(members)]
+        c += ["    default: return 0;", "    }", "}",
+              "", f"void {a.prefix}_set({msg} *m, int j, {a.c_type} value)", "{",
+              "    switch (j) {"]
+        c += [f"    case {j}: m->{n} = value; break;" for j, n in enumerate(members)]
+        c += ["    default: break;", "    }", "}"]
+    h += ["", "#endif", ""]
+    c.append("")
+    return "\n".join(h), "\n".join(c)
+
+
 def trace_files(dbs: dict[str, Database]) -> tuple[str, str]:
     msg = dbs["vio"].get_message_by_name("FW_TRACE")
     m = f"hil_vio_{camel_to_snake_case(msg.name)}"
@@ -326,7 +403,7 @@ def trace_files(dbs: dict[str, Database]) -> tuple[str, str]:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 4 or argv[1] not in ("core", "host", "trace"):
+    if len(argv) != 4 or argv[1] not in ("core", "host", "arrays", "trace"):
         print(__doc__, file=sys.stderr)
         return 2
     mode, out_dir, protocols = argv[1], Path(argv[2]), Path(argv[3])
@@ -337,6 +414,8 @@ def main(argv: list[str]) -> int:
             files["fw_wire_gen.h"] = core_header(dbs)
         elif mode == "host":
             files["hil_wire.h"], files["hil_wire.c"] = host_files(dbs)
+        elif mode == "arrays":
+            files["hil_arrays.h"], files["hil_arrays.c"] = array_files(dbs)
         else:
             files["fw_trace_gen.h"], files["fw_trace_gen.c"] = trace_files(dbs)
     except WireError as exc:

@@ -119,3 +119,25 @@ def test_id_range_disagreeing_with_messages_stops_the_build(
     dbc.write_text(text.replace(old, new))
     r = generate("host", tmp_path / "out", protocols_dir)
     assert r.returncode == 1 and needle in r.stderr, r.stderr
+
+
+def test_array_signals_cover_every_soc_once(tmp_path: Path) -> None:
+    """hil_arrays.h: ia_<k>/ib_<k> of VIO_ADC_0..2 and soc_<k> of VIO_PWM as arrays whose
+    FIRST/COUNT put every SOC 0..n_soc max in exactly one frame, and each accessor reads the
+    member of its signal (element j of VIO_ADC_1.ia is ia_<7 + j>)."""
+    assert generate("arrays", tmp_path, REPO / "protocols").returncode == 0
+    d = defines(tmp_path / "hil_arrays.h")
+    vio = protocols.database("vio")
+    n_soc = int(vio.get_message_by_name("VIO_PWM").get_signal_by_name("n_soc").maximum)
+    assert (d["HIL_VIO_VIO_PWM_SOC_FIRST"], d["HIL_VIO_VIO_PWM_SOC_COUNT"]) == ("0", str(n_soc))
+    for base in ("IA", "IB"):
+        socs: list[int] = []
+        for x in range(3):
+            first, count = (int(d[f"HIL_VIO_VIO_ADC_{x}_{base}_{f}"]) for f in ("FIRST", "COUNT"))
+            names = {s.name for s in vio.get_message_by_name(f"VIO_ADC_{x}").signals}
+            assert {f"{base.lower()}_{k}" for k in range(first, first + count)} <= names
+            socs += range(first, first + count)
+        assert socs == list(range(n_soc))
+    source = (tmp_path / "hil_arrays.c").read_text()
+    body = source[source.index("hil_vio_vio_adc_1_ia_get"):]
+    assert "case 0: return m->ia_7;" in body and "case 6: return m->ia_13;" in body
