@@ -46,10 +46,9 @@ int16_t fwh_command(fwh_t *app, const fw_cmd_t *cmd, int owner)
 
 void fwh_command_refresh(fwh_t *app, int64_t now_ns)
 {
-    static int refreshing;
     int live;
     if (app->owner != FWH_OWNER_CONSOLE) {
-        refreshing = 0;
+        app->console_refreshing = 0;
         return;
     }
     live = app->console_connected &&
@@ -59,9 +58,9 @@ void fwh_command_refresh(fwh_t *app, int64_t now_ns)
         fw_cmd_t c = app->cmd;
         c.fault_reset = 0;
         (void)fwh_core_command(app, &c);
-        refreshing = 1;
-    } else if (refreshing) {
-        refreshing = 0;
+        app->console_refreshing = 1;
+    } else if (app->console_refreshing) {
+        app->console_refreshing = 0;
         app->cnt.console_keepalive_lapses++;
         fwh_log(app, "console session %s: its command is no longer refreshed (the command "
                      "time-out protects the drive)",

@@ -92,6 +92,7 @@ typedef struct fwh {
     int console_hup;           /* the line reported a hang-up: probed every 10 ms */
     int64_t console_retry_ns;
     int64_t console_last_ns;   /* last line received (keep-alive) */
+    int console_refreshing;    /* the session's command is being refreshed every ISR */
     char console_in[512];      /* input read but not taken yet (a reply was still queued) */
     size_t console_in_off, console_in_len;
     /* the command both sources write (last writer wins) */

@@ -10,11 +10,13 @@
 #include <stdint.h>
 
 #include "fw_core.h"
+#include "hil_arrays.h"
 #include "rx_reject.h"
 
 /* One VIO_ADC_x frame: index x, its period and n_soc, the DC-link code and the up to 7
  * current code pairs it carries. */
-#define FWH_VIO_ADC_MAX_SAMPLES 7 /* samples one VIO_ADC frame carries */
+/* samples one VIO_ADC frame carries at most: VIO_ADC_0's (vio.dbc, hil_arrays.h) */
+#define FWH_VIO_ADC_MAX_SAMPLES HIL_VIO_VIO_ADC_0_IA_COUNT
 
 typedef struct {
     int index;
