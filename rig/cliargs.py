@@ -206,6 +206,18 @@ def add_shared(parser: argparse.ArgumentParser, dest: str, *, help: str | None =
     parser.set_defaults(**{SHARED_KEY: taken, PARSER_KEY: parser})
 
 
+def verb(sub: argparse._SubParsersAction, name: str, *, help: str,  # type: ignore[type-arg]
+         description: str, epilog: str | None = None) -> argparse.ArgumentParser:
+    """Adds the command ``name`` to ``sub``: its line in the list of commands (``help``), what
+    it does (``description``) and what follows its options (``epilog``). An epilog written on
+    several lines (the steps, the outputs, the exit statuses) is printed as written, and the
+    description with it; a one-line epilog is wrapped to the terminal like the rest."""
+    laid_out = epilog is not None and "\n" in epilog
+    return sub.add_parser(name, help=help, description=description, epilog=epilog,
+                          formatter_class=argparse.RawDescriptionHelpFormatter if laid_out
+                          else argparse.HelpFormatter)
+
+
 def command(parser: argparse.ArgumentParser, func: Callable[[argparse.Namespace], int]
             ) -> None:
     """Marks ``parser`` as a command (a leaf) that runs ``func``."""

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 import pytest
 
 if TYPE_CHECKING:
-    from rig.run.result import RunResult
+    from rig.results.result import RunResult
     from rig.scenario import Scenario
 
 DEFAULT_SUITE = "paper"
@@ -110,7 +110,7 @@ def hil_bus(request: pytest.FixtureRequest) -> tuple[str, str]:
 
     wanted = _opt(request.config, "--hil-bus") or os.environ.get("HIL_BUS") or "auto"
     worker = worker_id(request.config)
-    if wanted == "inproc":  # the in-process bench (rig.sil): no bus, no channel
+    if wanted == "inproc":  # the in-process bench (rig.bench.sil): no bus, no channel
         return "inproc", ""
     if wanted in ("auto", "socketcan"):
         chan = channel_for(worker, "socketcan")
@@ -164,11 +164,11 @@ def hil_run(
 ) -> Iterator[HilRun]:
     """``hil_run(scenario, *, realtime=None, **options) -> RunResult``.
 
-    ``scenario``: a name, a path or a ``Scenario``. Options are ``rig.runner.RunOptions``
+    ``scenario``: a name, a path or a ``Scenario``. Options are ``rig.run.runner.RunOptions``
     fields (``timeout_s``, ``record``, ``bus="inproc"`` for the in-process bench, ...). Each
     call writes to its own sub-folder."""
-    from rig import runner
     from rig import scenario as sc
+    from rig.run import runner
 
     transport, channel = hil_bus
     default_rt = bool(_opt(request.config, "--hil-realtime"))
@@ -196,7 +196,7 @@ def hil_run(
 
 def record(item: pytest.Item, result: RunResult) -> None:
     """The run's verdict as the test's properties, as rig run --junit names them."""
-    from rig import junit
+    from rig.results import junit
 
     item.stash.setdefault(RUNS, []).append(result)
     name = result.scenario

@@ -21,7 +21,7 @@ import os
 import signal
 import subprocess
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -325,22 +325,13 @@ def interruptible() -> None:
 def terminate_as_exception() -> Iterator[None]:
     """Turns SIGTERM/SIGHUP into :class:`Terminated` so ``finally`` blocks stop the children
     (and SIGINT into KeyboardInterrupt, even when inherited as ignored: :func:`interruptible`)."""
-    previous: dict[int, Any] = {}
     interruptible()
 
     def handler(signum: int, frame: FrameType | None) -> None:
         raise Terminated(signal.Signals(signum).name)
 
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        try:
-            previous[sig] = signal.signal(sig, handler)
-        except ValueError:  # not the main thread
-            pass
-    try:
+    with _handlers((signal.SIGTERM, signal.SIGHUP), handler):
         yield
-    finally:
-        for signum, h in previous.items():
-            signal.signal(signum, h)
 
 
 @contextlib.contextmanager
@@ -351,21 +342,33 @@ def signals_deferred() -> Iterator[None]:
     Python handlers, not the signal mask: a signal that reaches another thread would still
     run the main thread's handler in the middle of the block."""
     got: list[int] = []
-    previous: dict[int, Any] = {}
 
     def note(signum: int, frame: FrameType | None) -> None:
         got.append(signum)
 
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        try:
-            previous[sig] = signal.signal(sig, note)
-        except ValueError:  # not the main thread: nothing to defer there
-            pass
+    previous: dict[int, Any] = {}
     try:
-        yield
-    finally:
-        for signum, h in previous.items():
-            signal.signal(signum, h)
+        with _handlers((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), note) as previous:
+            yield
+    finally:  # the handlers in force before the block take what came meanwhile
         for signum in dict.fromkeys(got):
             if previous.get(signum) not in (signal.SIG_IGN, None):
                 signal.raise_signal(signum)
+
+
+@contextlib.contextmanager
+def _handlers(signals: Iterable[int], handler: Callable[[int, FrameType | None], None]
+              ) -> Iterator[dict[int, Any]]:
+    """``handler`` for ``signals`` inside the block, the previous handlers (yielded) restored
+    after it. Outside the main thread no handler can be set: nothing changes there."""
+    previous: dict[int, Any] = {}
+    for sig in signals:
+        try:
+            previous[sig] = signal.signal(sig, handler)
+        except ValueError:  # not the main thread
+            pass
+    try:
+        yield previous
+    finally:
+        for signum, h in previous.items():
+            signal.signal(signum, h)

@@ -1,10 +1,16 @@
 """Helpers shared by the build-time C generators (gen_params.py, gen_console.py): the banner
 of a generated file, C string literals, and writing a generated file only when its text
-changed, so that an unchanged table does not make the build recompile what includes it."""
+changed, so that an unchanged table does not make the build recompile what includes it;
+and the command line they share (``generate``)."""
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import TypeVar
+
+Source = TypeVar("Source")
 
 
 def c_string(s: str) -> str:
@@ -22,3 +28,24 @@ def write_if_changed(path: Path, text: str) -> None:
     if path.exists() and path.read_text(encoding="utf-8") == text:
         return
     path.write_text(text, encoding="utf-8")
+
+
+def generate(argv: list[str], usage: str, read: Callable[[Path], Source],
+             files: Mapping[str, Callable[[Source], str]]) -> int:
+    """A generator's main: ``script SOURCE OUT_DIR``. Reads SOURCE (``read`` raises
+    ``ValueError`` with the place of a fault: reported as ``script: message``, exit 1) and
+    writes each of ``files`` (name: its text from the source) that changed; exit 2 and the
+    ``usage`` on other arguments."""
+    if len(argv) != 3:
+        print(usage, file=sys.stderr)
+        return 2
+    source_path, out_dir = Path(argv[1]), Path(argv[2])
+    try:
+        source = read(source_path)
+    except ValueError as exc:
+        print(f"{Path(argv[0]).stem}: {exc}", file=sys.stderr)
+        return 1
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name, text in files.items():
+        write_if_changed(out_dir / name, text(source))
+    return 0

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from c_codegen import banner, c_string, write_if_changed
+from c_codegen import banner, c_string, generate
 
 WORD_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 ARG_TYPES = {"param": "CON_ARG_PARAM", "number": "CON_ARG_NUMBER", "choice": "CON_ARG_CHOICE"}
@@ -145,21 +145,18 @@ def source(spec: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
-def main(argv: list[str]) -> int:
-    if len(argv) != 3:
-        print(__doc__, file=sys.stderr)
-        return 2
-    spec_path, out_dir = Path(argv[1]), Path(argv[2])
+def read(spec_path: Path) -> dict[str, Any]:
+    """The console's description, checked; any fault as a ValueError naming the file."""
     try:
-        spec = json.loads(spec_path.read_text(encoding="utf-8"))
+        spec: dict[str, Any] = json.loads(spec_path.read_text(encoding="utf-8"))
         check(spec)
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        print(f"gen_console: {spec_path}: {exc}", file=sys.stderr)
-        return 1
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_if_changed(out_dir / "console_gen.h", header(spec))
-    write_if_changed(out_dir / "console_gen.c", source(spec))
-    return 0
+        raise ValueError(f"{spec_path}: {exc}") from exc
+    return spec
+
+
+def main(argv: list[str]) -> int:
+    return generate(argv, __doc__ or "", read, {"console_gen.h": header, "console_gen.c": source})
 
 
 if __name__ == "__main__":

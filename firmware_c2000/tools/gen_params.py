@@ -20,7 +20,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from c_codegen import banner, c_string, write_if_changed
+from c_codegen import banner, c_string, generate
 
 COLUMNS = ["id", "name", "unit", "min", "max", "default", "access", "description"]
 NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -131,19 +131,8 @@ def source(params: list[Param]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 3:
-        print(__doc__, file=sys.stderr)
-        return 2
-    csv_path, out_dir = Path(argv[1]), Path(argv[2])
-    try:
-        params = parse(csv_path)
-    except CsvError as exc:
-        print(f"gen_params: {exc}", file=sys.stderr)
-        return 1
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_if_changed(out_dir / "fw_params_gen.h", header(params))
-    write_if_changed(out_dir / "fw_params_gen.c", source(params))
-    return 0
+    return generate(argv, __doc__ or "", parse,
+                    {"fw_params_gen.h": header, "fw_params_gen.c": source})
 
 
 if __name__ == "__main__":

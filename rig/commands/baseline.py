@@ -21,13 +21,13 @@ show: the baseline of SUITE (or a baseline file) as a table.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "baseline", help="record or show a suite's accepted values and their seed spread",
+    p = cliargs.verb(
+        sub, "baseline", help="record or show a suite's accepted values and their seed spread",
         description="Baselines hold every criterion's accepted value with a tolerance band "
         "from its spread over the plant's noise seeds (rig/baselines/<suite>.toml). `rig run` "
         "compares with them: a value beyond its band on the worse side fails the run even "
         "inside the criterion's limit.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     verbs = p.add_subparsers(dest="verb", metavar="VERB", required=True)
     r = verbs.add_parser("record", help="run a suite over several seeds and write its baseline")
     r.add_argument("suite", metavar="SUITE", help="a suite name or file (rig list)")
@@ -63,8 +63,9 @@ def _git(*args: str) -> str:
 def source() -> dict[str, Any]:
     """What the baseline was recorded with: the commit, whether the tree had changes, the
     in-process bench's hash."""
-    from rig import _paths, sil
-    from rig.run.programs import sha
+    from rig import _paths
+    from rig.bench import sil
+    from rig.run.versions import sha
 
     out: dict[str, Any] = {"commit": _git("rev-parse", "--short=12", "HEAD") or "unknown"}
     out["dirty"] = bool(_git("status", "--porcelain", "--untracked-files=no"))
@@ -76,7 +77,8 @@ def source() -> dict[str, Any]:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from rig import baseline, outdirs, scenario
+    from rig import outputs, scenario
+    from rig.regression import baseline
     from rig.run.seeds import parse_seeds, run_over_seeds
     from rig.supervisor import Terminated, terminate_as_exception
 
@@ -102,7 +104,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     if args.from_dir is not None:
         runs = read_seed_runs(suite, seeds, args.from_dir)
     else:
-        root = args.out or outdirs.default_out(f"baseline-{suite.name}")
+        root = args.out or outputs.default_out(f"baseline-{suite.name}")
         print(f"rig baseline record: {suite.name}, {len(suite.scenarios)} scenarios x "
               f"{len(seeds)} seeds in process, {args.jobs} at a time -> {root}",
               file=sys.stderr)
@@ -133,14 +135,14 @@ def cmd_record(args: argparse.Namespace) -> int:
                   file=sys.stderr)
     _check_other_files(new, target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    from rig import output
+    from rig import outputs
 
-    output.write_text(target, new.dumps())
+    outputs.write_text(target, new.dumps())
     n = sum(len(e.records) for e in new.entries.values())
     print(f"rig baseline record: {target}: {len(new.entries)} scenario runs, {n} criteria, "
           f"seeds {args.seeds}", file=sys.stderr)
     if old is not None:
-        from rig import compare
+        from rig.regression import compare
 
         table = compare.baselines(old, new)
         print(compare.summary_line(table, "against the replaced baseline"), file=sys.stderr)
@@ -174,7 +176,7 @@ def comparison_problems(suite: Any, runs: dict[int, list[Any]]) -> list[str]:
 def read_seed_runs(suite: Any, seeds: tuple[int, ...], root: Path) -> dict[int, list[Any]]:
     """The runs a ``rig baseline record --out ROOT`` left, per seed in the suite's order
     (None where a run has no result.json)."""
-    from rig.run.result import RunResult
+    from rig.results.result import RunResult
     from rig.run.seeds import seed_dir
 
     out: dict[int, list[Any]] = {}
@@ -201,8 +203,8 @@ def rejudge(sc: Any, criteria: list[dict[str, Any]]) -> list[dict[str, Any]]:
     says so as a missing criterion)."""
     import math
 
-    from rig import metrics
-    from rig.verdict import NOT_EVALUATED, outcome_of
+    from rig.data import metrics
+    from rig.results.verdict import NOT_EVALUATED, outcome_of
 
     by_name = {c.get("name"): c for c in criteria}
     out: list[dict[str, Any]] = []
@@ -225,7 +227,7 @@ def rejudge(sc: Any, criteria: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def _check_other_files(new: Any, target: Path) -> None:
     """A scenario run belongs to one baseline file: say which other files also hold some of
     the runs just recorded (they must be recorded again or cleaned by hand)."""
-    from rig import baseline
+    from rig.regression import baseline
 
     for path in baseline.files(target.parent):
         if path.resolve() == target.resolve():
@@ -242,7 +244,7 @@ def _check_other_files(new: Any, target: Path) -> None:
 
 
 def cmd_show(args: argparse.Namespace) -> int:
-    from rig import baseline
+    from rig.regression import baseline
 
     path = Path(args.suite)
     if not path.is_file():

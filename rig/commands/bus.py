@@ -10,8 +10,8 @@ from rig import cliargs
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser("bus", help="create and inspect the CAN bus",
-                       description="Create and inspect the CAN bus (SocketCAN or unixcan).")
+    p = cliargs.verb(sub, "bus", help="create and inspect the CAN bus",
+                     description="Create and inspect the CAN bus (SocketCAN or unixcan).")
     bsub = p.add_subparsers(dest="bus_command", metavar="ACTION", required=True)
 
     up = bsub.add_parser("up", help="create a CAN FD vcan interface (root) or a unixcan channel",

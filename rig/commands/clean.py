@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from rig import cliargs
+
 EPILOG = """\
 which runs: rig run / rig sweep without --out write a new folder NAME-YYYYmmdd-HHMMSS under
 $HIL_OUT (else ./out) each time; those pile up. rig clean lists every run folder under the
@@ -23,11 +25,11 @@ NOTICE_RUNS = 20
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "clean", help="list old run folders under the output root; remove them with --yes",
+    p = cliargs.verb(
+        sub, "clean", help="list old run folders under the output root; remove them with --yes",
         description="List the run folders under the output root (size, age, verdict, whether "
         "they still hold full-rate traces) and remove the old auto-named ones.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
     )
     p.add_argument("root", nargs="?", type=Path, default=None, metavar="ROOT",
                    help="the output root (default: $HIL_OUT, else ./out)")
@@ -46,9 +48,9 @@ def _mb(n: int) -> str:
 
 
 def cmd_clean(args: argparse.Namespace) -> int:
-    from rig import outdirs
+    from rig import outputs
 
-    root: Path = args.root or outdirs.default_root()
+    root: Path = args.root or outputs.default_root()
     if args.keep_last < 0 or (args.older_than is not None and args.older_than < 0):
         print("rig clean: --keep-last and --older-than take numbers >= 0", file=sys.stderr)
         return 2
@@ -58,8 +60,8 @@ def cmd_clean(args: argparse.Namespace) -> int:
     if not root.is_dir():
         print(f"rig clean: {root} is not a folder", file=sys.stderr)
         return 3
-    runs = list(outdirs.find_runs(root))
-    chosen = outdirs.select(runs, keep_last=args.keep_last, older_than_days=args.older_than,
+    runs = list(outputs.find_runs(root))
+    chosen = outputs.select(runs, keep_last=args.keep_last, older_than_days=args.older_than,
                             include_named=args.all)
     gone = {r.path for r in chosen}
     print(f"{'':2}{'RUN':<48} {'KIND':<8} {'WHEN':<16} {'SIZE':>12}  NOTE")
@@ -85,16 +87,16 @@ def cmd_clean(args: argparse.Namespace) -> int:
         print("nothing removed: add --yes to remove the runs marked x")
         return 0
     for r in chosen:
-        outdirs.remove(r, root)
+        outputs.remove(r, root)
     print(f"removed {len(chosen)} runs ({_mb(freed)})")
     return 0
 
 
 def notice(root: Path) -> str | None:
     """A one-line hint when the output root has grown (after rig run), else None."""
-    from rig import outdirs
+    from rig import outputs
 
-    runs = [r for r in outdirs.find_runs(root) if r.auto_named]
+    runs = [r for r in outputs.find_runs(root) if r.auto_named]
     size = sum(r.bytes for r in runs)
     if size < NOTICE_BYTES and len(runs) <= NOTICE_RUNS:
         return None

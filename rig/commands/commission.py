@@ -33,12 +33,12 @@ interrupted.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "commission", help="commissioning scripts (virtual or real bench)",
+    p = cliargs.verb(
+        sub, "commission", help="commissioning scripts (virtual or real bench)",
         description="Run commissioning steps against the bench a description names "
         "(rig/benches/virtual.toml starts plant_rt, fw_host and the Modbus load bench in "
         "lockstep; a real bench runs on the wall clock).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("step", nargs="+", metavar="STEP",
                    help="a step (listed below) or 'all'; several allowed")
     cliargs.add_shared(p, "bench", required=True,
@@ -59,13 +59,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_commission(args: argparse.Namespace) -> int:
-    from rig import bench_description
-    from rig.commissioning import runner
+    from rig.bench import description
+    from rig.commissioning import commission
 
     try:
-        desc = bench_description.load(args.bench, args.set)
-        steps = runner.expand(args.step)
-    except (bench_description.BenchDescriptionError, ValueError) as exc:
+        desc = description.load(args.bench, args.set)
+        steps = commission.expand(args.step)
+    except (description.BenchDescriptionError, ValueError) as exc:
         print(f"rig commission: {exc}", file=sys.stderr)
         return EXIT_USAGE
     if args.save_params is not None:
@@ -73,14 +73,14 @@ def cmd_commission(args: argparse.Namespace) -> int:
         if problem is not None:
             print(f"rig commission: --save-params: {problem}", file=sys.stderr)
             return EXIT_USAGE
-    out = args.out or runner.default_run_dir(desc)
+    out = args.out or commission.default_run_dir(desc)
 
     def say(msg: str) -> None:
         if not args.quiet:
             print(f"rig commission: {msg}", file=sys.stderr, flush=True)
 
     try:
-        run = runner.commission(desc, steps, out, say)
+        run = commission.commission(desc, steps, out, say)
     except KeyboardInterrupt:
         print(f"rig commission: interrupted; drive disabled and load zeroed; report in {out}",
               file=sys.stderr)
@@ -105,14 +105,14 @@ def cmd_commission(args: argparse.Namespace) -> int:
 def _save_target_problem(path: Path) -> str | None:
     """Why --save-params cannot write ``path`` (checked before the run, so a long run is not
     lost to it at the end), or None."""
-    from rig import commissioned_drive
+    from rig.drive import commissioned
 
     if path.is_symlink():
         return f"{path} is a symbolic link; refused (nothing is written through a link)"
     if path.exists():
         if not path.is_file():
             return f"{path} is not a regular file"
-        if not commissioned_drive.is_saved_file(path):
+        if not commissioned.is_saved_file(path):
             return (f"{path} exists and was not written by --save-params; refused (remove it "
                     "or choose another FILE)")
     if not path.parent.is_dir():
@@ -123,16 +123,17 @@ def _save_target_problem(path: Path) -> str | None:
 def _save_params(path: Path, data: dict, desc) -> bool:  # type: ignore[no-untyped-def,type-arg]
     """Writes the drive parameters the run identified or wrote to the drive, whole or not at
     all; False (with the reason) when it cannot."""
-    from rig import commissioned_drive, output
+    from rig import outputs
+    from rig.drive import commissioned
 
     if not data.get("passed"):
         print(f"rig commission: --save-params: the run did not pass; {path} not written",
               file=sys.stderr)
         return False
     try:
-        values = commissioned_drive.values_to_save(data.get("identified") or {},
+        values = commissioned.values_to_save(data.get("identified") or {},
                                                    data.get("written") or {})
-    except commissioned_drive.CommissionedError as exc:
+    except commissioned.CommissionedError as exc:
         print(f"rig commission: --save-params: {exc}; {path} not written", file=sys.stderr)
         return False
     if not values:
@@ -145,7 +146,7 @@ def _save_params(path: Path, data: dict, desc) -> bool:  # type: ignore[no-untyp
         return False
     profile = desc.virtual.profile if desc.virtual is not None else desc.name
     try:
-        output.write_text(path, commissioned_drive.render(values, profile,
+        outputs.write_text(path, commissioned.render(values, profile,
                                                           ["rig", *sys.argv[1:]]))
     except OSError as exc:
         print(f"rig commission: --save-params: {exc}", file=sys.stderr)

@@ -19,12 +19,12 @@ exit status: 0 nothing regressed or changed; 1 something did; 2 usage.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "compare", help="two runs, suites or baselines side by side, against the seed spread",
+    p = cliargs.verb(
+        sub, "compare", help="two runs, suites or baselines side by side, against the seed spread",
         description="Per scenario run and criterion: A's value, B's, the difference and "
         "whether it is beyond the spread the plant's noise seeds give (the baseline's band). "
         "What a reviewer reads before a firmware change is merged.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("a", metavar="A")
     p.add_argument("b", metavar="B")
     p.add_argument("--all", action="store_true",
@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def cmd_compare(args: argparse.Namespace) -> int:
     import json
 
-    from rig import compare
+    from rig.regression import compare
 
     try:
         a, b = compare.load_side(args.a), compare.load_side(args.b)
@@ -51,14 +51,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     summary = compare.summary_line(rows)
     print(f"{head}\n{summary}\n\n{table}")
     if args.out is not None:
-        from rig import output
+        from rig import outputs
 
-        output.prepare(args.out)
+        outputs.prepare(args.out)
         pngs = compare.plots(rows, args.out, "A", "B")
         md = [f"# {head}", "", summary, "", table, ""]
         md += [f"![{p.stem}]({p.name})" for p in pngs]
-        output.write_text(args.out / "compare.md", "\n".join(md) + "\n")
-        output.write_text(args.out / "compare.json",
+        outputs.write_text(args.out / "compare.md", "\n".join(md) + "\n")
+        outputs.write_text(args.out / "compare.json",
                           json.dumps({"a": a.label, "b": b.label,
                                       "rows": compare.to_json(rows)}, indent=1))
         print(f"\n-> {args.out}/compare.md ({len(pngs)} plots)", file=sys.stderr)

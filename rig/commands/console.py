@@ -22,12 +22,12 @@ exit status: 0 every reply OK; 1 an ERR reply (scripted: stops at the first one 
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "console", help="talk to the drive's SCI console (serial port, pty or URL)",
+    p = cliargs.verb(
+        sub, "console", help="talk to the drive's SCI console (serial port, pty or URL)",
         description="Client of the drive's SCI console (protocols/console.md): 115200 8N1 on "
         "a serial device, a pseudo-terminal (fw_host --pty-link) or a pyserial URL "
         "(rfc2217://host:port, socket://host:port).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     where = p.add_mutually_exclusive_group()
     where.add_argument("--port", metavar="PORT|URL",
                        help="device, pty path or pyserial URL (this or --bench)")
@@ -44,19 +44,19 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def _port(args: argparse.Namespace) -> tuple[str, float]:
     if args.port:
         return args.port, args.timeout or 2.0
-    from rig import bench_description
+    from rig.bench import description
 
-    desc = bench_description.load(args.bench)
+    desc = description.load(args.bench)
     if not desc.console.port:
-        raise bench_description.BenchDescriptionError(
+        raise description.BenchDescriptionError(
             f"{args.bench}: no console.port (a virtual bench's console is the pty of a "
             "running fw_host: use --port RUN/console.pty)")
     return desc.console.port, args.timeout or desc.console.timeout_s
 
 
 def cmd_console(args: argparse.Namespace) -> int:
-    from rig.bench_description import BenchDescriptionError
-    from rig.console import ConsoleClient, ConsoleLinkError
+    from rig.bench.description import BenchDescriptionError
+    from rig.drive.console import ConsoleClient, ConsoleLinkError
 
     if bool(args.port) == bool(args.bench):
         print("rig console: error: give the console as --port PORT|URL or --bench FILE "
@@ -83,7 +83,7 @@ def cmd_console(args: argparse.Namespace) -> int:
 
 
 def _scripted(client: object, lines: Iterable[str], keep_going: bool) -> int:
-    from rig.console import ConsoleClient
+    from rig.drive.console import ConsoleClient
 
     assert isinstance(client, ConsoleClient)
     status = EXIT_OK
@@ -125,8 +125,8 @@ def _readline(words: list[str]) -> Iterator[None]:
 
 
 def _interactive(client: object) -> int:
-    from rig import params
-    from rig.console import ConsoleClient
+    from rig.drive import params
+    from rig.drive.console import ConsoleClient
 
     assert isinstance(client, ConsoleClient)
     g = client.grammar

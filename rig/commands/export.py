@@ -29,12 +29,12 @@ cannot be written. Nothing is left behind when a file cannot be written.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "export", help="write a run's full-rate data as ASAM MDF4 (--mf4) or a CAN log "
+    p = cliargs.verb(
+        sub, "export", help="write a run's full-rate data as ASAM MDF4 (--mf4) or a CAN log "
         "(--can-log FILE.blf|.asc|.log)",
         description="Write a run's full-rate capture as ASAM MDF4 (asammdf) and its traced "
         "frames as a CAN log (python-can), for the tools of the field.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
     )
     p.add_argument("run_dir", type=Path, metavar="DIR", help="a scenario's run folder")
     p.add_argument("--mf4", nargs="?", type=Path, const=True, default=None, metavar="FILE",
@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from rig import export
+    from rig.data import export
 
     run_dir: Path = args.run_dir
     if args.mf4 is None and args.can_log is None:

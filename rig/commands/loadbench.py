@@ -13,8 +13,9 @@ EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "loadbench", help="virtual load bench (Modbus TCP server) and a Modbus look at a bench",
+    p = cliargs.verb(
+        sub, "loadbench",
+        help="virtual load bench (Modbus TCP server) and a Modbus look at a bench",
         description="The load machine and torque sensor over Modbus "
         "(protocols/modbus_load_bench.json).")
     ls = p.add_subparsers(dest="loadbench_command", metavar="ACTION", required=True)
@@ -46,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from rig.loadbench_server import ServeOptions, serve
+    from rig.loadbench.server import ServeOptions, serve
 
     if args.host != "127.0.0.1":
         print("rig loadbench serve: the virtual load bench binds 127.0.0.1 only",
@@ -64,12 +65,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def cmd_read(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from rig import bench_description
-    from rig.load_bench import LoadBench, LoadBenchError
+    from rig.bench import description
+    from rig.loadbench.client import LoadBench, LoadBenchError
 
     try:
-        desc = bench_description.load(args.bench)
-    except bench_description.BenchDescriptionError as exc:
+        desc = description.load(args.bench)
+    except description.BenchDescriptionError as exc:
         print(f"rig loadbench read: {exc}", file=sys.stderr)
         return EXIT_USAGE
     spec = desc.modbus if args.port is None else replace(desc.modbus, port=args.port)

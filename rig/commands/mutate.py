@@ -12,9 +12,9 @@ from typing import TYPE_CHECKING
 from rig import cliargs
 
 if TYPE_CHECKING:
-    from rig.mutation.campaign import Gate
-    from rig.mutation.catalogue import Mutant
-    from rig.mutation.worktree import MutationTree
+    from rig.regression.mutation.campaign import Gate
+    from rig.regression.mutation.catalogue import Mutant
+    from rig.regression.mutation.worktree import MutationTree
 
 EPILOG = """\
 Each mutant of tests/mutants/catalogue.toml is applied alone to a copy of this checkout
@@ -30,11 +30,10 @@ exit status: 0 the campaign ran (whatever the score); 1 the unmutated tree fails
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "mutate", help="mutation testing: does the gate catch realistic firmware bugs?",
+    p = cliargs.verb(
+        sub, "mutate", help="mutation testing: does the gate catch realistic firmware bugs?",
         description="Apply realistic firmware bugs one at a time and check that the gate or "
-        "the C tests catch each of them.", epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        "the C tests catch each of them.", epilog=EPILOG)
     p.add_argument("--only", default=None, metavar="IDS",
                    help="comma-separated mutant ids (default: the whole catalogue)")
     p.add_argument("--catalogue", type=Path, default=None, metavar="FILE",
@@ -61,9 +60,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_mutate(args: argparse.Namespace) -> int:
-    from rig import outdirs
-    from rig.mutation import campaign, catalogue
-    from rig.mutation.worktree import MutationTree
+    from rig import outputs
+    from rig.regression.mutation import campaign, catalogue
+    from rig.regression.mutation.worktree import MutationTree
 
     try:
         mutants = catalogue.load(args.catalogue)
@@ -87,7 +86,7 @@ def cmd_mutate(args: argparse.Namespace) -> int:
     if not detectors or set(detectors) - {"ctest", "gate"}:
         print("rig mutate: --detectors takes ctest and/or gate", file=sys.stderr)
         return 2
-    out = args.out or outdirs.default_out("mutate")
+    out = args.out or outputs.default_out("mutate")
     out.mkdir(parents=True, exist_ok=True)
     gate = campaign.Gate(tuple(s.strip() for s in args.suite.split(",") if s.strip()),
                          args.baseline, args.jobs, args.seed)
@@ -104,8 +103,8 @@ def cmd_mutate(args: argparse.Namespace) -> int:
 
 def _campaign(args: argparse.Namespace, mutants: list[Mutant], gate: Gate, tree: MutationTree,
               out: Path, detectors: list[str]) -> int:
-    from rig.mutation import campaign
-    from rig.mutation.worktree import BuildError
+    from rig.regression.mutation import campaign
+    from rig.regression.mutation.worktree import BuildError
 
     def say(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)

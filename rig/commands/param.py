@@ -11,8 +11,8 @@ EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "param", help="read, write, list, save and load drive parameters over CAN",
+    p = cliargs.verb(
+        sub, "param", help="read, write, list, save and load drive parameters over CAN",
         description="Drive parameters (protocols/parameters.csv) through PARAM_REQ / "
         "PARAM_RESP: every request has a sequence number and a time-out; a write is "
         "range-checked here and by the drive and then read back.",
@@ -43,15 +43,15 @@ def _link_options(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_param(args: argparse.Namespace) -> int:
-    from rig import bench_description
+    from rig.bench import description
+    from rig.drive.params import ParamClient, ParamError, ParamTimeout
     from rig.link.bus import BusLink, LinkError
-    from rig.params import ParamClient, ParamError, ParamTimeout
 
     bus, channel = args.bus, args.channel
     if args.bench:
         try:
-            desc = bench_description.load(args.bench)
-        except bench_description.BenchDescriptionError as exc:
+            desc = description.load(args.bench)
+        except description.BenchDescriptionError as exc:
             print(f"rig param: {exc}", file=sys.stderr)
             return EXIT_USAGE
         bus, channel = bus or desc.can.transport, channel or desc.can.channel

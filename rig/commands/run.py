@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from rig import cliargs
 
 if TYPE_CHECKING:
-    from rig.run.result import RunResult
+    from rig.results.result import RunResult
 
 EPILOG_RUN = """\
 exit status: 0 every criterion passed; 1 a criterion failed or was not evaluated (its
@@ -34,12 +34,12 @@ $HIL_OUT or ./out, plus name and time; `rig clean` lists and removes old runs.
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "run", help="run a scenario or a suite and assert on its criteria",
+    p = cliargs.verb(
+        sub, "run", help="run a scenario or a suite and assert on its criteria",
         description="Start plant_rt and fw_host on the bus, run the scenario's speed and load "
         "profile (lockstep by default), capture every PWM period losslessly, evaluate the "
         "pass criteria and write result.json, report.md and recording.rrd.",
-        epilog=EPILOG_RUN, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG_RUN,
     )
     p.add_argument("target", metavar="SCENARIO|SUITE",
                    help="a scenario or suite name (see `rig list`) or a path to its TOML file")
@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     cliargs.add_shared(p, "bus", choices=cliargs.BUS_WITH_INPROC,
                        help="transport (default: $HIL_BUS, else auto: SocketCAN when "
                        "available); inproc: plant and firmware core in this process, no bus "
-                       "(rig.sil; lockstep only)")
+                       "(rig.bench.sil; lockstep only)")
     cliargs.add_shared(p, "channel", env="HIL_CHANNEL",
                        help="bus channel (default: $HIL_CHANNEL, else vcan0)")
     p.add_argument("--realtime", action="store_true",
@@ -94,8 +94,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     cliargs.add_shared(p, "quiet", help="no progress line")
     cliargs.command(p, cmd_run)
 
-    ls = sub.add_parser(
-        "list", help="list scenarios and suites (name, profile, duration, description)",
+    ls = cliargs.verb(
+        sub, "list", help="list scenarios and suites (name, profile, duration, description)",
         description="List the scenario and suite files shipped in rig/scenarios "
         "(schema-checked: an invalid file is reported with its file, line and field and the "
         "command exits 2).",
@@ -105,8 +105,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     ls.add_argument("--json", action="store_true", help="machine-readable output")
     cliargs.command(ls, cmd_list)
 
-    v = sub.add_parser(
-        "view", help="open a run's recording.rrd in the Rerun viewer",
+    v = cliargs.verb(
+        sub, "view", help="open a run's recording.rrd in the Rerun viewer",
         description="Open DIR/recording.rrd (or every scenario's recording of a suite "
         "folder, or an .rrd file) in the Rerun viewer.",
     )
@@ -145,7 +145,8 @@ def with_seed(target: Any, seed: int) -> Any:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from rig import runner, scenario
+    from rig import scenario
+    from rig.run import runner
 
     try:
         target = scenario.load(args.target)
@@ -191,7 +192,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
-    from rig import runner, webview
+    from rig.results import webview
+    from rig.run import runner
 
     if args.web and not args.live:
         print("rig run: --web goes with --live (a finished run: rig view --web DIR)",
@@ -216,7 +218,8 @@ def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
 
 
 def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | None) -> int:
-    from rig import output, runner, scenario
+    from rig import outputs, scenario
+    from rig.run import runner
     from rig.run.suite import run_suite
     from rig.supervisor import Terminated, terminate_as_exception
 
@@ -244,7 +247,7 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     except (KeyboardInterrupt, Terminated):
         print(f"rig run: interrupted; partial results in {out}", file=sys.stderr)
         return runner.EXIT_INTERRUPTED
-    except output.OutputError as exc:
+    except outputs.OutputError as exc:
         print(f"rig run: {exc}", file=sys.stderr)
         return runner.EXIT_ENV
     _print_verdict(result)
@@ -255,7 +258,8 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
 def _write_junit(dest: Path, out: Path, name: str, status: int) -> int:
     """The JUnit file of what the run (or suite) wrote into ``out``; exit 3 when it cannot be
     written (the run's own status otherwise)."""
-    from rig import junit, output
+    from rig import outputs
+    from rig.results import junit
 
     try:
         data = json.loads((out / "result.json").read_text())
@@ -273,7 +277,7 @@ def _write_junit(dest: Path, out: Path, name: str, status: int) -> int:
         runs, comparisons = [data], []
     try:
         junit.write(dest, runs, name, comparisons, suite_dir=out)
-    except output.OutputError as exc:
+    except outputs.OutputError as exc:
         print(f"rig run: --junit: {exc}", file=sys.stderr)
         return max(status, 3)
     print(f"  -> {dest} (JUnit XML)", file=sys.stderr)
@@ -330,7 +334,8 @@ def _baseline_mark(c: dict[str, Any]) -> str:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from rig import metrics, scenario
+    from rig import scenario
+    from rig.data import metrics
 
     if args.metrics:
         rows: list[dict[str, Any]] = [
@@ -399,7 +404,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         print("rig view: --screenshot needs --web", file=sys.stderr)
         return 2
     if not args.web:
-        from rig import webview
+        from rig.results import webview
 
         if not webview.has_display():
             print(f"rig view: {webview.NO_DISPLAY}: use `rig view --web {path}` and open the "
@@ -424,7 +429,7 @@ def _view_web(args: argparse.Namespace, files: list[Path]) -> int:
 def _serve_web(args: argparse.Namespace, files: list[Path]) -> int:
     import time
 
-    from rig import webview
+    from rig.results import webview
 
     try:
         viewer = webview.start(files, web_port=args.web_port or webview.DEFAULT_WEB_PORT,
@@ -447,7 +452,7 @@ def _serve_web(args: argparse.Namespace, files: list[Path]) -> int:
 
 
 def _screenshot(viewer: Any, files: list[Path], png: Path) -> int:
-    from rig import browser, recording
+    from rig.results import browser, recording
 
     expect = [f"hil-{f.parent.name}" for f in files if f.name == "recording.rrd"]
     expect += recording.VIEW_NAMES

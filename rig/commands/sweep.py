@@ -35,11 +35,11 @@ points) and worst_error.png. Exit status: 0 every point passed, 1 some did not, 
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "sweep", help="run a scenario over a grid or random sample of overrides",
+    p = cliargs.verb(
+        sub, "sweep", help="run a scenario over a grid or random sample of overrides",
         description="Run one scenario at many points of its parameters, on a local process "
         "pool or a Dask cluster (the in-process bench by default: fast).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("scenario", metavar="SCENARIO", help="scenario name or file (name@profile)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=SPEC", required=True,
                    help="a swept axis (repeatable; see below)")
@@ -69,7 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from rig import metrics, runner, scenario
+    from rig import scenario
+    from rig.data import metrics
+    from rig.run import runner
     from rig.supervisor import Terminated, terminate_as_exception
     from rig.sweep import engine, spec
     from rig.sweep import point as sweep_point

@@ -8,13 +8,14 @@ import sys
 import tempfile
 from pathlib import Path
 
+from rig import cliargs
 from rig.target_m4 import scenarios
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser("target", help="the control core on an emulated Cortex-M4F",
-                       description="The control core built for a Cortex-M4F "
-                       "(firmware_c2000/target_m4) under emulation.")
+    p = cliargs.verb(sub, "target", help="the control core on an emulated Cortex-M4F",
+                     description="The control core built for a Cortex-M4F "
+                     "(firmware_c2000/target_m4) under emulation.")
     tsub = p.add_subparsers(dest="target_command", metavar="COMMAND", required=True)
     c = tsub.add_parser(
         "compare", help="replay closed-loop runs on the target, compare every period",

@@ -6,12 +6,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from rig import cliargs, vm
+from rig import cliargs
+from rig.bus import vm
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser(
-        "vm", help="run a command inside a virtme-ng VM with vcan0 up",
+    p = cliargs.verb(
+        sub, "vm", help="run a command inside a virtme-ng VM with vcan0 up",
         description="Boot Debian's stock kernel with virtme-ng (TCG unless --kvm), bring up "
         "vcan interfaces with CAN FD MTU, run COMMAND in the current folder (mounted "
         "writable) and return its exit code. Example: rig vm -- pytest -m vcan",

@@ -2,6 +2,6 @@
 bench (DSP on CAN and a serial console, load machine and torque sensor over Modbus).
 
 ``rig commission <step>|all --bench FILE`` (rig.commands.commission) runs
-``runner.commission``; a bench description (rig.bench_description) says where everything is
+``commission.commission``; a bench description (rig.bench.description) says where everything is
 and whether bench time passes by lockstep grants or on the wall clock (``clock``).
 """

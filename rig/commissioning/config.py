@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from rig.bench_description import BenchDescriptionError
+from rig.bench.description import BenchDescriptionError
 
 
 @dataclass(frozen=True)

@@ -17,17 +17,17 @@ from dataclasses import replace
 from pathlib import Path
 
 from rig import bus as rigbus
-from rig.bench_description import BenchDescription
+from rig.bench import virtual
+from rig.bench.description import BenchDescription
+from rig.commissioning.checked_drive import CheckedDrive
 from rig.commissioning.config import CommissioningConfig
-from rig.commissioning.drive import CheckedDrive
 from rig.commissioning.truth import plant_truth
-from rig.console import ConsoleClient
-from rig.link import bench
+from rig.drive.console import ConsoleClient
+from rig.drive.params import ParamClient
 from rig.link.bus import BusLink
 from rig.link.clock import BenchClock, LockstepClock, WallClock
-from rig.link.drive import DriveMaster
-from rig.load_bench import LoadBench
-from rig.params import ParamClient
+from rig.link.drive_master import DriveMaster
+from rig.loadbench.client import LoadBench
 
 Log = Callable[[str], None]
 SAFE_STOP_STALL_S = 2.0  # a dead plant must not hold the safe stop for the full stall time
@@ -39,8 +39,8 @@ class BenchSession:
         self.dir = Path(run_dir)
         self.log: Log = log or (lambda _m: None)
         self.config = CommissioningConfig.from_mapping(desc.commissioning)
-        self.virtual: bench.VirtualBench | None = None
-        self.endpoints = bench.Endpoints(None, None)
+        self.virtual: virtual.VirtualBench | None = None
+        self.endpoints = virtual.Endpoints(None, None)
         self._link: BusLink | None = None
         self._clock: BenchClock | None = None
         self._params: ParamClient | None = None
@@ -91,7 +91,7 @@ class BenchSession:
         if d.virtual is not None:
             self.truth = plant_truth(d)
             if d.virtual.programs:
-                self.virtual = bench.VirtualBench(bench.from_description(d), self.dir,
+                self.virtual = virtual.VirtualBench(virtual.from_description(d), self.dir,
                                                   log_dir=self.dir / "logs")
                 self.log(f"starting the virtual bench ({', '.join(d.virtual.programs)}) on "
                          f"{transport} {channel}")

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from rig import profiles
-from rig.bench_description import BenchDescription
+from rig.bench import profiles
+from rig.bench.description import BenchDescription
 
 
 def plant_truth(desc: BenchDescription) -> dict[str, float]:

@@ -1,21 +1,21 @@
 """The rig's node on the bench's CAN bus: validated frames in, DBC-encoded frames out.
 
 In: only the messages of ``LISTEN`` pass the ID filters (the 10 kHz virtual I/O of a virtual
-bench costs nothing here); each is validated by ``rig.frames`` (unknown IDs, bad lengths,
+bench costs nothing here); each is validated by ``rig.bus.frames`` (unknown IDs, bad lengths,
 out-of-range signals are counted rejections, never raised). The high-rate messages
 (``LAZY``) are decoded only while a handler wants them or when somebody asks for the last
 one. Frames are handled only while the owner pumps the link (``pump``, ``wait_for``, a clock
 advancing), in order.
 
 Out: frames are encoded by message name from the DBC (strict ranges). The drive-protocol
-frames of the rig pass the scenario's frame faults on the way (``rig.drive_link``). The
+frames of the rig pass the scenario's frame faults on the way (``rig.link.frame_faults``). The
 frames sent since the last ``at(period)`` are kept, so a lost lockstep grant goes out again
 byte for byte (``resend``).
 
 With ``record``, everything sent and received also goes into a log file (python-can's
 ``Logger``: candump format for ``.log``), readable with python-can and cantools. With
 ``trace``, the same frames go into a trace file (``rig.trace``, the format of the programs'
-traces: ``rig.trace``), except the messages the programs trace themselves; ``note`` puts a
+traces: ``rig.data.trace``), except the messages the programs trace themselves; ``note`` puts a
 frame there that is not sent (the in-process bench's grants, a call there, are the
 BENCH_STEP frames they are on the bus), so ``rig export`` has every frame of a run.
 
@@ -40,9 +40,12 @@ import can
 from cantools.database.can import Message
 
 from rig import bus as rigbus
-from rig import drive_link, faults, protocols, sil
-from rig.frames import FrameDecoder
-from rig.trace import TraceWriter
+from rig import protocols
+from rig.bench import sil
+from rig.bus.frames import FrameDecoder
+from rig.data.trace import TraceWriter
+from rig.link.frame_faults import FrameFaults
+from rig.scenario import faults
 
 LISTEN = (
     ("drive", "DRIVE_STATUS"), ("drive", "HEARTBEAT"), ("drive", "PARAM_RESP"),
@@ -81,7 +84,7 @@ def rig_messages() -> dict[int, str]:
 
 
 class FrameSink(Protocol):
-    """Where frames go: a python-can bus, or the in-process bench's port (``rig.sil``)."""
+    """Where frames go: a python-can bus, or the in-process bench's port (``rig.bench.sil``)."""
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None: ...
 
@@ -95,12 +98,12 @@ class BusLink:
 
     def __init__(self, bus: FrameSink, *, transport: str = "", channel: str = "",
                  record: Path | None = None,
-                 frame_faults: drive_link.DriveLink | None = None,
+                 frame_faults: FrameFaults | None = None,
                  trace: Path | None = None) -> None:
         self.bus = bus
         self.transport, self.channel = transport, channel
         self.decoder = FrameDecoder()
-        self.faults = frame_faults if frame_faults is not None else drive_link.DriveLink()
+        self.faults = frame_faults if frame_faults is not None else FrameFaults()
         self._names = {int(self.decoder.message(n).frame_id): n for _, n in LISTEN}
         self._rig_only = rig_messages()
         self.tx_ids: collections.Counter[int] = collections.Counter()  # by arbitration id
@@ -125,7 +128,7 @@ class BusLink:
 
     @classmethod
     def open(cls, transport: str | None, channel: str | None, *, record: Path | None = None,
-             frame_faults: drive_link.DriveLink | None = None,
+             frame_faults: FrameFaults | None = None,
              trace: Path | None = None) -> BusLink:
         """A link on a bus channel (``rig.bus.select_transport`` resolves ``auto``)."""
         transport, channel = rigbus.select_transport(transport, channel)
@@ -148,7 +151,7 @@ class BusLink:
             self._send_frame(m, data)
             return
         sent = self.faults.filter(name, data)
-        if sent is not None:  # else dropped or held back by a fault (rig.drive_link)
+        if sent is not None:  # else dropped or held back by a fault (rig.link.frame_faults)
             self._send_frame(m, sent, faulted=sent != data)
 
     def _send_frame(self, m: Message, data: bytes, faulted: bool = False) -> None:

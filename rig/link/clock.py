@@ -11,7 +11,7 @@ its own, ``clock.grant(run_until)``, and never sleeps:
   firmware before the grant's first period, per-sender order), then the clock waits for
   BENCH_PROGRESS, sends the grant's frames again when the plant waits for a grant it should
   have had (the frame was lost), and reports a stall.
-* ``InprocClock`` (the in-process bench, ``rig.sil``): the same frames before each grant,
+* ``InprocClock`` (the in-process bench, ``rig.bench.sil``): the same frames before each grant,
   then the bench runs to the grant's end.
 
 Every clock calls the idle hooks (child-process watch, load-bench watchdog, progress line,
@@ -26,7 +26,8 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 
-from rig import capture, sil
+from rig.bench import sil
+from rig.data import capture
 from rig.link.bus import BusLink, Signals
 
 TS = capture.TS  # PWM period of the bench (docs/interfaces.md)

@@ -1,21 +1,62 @@
-"""After a run: what went wrong besides the criteria (programs that did not stop cleanly,
-nodes beyond the bus's reach, a restarted ADC sequence), the merged capture and its loss
-report, and the verdicts on the data the run produced (``rig.verdict``)."""
+"""After a run (``evaluate``): what went wrong besides the criteria (programs that did not stop
+cleanly, nodes beyond the bus's reach, a restarted ADC sequence), the merged capture and its
+loss report, and the verdicts on the data the run produced (``rig.results.verdict``)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from rig import baseline, capture, profiles
-from rig.link.drive import accel_max
+from rig.bench import profiles, sil
+from rig.data import capture
+from rig.link.drive_master import accel_max
+from rig.results.result import Failure, RunResult
+from rig.results.verdict import AGAINST, Coverage, evaluate_one, outcome
 from rig.run import traffic
 from rig.run.execution import TS, Execution
+from rig.run.options import RunOptions
 from rig.run.plan import Plan
-from rig.run.result import Failure, RunResult
 from rig.scenario import Scenario
-from rig.verdict import AGAINST, Coverage, evaluate_one, outcome
 
 MAX_POST_FAILURE_PERIODS = 50_000  # after a crash, merge/record only short traces (fast)
+
+
+@dataclass
+class Evaluated:
+    """What the evaluation has found, filled in as it goes (an interrupt leaves what it had):
+    the first thing that went wrong, the merged capture, the capture rows the criteria
+    read (their evidence in the recording)."""
+
+    failure: Failure | None
+    capture: capture.Capture | None = None
+    reads: list[tuple[str, int, int]] = field(default_factory=list)
+
+
+def evaluate(found: Evaluated, result: RunResult, sc: Scenario, plan: Plan, run: Execution,
+             opts: RunOptions, interrupted: bool) -> None:
+    """The run's failure, capture and verdicts, into ``found`` and ``result``."""
+    found.failure = program_failure(run, found.failure, on_bus=opts.bus != sil.INPROC)
+    found.capture, loss, found.failure = merge_capture(
+        sc, plan, result.out_dir, run, opts.realtime, found.failure, interrupted)
+    if loss is not None:
+        result.capture_loss = {**loss.to_json(), "summary": loss.summary()}
+    result.counters = run.counters
+    cov = coverage(plan, found.capture, loss, run.periods_done, opts.realtime, interrupted,
+                   found.failure)
+    found.reads = judge(result, sc, found.capture, cov, found.failure)
+
+
+def judge_interrupted(result: RunResult, sc: Scenario, plan: Plan, run: Execution,
+                      failure: Failure | None, exc: BaseException) -> None:
+    """The verdict of a run interrupted after its programs stopped (merging, judging or
+    recording): nothing is judged, and the failure says where it stopped."""
+    before = f" (after {failure.kind}: {failure.message[:200]})" if failure is not None else ""
+    why = (f"interrupted ({type(exc).__name__}) while the results were worked out, before "
+           f"any criterion was judged{before}")
+    stopped = Failure("interrupted", why)
+    result.counters = run.counters
+    judge(result, sc, None, Coverage(plan.n_periods, None, None, False, why), stopped)
+    result.recording = None
 
 
 def program_failure(run: Execution, failure: Failure | None, on_bus: bool) -> Failure | None:
@@ -70,7 +111,7 @@ def program_failure(run: Execution, failure: Failure | None, on_bus: bool) -> Fa
 def merge_capture(sc: Scenario, plan: Plan, out: Path, run: Execution, realtime: bool,
                   failure: Failure | None, interrupted: bool,
                   ) -> tuple[capture.Capture | None, capture.LossReport | None, Failure | None]:
-    """The traces merged into the capture (``rig.capture``): the capture, its loss report
+    """The traces merged into the capture (``rig.data.capture``): the capture, its loss report
     and what failed when the traces are missing, unreadable or have holes."""
     plant_trace, fw_trace = out / "plant.trace", out / "fw.trace"
     traces_exist = plant_trace.exists() and fw_trace.exists()
@@ -117,7 +158,7 @@ def merge_capture(sc: Scenario, plan: Plan, out: Path, run: Execution, realtime:
 def coverage(plan: Plan, cap: capture.Capture | None, loss: capture.LossReport | None,
              periods_done: int, realtime: bool, interrupted: bool,
              failure: Failure | None) -> Coverage:
-    """What data the run produced, for the verdicts (rig.verdict): the periods the capture
+    """What data the run produced, for the verdicts (rig.results.verdict): the periods the capture
     holds without a hole and whether the run reached its planned end."""
     reached = not interrupted and periods_done >= plan.n_periods
     why = "" if failure is None else f"{failure.kind}: {failure.message[:200]}"
@@ -152,32 +193,3 @@ def judge(result: RunResult, sc: Scenario, cap: capture.Capture | None, cov: Cov
         result.passed = False
     result.failure = failure
     return reads
-
-
-def judge_baseline(result: RunResult, sc: Scenario, mode: str, realtime: bool) -> None:
-    """Each criterion's value against the committed baseline (``rig.baseline``), into
-    ``result``: a regressed, changed or stale one fails the run; with ``mode`` "require" a
-    run without a baseline fails too. Real-time runs are not compared (their timing is the
-    wall clock's, not the seed's)."""
-    if mode == "off":
-        return
-    key = baseline.entry_key(sc.name, sc.profile)
-    if realtime:
-        result.baseline = {"skipped": "real-time runs are not compared with the baseline"}
-        return
-    try:
-        found = baseline.index().for_key(key)
-    except baseline.BaselineError as exc:
-        result.baseline = {"passed": False, "error": str(exc)}
-        result.passed = False
-        result.status = "failed" if result.status == "passed" else result.status
-        return
-    if found is None:
-        result.baseline = {"passed": mode != "require", "missing": key,
-                           "note": f"no baseline holds {key}"}
-    else:
-        result.baseline = found.judge(key, baseline.setup_digest(sc), sc.seed, result.criteria)
-    if not result.baseline["passed"]:
-        result.passed = False
-        if result.status == "passed":
-            result.status = "failed"

@@ -13,14 +13,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rig import capture
+from rig.data import capture
 from rig.link.clock import PlantProgress
+from rig.results.result import Timing
 from rig.run.monitor import Monitor
-from rig.run.result import Timing
 from rig.supervisor import StopReport
 
 if TYPE_CHECKING:  # rerun (0.3 s to import) only once a recording is written
-    from rig import recording
+    from rig.results import recording
 
 TS = capture.TS
 
@@ -93,7 +93,7 @@ class Execution:
 
     def grant_samples(self) -> recording.TimedSamples | None:
         """Each grant's wall time and speed over real time, for the recording."""
-        from rig import recording
+        from rig.results import recording
 
         if not self.grants:
             return None

@@ -1,25 +1,29 @@
-"""A scenario run on the in-process bench (``--bus inproc``, ``rig.sil``): no programs and
-no bus; the plant_rt/fw_host configuration handed to the bench, the same frames before each
+"""A scenario run on the in-process bench (``--bus inproc``, ``rig.bench.sil``): no programs
+and no bus; the plant_rt/fw_host configuration handed to the bench, the same frames before each
 of the same lockstep grants, the programs' counters from the bench."""
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
-from rig import _paths, drive_link, profiles, sil
+from rig import _paths
+from rig.bench import sil
+from rig.bench.configuration import BenchConfiguration
+from rig.link.bench_commands import BenchCommands
 from rig.link.bus import BusLink
 from rig.link.clock import InprocClock
-from rig.link.drive import DriveMaster
-from rig.progress import Progress
-from rig.run import pacing
-from rig.run.bench_commands import BenchCommands
+from rig.link.drive_master import DriveMaster
+from rig.link.frame_faults import FrameFaults
+from rig.results.result import RunResult
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import TS, Execution
 from rig.run.options import RunOptions
+from rig.run.pacing import PacedBench
 from rig.run.plan import Plan
-from rig.run.programs import firmware_sets, plant_sets, sha, versions
-from rig.run.result import RunResult
+from rig.run.versions import sha, versions
 from rig.scenario import Scenario
 
 
@@ -37,35 +41,34 @@ class _GrantsTraced:
         return self.bench.run_until(run_until)
 
 
-def run_in_process(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
-                   run: Execution) -> None:
-    """Runs the scenario on the in-process bench, filling ``run``."""
+@contextmanager
+def sil_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
+              result: RunResult, run: Execution) -> Iterator[PacedBench]:
+    """The in-process bench configured as ``config``, ready to be paced through the plan;
+    what it counted goes into ``run`` when it closes."""
     out = result.out_dir
     if opts.realtime:
         raise RunError("usage", "--realtime needs the bus: the in-process bench runs in "
                        "lockstep only")
     try:
         lib = _paths.library(sil.LIBRARY)
-        profile_path = profiles.profile_file(sc.profile)
-        values = profiles.profile_values(sc.profile, sc.overrides)
     except FileNotFoundError as exc:
         raise EnvironmentProblem(str(exc)) from exc
-    psets, fsets = plant_sets(sc), firmware_sets(sc, values)
     result.bus, result.channel = sil.INPROC, None
     result.versions = {**versions(), "silbench.sha256": sha(lib)}
     result.command_lines = {"bench": {
-        "library": str(lib), "profile": str(profile_path) if profile_path else sc.profile,
-        "plant_sets": psets, "fw_sets": fsets}}
-    if profile_path is None:
-        raise EnvironmentProblem(f"profile {sc.profile!r} not found")
+        "library": str(lib),
+        "profile": str(config.profile_file) if config.profile_file else config.profile,
+        "plant_sets": list(config.plant_sets), "fw_sets": list(config.fw_sets)}}
+    if config.profile_file is None:
+        raise EnvironmentProblem(f"profile {config.profile!r} not found")
     if opts.live:
         print("rig: no live view on the in-process bench (no telemetry frames); running "
               "without it", file=sys.stderr)
-    prog = Progress(sc.name, sc.duration, enabled=opts.progress)
     timeout = opts.timeout_s or sc.timeout_s or 60.0 + 300.0 * sc.duration
     try:
-        bench = sil.SilBench(profile_path, psets, fsets, out / "plant.trace", out / "fw.trace",
-                             trace_vio=opts.trace_bus)
+        bench = sil.SilBench(config.profile_file, config.plant_sets, config.fw_sets,
+                             out / "plant.trace", out / "fw.trace", trace_vio=opts.trace_bus)
     except sil.BenchError as exc:
         raise RunError("config", f"in-process bench: {exc}") from exc
     if opts.core_journal is not None:
@@ -75,7 +78,7 @@ def run_in_process(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult
             bench.close()
             raise RunError("config", f"in-process bench: {exc}") from exc
     port = sil.BenchPort(bench)
-    link = BusLink(port, frame_faults=drive_link.DriveLink(plan.link_windows),
+    link = BusLink(port, frame_faults=FrameFaults(plan.link_windows),
                    trace=out / "rig.trace" if opts.trace_bus else None)
     try:
         run.t0 = time.monotonic()
@@ -89,12 +92,10 @@ def run_in_process(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult
         clock.on_idle(check_deadline)
         cpu0 = time.process_time()
         try:
-            run.periods_done = pacing.lockstep(
-                sc, plan, clock, DriveMaster(link), BenchCommands(link), run,
-                lambda until: prog.update(until * TS, None, None))
+            yield PacedBench(clock, DriveMaster(link), BenchCommands(link),
+                             lambda: (clock.granted * TS, None, None))
             run.cpu_s = time.process_time() - cpu0
         finally:
-            prog.finish()
             bench_counters = bench.counters()
             for name in ("plant", "firmware"):
                 run.add_counters(name, bench_counters.get(name, {}))

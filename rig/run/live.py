@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import math
 
-from rig import capture, recording
+from rig.data import capture
 from rig.link.bus import BusLink, Signals
 from rig.link.clock import PlantProgress
+from rig.results import recording
 from rig.run.monitor import Monitor
 
 

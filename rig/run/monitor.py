@@ -7,7 +7,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from rig import capture, protocols
+from rig import protocols
+from rig.data import capture
 from rig.link.bus import BusLink, Signals
 
 FAULT_STATE = protocols.choices("drive", "DRIVE_STATUS", "state")["fault"]

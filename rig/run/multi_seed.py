@@ -16,11 +16,14 @@ import sys
 from dataclasses import replace
 from typing import Any
 
-from rig.baseline import EITHER, HIGHER, LOWER, better_side
+from rig import outputs
+from rig.regression import baseline
+from rig.regression.baseline import EITHER, HIGHER, LOWER, better_side
+from rig.results.result import Failure, RunResult, Timing, write_result
+from rig.results.verdict import NOT_EVALUATED, outcome_of
 from rig.run.options import RunOptions
-from rig.run.result import RunResult, Timing
+from rig.run.single import run_single
 from rig.scenario import Scenario
-from rig.verdict import NOT_EVALUATED, outcome_of
 
 
 def seed_folder(seed: int) -> str:
@@ -76,31 +79,24 @@ def combine(criteria_per_seed: list[list[dict[str, Any]]], seeds: tuple[int, ...
 
 def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs ``sc`` once per seed of ``sc.seeds`` and writes the combined result."""
-    from rig.run import evaluation, outputs
-    from rig.runner import run_scenario
-
     out = opts.out
-    outputs.prepare(out, sc)
+    outputs.claim(out, sc.periods, sc.file)
     one = replace(sc, seeds=())
     results: list[RunResult] = []
     interrupted: BaseException | None = None
     try:
         for seed in sc.seeds:
-            r = run_scenario(one.with_seed(seed),
-                             replace(opts, out=out / seed_folder(seed), baseline="off",
-                                     live=False, progress=False))
+            r = run_single(one.with_seed(seed),
+                           replace(opts, out=out / seed_folder(seed), baseline="off",
+                                   live=False, progress=False))
             results.append(r)
             if opts.progress:
                 print(f"{sc.name}: seed {seed}: {r.status}", file=sys.stderr)
     except BaseException as exc:  # interrupted: combine what finished
         interrupted = exc
     first = results[0] if results else None
-    result = RunResult(
-        out_dir=out, scenario=sc.name, scenario_file=str(sc.file),
-        description=sc.description, figure=sc.figure, profile=sc.profile,
-        overrides=dict(sc.overrides), firmware_params=dict(sc.firmware),
-        faults=[f.to_json() for f in sc.faults], ctrl_mode=sc.ctrl_mode, fw_mode=sc.fw_mode,
-        mode=first.mode if first else "lockstep", bus=first.bus if first else None,
+    result = RunResult.of_scenario(
+        sc, out, mode=first.mode if first else "lockstep", bus=first.bus if first else None,
         channel=first.channel if first else None, started=first.started if first else "",
         versions=first.versions if first else {},
         command_lines=first.command_lines if first else None,
@@ -126,16 +122,14 @@ def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
         else:
             result.status = "passed" if ok else "failed"
             result.passed = ok
-        evaluation.judge_baseline(result, sc, opts.baseline, opts.realtime)
+        baseline.judge_result(result, sc, opts.baseline, opts.realtime)
     else:
         result.status = "interrupted" if interrupted is not None else "failed"
         result.failure = failed.failure if failed is not None else None
         if result.failure is None:
-            from rig.run.result import Failure
-
             result.failure = Failure("interrupted", f"only {len(results)} of "
                                      f"{len(sc.seeds)} seeds ran")
-    outputs.write_result(result)
+    write_result(result)
     if interrupted is not None:
         raise interrupted
     return result

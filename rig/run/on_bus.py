@@ -9,25 +9,27 @@ from __future__ import annotations
 import contextlib
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
 from rig import bus as rigbus
-from rig import drive_link
-from rig.link import bench
+from rig.bench import virtual
+from rig.bench.configuration import BenchConfiguration
+from rig.link.bench_commands import BenchCommands
 from rig.link.bus import BusLink, ForeignNodes, ForeignTraffic, LinkError
 from rig.link.clock import GrantClock, LockstepClock, PlantProgress, WallClock
-from rig.link.drive import DriveMaster
-from rig.progress import Progress
-from rig.run import pacing, traffic
-from rig.run.bench_commands import BenchCommands
+from rig.link.drive_master import DriveMaster
+from rig.link.frame_faults import FrameFaults
+from rig.results.result import RunResult
+from rig.run import traffic
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import TS, Execution
 from rig.run.monitor import Monitor
 from rig.run.options import RunOptions
+from rig.run.pacing import PacedBench
 from rig.run.plan import Plan
-from rig.run.programs import bench_programs, versions
-from rig.run.result import RunResult
+from rig.run.versions import versions
 from rig.scenario import Scenario
 
 if TYPE_CHECKING:  # the live view (rerun) is imported only for --live
@@ -38,21 +40,30 @@ SWITCH_INTERVAL_S = 0.0005
 LOCKSTEP_DRAIN_S = 0.05  # the firmware finishes the last period before the stop signal
 
 
-def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
-               run: Execution) -> None:
-    """Runs the scenario on the bus, filling ``run``."""
+@contextmanager
+def virtual_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
+                  result: RunResult, run: Execution) -> Iterator[PacedBench]:
+    """The virtual bench configured as ``config`` on the bus, its programs started and ready
+    to be paced through the plan (in lockstep or real time); they are stopped, and what the
+    rig and the bus counted goes into ``run``, when it closes."""
     try:
         transport, channel = rigbus.select_transport(opts.bus, opts.channel)
-        programs = bench_programs(sc, opts)
+        # traces always, paired from period 0 in lockstep (the plant's first ADC frame is its
+        # start-up period 0, so stray frames on the channel cannot become the firmware's
+        # first period)
+        programs = virtual.BenchPrograms(
+            config, lockstep=not opts.realtime, trace=True, trace_vio=opts.trace_bus,
+            paired_from_start=not opts.realtime, extra_plant_args=tuple(opts.extra_plant_args),
+            extra_fw_args=tuple(opts.extra_fw_args))
         argv = programs.argv(transport, channel, result.out_dir)
     except FileNotFoundError as exc:
         raise EnvironmentProblem(str(exc)) from exc
     result.bus, result.channel = transport, channel
-    result.versions = versions(argv[bench.PLANT][0], argv[bench.FIRMWARE][0])
-    result.command_lines = {"plant": argv[bench.PLANT], "firmware": argv[bench.FIRMWARE]}
+    result.versions = versions(argv[virtual.PLANT][0], argv[virtual.FIRMWARE][0])
+    result.command_lines = {"plant": argv[virtual.PLANT], "firmware": argv[virtual.FIRMWARE]}
     try:
         link = BusLink.open(transport, channel,
-                            frame_faults=drive_link.DriveLink(plan.link_windows),
+                            frame_faults=FrameFaults(plan.link_windows),
                             trace=result.out_dir / "rig.trace" if opts.trace_bus else None)
     except LinkError as exc:
         raise EnvironmentProblem(str(exc)) from exc
@@ -85,7 +96,8 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
     switch = sys.getswitchinterval()
     sys.setswitchinterval(min(switch, SWITCH_INTERVAL_S))
     try:
-        _run_programs(sc, plan, opts, programs, link, run, live)
+        with _programs_running(sc, opts, programs, link, run, live) as paced:
+            yield paced
     finally:
         sys.setswitchinterval(switch)
         link.on_foreign = None  # (the frames of the stop are counted, not raised)
@@ -108,7 +120,7 @@ def run_on_bus(sc: Scenario, plan: Plan, opts: RunOptions, result: RunResult,
 
 def _live_view(sc: Scenario, opts: RunOptions, link: BusLink, monitor: Monitor,
                progress: PlantProgress) -> LiveFeed | None:
-    from rig import recording
+    from rig.results import recording
     from rig.run.live import LiveFeed
 
     try:
@@ -120,18 +132,19 @@ def _live_view(sc: Scenario, opts: RunOptions, link: BusLink, monitor: Monitor,
     return LiveFeed(view, link, monitor, progress)
 
 
-def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.BenchPrograms,
-                  link: BusLink, run: Execution, live: LiveFeed | None) -> None:
+@contextmanager
+def _programs_running(sc: Scenario, opts: RunOptions, programs: virtual.BenchPrograms,
+                      link: BusLink, run: Execution, live: LiveFeed | None
+                      ) -> Iterator[PacedBench]:
     monitor, progress = run.monitor, run.progress
     assert monitor is not None and progress is not None
-    prog = Progress(sc.name, sc.duration, enabled=opts.progress)
     timeout = opts.timeout_s or sc.timeout_s or (
         sc.duration + 30.0 if opts.realtime else 60.0 + 300.0 * sc.duration)
-    virtual = bench.VirtualBench(programs, opts.out, grace_s=opts.grace_s)
-    with virtual.sup:
+    virtual_bench = virtual.VirtualBench(programs, opts.out, grace_s=opts.grace_s)
+    with virtual_bench.sup:
         run.start_preload()  # while the programs start (the rig waits for them)
-        virtual.start(link.transport, link.channel, ready_timeout_s=sc.ready_timeout_s,
-                      env=opts.env)
+        virtual_bench.start(link.transport, link.channel, ready_timeout_s=sc.ready_timeout_s,
+                            env=opts.env)
         run.t0 = time.monotonic()
         deadline = run.t0 + timeout
         drive, bench_cmds = DriveMaster(link), BenchCommands(link)
@@ -142,11 +155,8 @@ def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.Be
             clock = LockstepClock(link, grant_s=sc.grant_max_s, stall_s=opts.stall_s,
                                   progress=progress)
 
-        def show_progress() -> None:
-            speed, err = monitor.snapshot()
-            prog.update((progress.period or 0) * TS, speed, err)
-            if live is not None:
-                live.flush()
+        def where() -> tuple[float, float | None, float | None]:
+            return ((progress.period or 0) * TS, *monitor.snapshot())
 
         def check_deadline() -> None:
             if time.monotonic() <= deadline:
@@ -156,23 +166,20 @@ def _run_programs(sc: Scenario, plan: Plan, opts: RunOptions, programs: bench.Be
                                f"(grant to {clock.granted})")
             raise RunError("timeout", "real-time run time-out")
 
-        for hook in (virtual.check, check_deadline, show_progress):
+        for hook in (virtual_bench.check, check_deadline):
             clock.on_idle(hook)
         grace = opts.grace_s
         try:
+            yield PacedBench(clock, drive, bench_cmds, where,
+                             live.flush if live is not None else lambda: None, progress,
+                             opts.stall_s)
             if isinstance(clock, LockstepClock):
-                run.periods_done = pacing.lockstep(sc, plan, clock, drive, bench_cmds, run,
-                                                   lambda _until: show_progress())
-                virtual.sup.sleep(LOCKSTEP_DRAIN_S)
-            else:
-                run.periods_done = pacing.realtime(sc, plan, clock, drive, bench_cmds,
-                                                   progress, opts.stall_s, run)
+                virtual_bench.sup.sleep(LOCKSTEP_DRAIN_S)
         except BaseException:
             grace = min(grace, 1.0)  # failing: end quickly
             raise
         finally:
-            prog.finish()
-            run.stops = virtual.stop(grace_s=grace)
+            run.stops = virtual_bench.stop(grace_s=grace)
             if isinstance(clock, LockstepClock):
                 run.grant_resends = clock.resends
         run.counters["rig.tx_frames"] = float(link.tx)

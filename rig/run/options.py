@@ -24,7 +24,8 @@ class RunOptions:
     grace_s: float = 5.0
     stall_s: float = STALL_S
     record: bool = True
-    figures: bool = True  # figure.png and a picture per criterion that did not pass (rig.figures)
+    # figure.png and a picture per criterion that did not pass (rig.results.figures)
+    figures: bool = True
     # every frame of the run into the traces (the plant's VIO frames, rig.trace: the rig's
     # own), so rig export --can-log holds the whole bus
     trace_bus: bool = True
@@ -35,8 +36,9 @@ class RunOptions:
     extra_plant_args: Sequence[str] = ()
     extra_fw_args: Sequence[str] = ()
     env: Mapping[str, str] = field(default_factory=dict)
-    # compare with the committed baselines (rig.baseline): "off" (the API's default), "auto"
-    # (rig run's: where a baseline exists), "require" (a run without one fails)
+    # compare with the committed baselines (rig.regression.baseline): "off" (the API's
+    # default), "auto" (rig run's: where a baseline exists), "require" (a run without one
+    # fails)
     baseline: str = "off"
     # suites in process: scenarios run on this many worker processes at once
     jobs: int = 1

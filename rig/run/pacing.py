@@ -12,24 +12,64 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
-from rig import capture
+from rig.data import capture
+from rig.link.bench_commands import BenchCommands, LoadSetting
 from rig.link.clock import GrantClock, PlantProgress, WallClock
-from rig.link.drive import DriveMaster
-from rig.run.bench_commands import BenchCommands, LoadSetting
+from rig.link.drive_master import DriveMaster
 from rig.run.errors import RunError
 from rig.run.execution import Execution
-from rig.run.plan import Plan, initial_drive
-from rig.scenario import Scenario
+from rig.run.plan import Plan
+from rig.run.progress import Progress
 
 TS = capture.TS
 REALTIME_SLICE_S = 0.002  # real time: how often the rig looks at the plan
 
 
-def lockstep(sc: Scenario, plan: Plan, clock: GrantClock, drive: DriveMaster,
+@dataclass(frozen=True)
+class PacedBench:
+    """A bench as pacing drives it (``rig.run.in_process.sil_bench``,
+    ``rig.run.on_bus.virtual_bench``): its clock, the drive master and the bench commands on
+    its link, where the run is for the progress line (simulated seconds, speed in r/min,
+    position error in degrees; None where the bench does not tell) and what else happens
+    when the line is drawn, and in real time the plant's reported progress and how long it
+    may stall."""
+
+    clock: GrantClock | WallClock
+    drive: DriveMaster
+    commands: BenchCommands
+    where: Callable[[], tuple[float, float | None, float | None]]
+    on_show: Callable[[], None] = lambda: None
+    progress: PlantProgress | None = None
+    stall_s: float = 0.0
+
+
+def pace(plan: Plan, bench: PacedBench, run: Execution, line: Progress) -> int:
+    """The plan through ``bench``: by grants when its clock grants, else on the wall clock;
+    returns the periods simulated (lockstep) or the last period commanded (real time). The
+    progress line is drawn while the bench is idle and after each grant."""
+
+    def show() -> None:
+        line.update(*bench.where())
+        bench.on_show()
+
+    bench.clock.on_idle(show)
+    try:
+        if isinstance(bench.clock, GrantClock):
+            return lockstep(plan, bench.clock, bench.drive, bench.commands, run,
+                            lambda _until: show())
+        assert bench.progress is not None
+        return realtime(plan, bench.clock, bench.drive, bench.commands, bench.progress,
+                        bench.stall_s, run)
+    finally:
+        line.finish()
+
+
+def lockstep(plan: Plan, clock: GrantClock, drive: DriveMaster,
              bench: BenchCommands, run: Execution, after_grant: Callable[[int], None]) -> int:
     """Runs every grant of the plan; returns the number of periods simulated."""
-    drive.cmd, limits = initial_drive(sc)
+    drive.cmd, limits = plan.initial_cmd, plan.initial_limits
     load = LoadSetting()
 
     def grant_frames() -> None:
@@ -52,11 +92,11 @@ def lockstep(sc: Scenario, plan: Plan, clock: GrantClock, drive: DriveMaster,
     return plan.n_periods
 
 
-def realtime(sc: Scenario, plan: Plan, clock: WallClock, drive: DriveMaster,
+def realtime(plan: Plan, clock: WallClock, drive: DriveMaster,
              bench: BenchCommands, progress: PlantProgress, stall_s: float,
              run: Execution | None = None) -> int:
     """Sends the plan's commands on the wall clock; returns the last period commanded."""
-    drive.cmd, limits = initial_drive(sc)
+    drive.cmd, limits = plan.initial_cmd, plan.initial_limits
     load = LoadSetting()
     events = sorted(set(plan.drive_events) | set(plan.load_events) | set(plan.fault_cmds))
     t_origin = time.monotonic()

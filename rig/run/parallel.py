@@ -21,8 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 
+from rig.results.result import Failure, RunResult
 from rig.run.options import RunOptions
-from rig.run.result import Failure, RunResult
+from rig.run.runner import run_scenario
 from rig.scenario import Scenario
 from rig.supervisor import Terminated
 
@@ -46,8 +47,6 @@ def _worker_init() -> None:
 
 
 def _run(job: Job) -> tuple[str, int]:
-    from rig.runner import run_scenario
-
     run_scenario(job.scenario, job.opts)
     return str(job.opts.out), os.getpid()
 

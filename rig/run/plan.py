@@ -7,17 +7,18 @@ and the acceleration limit to the segment's slope (a step uses the DBC maximum o
 ``accel_max``); the expected reference (``speed_ref_rpm`` in the capture) is the same rate
 limiter evaluated here. Torque ramps of the load are 1 ms steps. Faults on the plant start
 (and end) with a FAULT_CMD before the grant of their first period; faults on the rig's own
-frames act in ``rig.drive_link``.
+frames act in ``rig.link.frame_faults``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from rig import capture, drive_link, faults
-from rig.link.drive import DriveCommand, DriveLimits, accel_max, accel_on_wire
-from rig.run.bench_commands import LoadSetting
-from rig.scenario import Scenario
+from rig.data import capture
+from rig.link import frame_faults
+from rig.link.bench_commands import LoadSetting
+from rig.link.drive_master import DriveCommand, DriveLimits, accel_max, accel_on_wire
+from rig.scenario import Scenario, faults
 
 TS = capture.TS
 
@@ -58,12 +59,16 @@ class Plan:
     grant_max: int
     # FAULT_CMD signals to send before the grant that starts on a period (plant-side faults)
     fault_cmds: dict[int, list[dict[str, float | int]]] = field(default_factory=dict)
-    # the faults on the rig's own frames (rig.drive_link)
-    link_windows: list[drive_link.Window] = field(default_factory=list)
+    # the faults on the rig's own frames (rig.link.frame_faults)
+    link_windows: list[frame_faults.Window] = field(default_factory=list)
+    # the drive's command and limits before the scenario's first event
+    initial_cmd: DriveCommand = field(default_factory=DriveCommand)
+    initial_limits: DriveLimits = field(default_factory=DriveLimits)
 
     @classmethod
     def build(cls, sc: Scenario) -> Plan:
         n = round(sc.duration / TS)
+        cmd0, limits0 = initial_drive(sc)
         step = accel_max()
         drive: dict[int, list[DriveChange]] = {}
 
@@ -92,17 +97,17 @@ class Plan:
             if end < n:
                 fault_cmds.setdefault(end, []).append(faults.Fault.clear_cmd(slot))
             slot += 1
-        link_windows = drive_link.windows(sc.faults, n)
+        link_windows = frame_faults.windows(sc.faults, n)
         bps = {at(t) for t in sc.breakpoints(step)} | set(drive) | set(loads) | set(fault_cmds)
         for w in link_windows:
             bps |= {w.start, w.end}
         plan = cls(n, drive, loads, [], max(1, round(sc.grant_max_s / TS)), fault_cmds,
-                   link_windows)
+                   link_windows, cmd0, limits0)
         while True:
             # a frame the rig holds back arrives exactly before its due period: make every
             # due period a grant start (due periods of those starts too, up to a fixed point)
             plan.boundaries = [*sorted(p for p in bps if 0 < p < n), n]
-            due = drive_link.due_periods(link_windows, (g[0] for g in plan.grants()), n)
+            due = frame_faults.due_periods(link_windows, (g[0] for g in plan.grants()), n)
             if due <= bps:
                 return plan
             bps |= due

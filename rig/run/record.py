@@ -1,4 +1,4 @@
-"""A run's ``recording.rrd`` (``rig.recording``): the display series of the capture, the
+"""A run's ``recording.rrd`` (``rig.results.recording``): the display series of the capture, the
 grants' timing, the bench counters as the bus carried them, and at full rate what every
 criterion read."""
 
@@ -7,17 +7,18 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from rig import capture, report
+from rig.data import capture
+from rig.outputs import dir_size
+from rig.results import report
+from rig.results.result import RunResult
 from rig.run.execution import TS, Execution
-from rig.run.outputs import dir_size
-from rig.run.result import RunResult
 
 
 def write_recording(result: RunResult, cap: capture.Capture, run: Execution,
                     reads: list[tuple[str, int, int]]) -> dict[str, Any]:
     """Writes the recording; what result.json says of it (the error when it failed: the
     verdict stands without the recording)."""
-    from rig import recording  # rerun: imported when a recording is written, not at start
+    from rig.results import recording  # rerun: imported when a recording is written, not at start
 
     rrd = result.out_dir / "recording.rrd"
     try:

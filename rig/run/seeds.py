@@ -9,10 +9,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from rig import sil
+from rig.bench import sil
+from rig.results.result import RunResult
 from rig.run import parallel
 from rig.run.options import RunOptions
-from rig.run.result import RunResult
 from rig.scenario import Scenario, Suite
 
 

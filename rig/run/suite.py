@@ -10,15 +10,19 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from rig import capture, metrics, output, report, sil, stats
-from rig.run import outputs, parallel
+from rig import outputs
+from rig.bench import sil
+from rig.data import capture, metrics
+from rig.outputs import json_default
+from rig.regression import stats
+from rig.results import report
+from rig.results.result import RunResult
+from rig.results.verdict import NOT_EVALUATED, outcome, outcome_of
+from rig.run import parallel
 from rig.run.options import RunOptions
-from rig.run.outputs import json_default
-from rig.run.result import RunResult
-from rig.runner import run_scenario
+from rig.run.runner import run_scenario
 from rig.scenario import Comparison, Scenario, Suite
 from rig.supervisor import Terminated, signals_deferred
-from rig.verdict import NOT_EVALUATED, outcome, outcome_of
 
 SUITE_SCHEMA = "hil-suite/1"
 ENTRY_CRITERION_KEYS = ("name", "metric", "window", "value", "limit", "comparison", "unit",
@@ -85,9 +89,9 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     summary["complete"] = len(results) == len(suite.scenarios)
     summary["baseline"] = baseline_summary(entries)
     with signals_deferred():  # the summary is written whole
-        output.write_text(out / "result.json",
+        outputs.write_text(out / "result.json",
                           json.dumps(summary, indent=1, default=json_default))
-        output.write_text(out / "report.md", report.suite_report(summary))
+        outputs.write_text(out / "report.md", report.suite_report(summary))
     if interrupted is not None:
         raise interrupted
     return SuiteResult(out, summary, results)

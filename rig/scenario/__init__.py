@@ -2,18 +2,17 @@
 
 A scenario names a fidelity profile (plus overrides), the drive modes, a speed profile (a
 sequence of segments), a load profile (events at absolute times), faults (``[[faults]]``,
-``rig.faults``), the initial rotor state, the duration and the pass criteria. ``load()``
+``rig.scenario.faults``), the initial rotor state, the duration and the pass criteria. ``load()``
 validates a file and reports every schema error with the file, the line and the field
 (``file:line: field: message``); the CLI exits 2 on them. The wire enumerations (control
 modes, flux-weakening modes, load modes) come from the DBC choices, not from this package.
 
 The modules: ``model`` (the scenario and suite as the rig runs them), ``parse`` (a scenario
-file's fields, checked), ``suite`` (suite files), ``checker`` and ``checks`` (schema errors
+file's fields, checked), ``suite`` (suite files), ``schema`` and ``checks`` (schema errors
 and what the plant and firmware accept), ``positions`` (the line of a key, for the errors),
 ``files`` and ``lookup`` (where scenarios and suites are, by name or path).
 """
 
-from rig.scenario.checker import Issue, ScenarioError, field_name, read_text
 from rig.scenario.files import (
     SCENARIO_DIR,
     SUITE_DIR,
@@ -45,6 +44,7 @@ from rig.scenario.parse import (
     parse_scenario,
 )
 from rig.scenario.positions import locate
+from rig.scenario.schema import Issue, ScenarioError, field_name, read_text
 from rig.scenario.suite import COMPARISON_RELATIONS, load_suite, parse_suite
 
 __all__ = [

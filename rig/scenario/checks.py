@@ -1,5 +1,5 @@
 """What the rest of the rig accepts of a scenario on a profile: overrides the plant's own
-profile loader takes (``rig.plant_schema``), firmware parameters in the ranges of
+profile loader takes (``rig.bench.plant_schema``), firmware parameters in the ranges of
 protocols/parameters.csv, stuck ADC codes the profile's converter can give."""
 
 from __future__ import annotations
@@ -7,9 +7,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from rig import _paths, faults, params, plant_schema, profiles
-from rig.scenario.checker import Checker, finite, shown
+from rig import _paths
+from rig.bench import plant_schema, profiles
+from rig.drive import params
+from rig.scenario import faults
 from rig.scenario.positions import Path_, locate
+from rig.scenario.schema import Checker, finite, shown
 
 
 def key_path(section: str, key: str, text: str) -> Path_:
@@ -19,7 +22,7 @@ def key_path(section: str, key: str, text: str) -> Path_:
 
 
 def check_overrides(c: Checker, profile: str, overrides: Mapping[str, Any]) -> None:
-    """The plant's own loader judges the overrides on the profile (rig.plant_schema)."""
+    """The plant's own loader judges the overrides on the profile (rig.bench.plant_schema)."""
     if not overrides or not plant_schema.available():
         return  # not built: plant_rt reports it at start (exit 2, named field)
     try:

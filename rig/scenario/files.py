@@ -1,9 +1,10 @@
 """Where scenarios and suites are: the scenario folder of the package, its suites, and
-the file an entry of a suite names."""
+the file an entry of a suite names; and the files code generates there, written or checked."""
 
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from pathlib import Path
 
 # the folder of the rig package (this module is rig/scenario/files.py)
@@ -46,3 +47,14 @@ def scenario_names() -> list[str]:
 
 def validate_name(name: str) -> bool:
     return bool(_NAME_RE.match(name))
+
+
+def write_generated(files: Mapping[str, str], folder: Path, check: bool) -> list[str]:
+    """Writes each generated file (name: text) into ``folder``; with ``check``, writes
+    nothing and returns the names of those missing or different there (stale)."""
+    if not check:
+        for name, text in files.items():
+            (folder / name).write_text(text)
+        return []
+    return [name for name, text in files.items()
+            if not (folder / name).is_file() or (folder / name).read_text() != text]

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rig.scenario.checker import ScenarioError, parse_toml, read_text
 from rig.scenario.files import SCENARIO_DIR, SUITE_DIR
 from rig.scenario.model import Scenario, Suite
 from rig.scenario.parse import load_scenario, parse_file
+from rig.scenario.schema import ScenarioError, parse_toml, read_text
 from rig.scenario.suite import load_suite
 
 

@@ -1,6 +1,6 @@
 """A scenario as the rig runs it: the fidelity profile (plus overrides), the drive modes, a
 speed profile (a sequence of segments), a load profile (events at absolute times), faults
-(``rig.faults``), the initial rotor state, the duration and the pass criteria; and what
+(``rig.scenario.faults``), the initial rotor state, the duration and the pass criteria; and what
 the profiles expand to (speed commands, the ramped reference, load commands, breakpoints).
 Suites list scenarios and compare runs.
 
@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from rig import faults
-from rig.scenario.checker import Checker, Issue, ScenarioError, read_text
+from rig.scenario import faults
 from rig.scenario.checks import check_overrides, check_stuck_codes
+from rig.scenario.schema import Checker, Issue, ScenarioError, read_text
 
 PROFILES = ("ideal", "paper", "harsh")
 def side_of(comparison: str) -> str:
@@ -192,6 +192,11 @@ class Scenario:
             return self
         return replace(self, overrides={**self.overrides, SEED_KEY: int(seed)},
                        theta_dither_deg=(int(seed) - 1) * SEED_THETA_DITHER_DEG)
+
+    @property
+    def periods(self) -> int:
+        """The PWM periods it runs: its duration on the bench's time base."""
+        return round(self.duration / faults.TS)
 
     @property
     def seed(self) -> int | None:

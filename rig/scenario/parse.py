@@ -8,16 +8,10 @@ import math
 from pathlib import Path
 from typing import Any
 
-from rig import faults, metrics, profiles, protocols
-from rig.scenario.checker import (
-    Checker,
-    Issue,
-    ScenarioError,
-    finite,
-    parse_toml,
-    read_text,
-    shown,
-)
+from rig import protocols
+from rig.bench import profiles
+from rig.data import metrics
+from rig.scenario import faults
 from rig.scenario.checks import check_firmware, check_overrides
 from rig.scenario.model import (
     PROFILES,
@@ -28,6 +22,7 @@ from rig.scenario.model import (
     side_of,
 )
 from rig.scenario.positions import Path_, locate
+from rig.scenario.schema import Checker, Issue, ScenarioError, finite, parse_toml, read_text, shown
 
 SEGMENT_KINDS = ("hold", "step", "ramp", "reversal", "trapezoid", "triangle")
 LOAD_KINDS = ("step", "ramp", "off", "speed_hold")
@@ -157,7 +152,7 @@ def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion 
         for k in pd:
             if k in metrics.params_of(metric):
                 params[k] = c.number(pd, (*path, "params"), k)
-    # which way the value improves, for the baseline (rig.baseline): from the comparison
+    # which way the value improves, for the baseline (rig.regression.baseline): from the comparison
     # ("<=": lower), or given for a reported value ("either": any move beyond the seed
     # spread counts)
     default_better = side_of(comparison)

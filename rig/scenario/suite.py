@@ -8,11 +8,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from rig.scenario.checker import Checker, Issue, ScenarioError, parse_toml, read_text
 from rig.scenario.files import SCENARIO_DIR, SUITE_DIR, scenario_path, suite_path
 from rig.scenario.model import PROFILES, Comparison, Scenario, Suite
 from rig.scenario.parse import parse_file
 from rig.scenario.positions import Path_
+from rig.scenario.schema import Checker, Issue, ScenarioError, parse_toml, read_text
 
 COMPARISON_RELATIONS = ("<", "<=", ">", ">=")
 

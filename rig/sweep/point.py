@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rig import runner, scenario
+from rig import scenario
+from rig.run import runner
 from rig.sweep import spec
 
 

@@ -52,7 +52,7 @@ def unit_of(name: str) -> str:
     if key in SCALES:
         return "factor"
     if key.startswith("firmware."):
-        from rig import params
+        from rig.drive import params
 
         try:
             return params.table().lookup(key.removeprefix("firmware.")).unit

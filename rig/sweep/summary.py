@@ -37,7 +37,7 @@ def plot(rows: Sequence[dict[str, Any]], params: Sequence[str], metric: str,
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from rig import metrics
+    from rig.data import metrics
     from rig.sweep.spec import unit_of
 
     n = max(1, len(params))

@@ -7,8 +7,9 @@ import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
-from rig import runner, scenario
-from rig.run.result import RunResult
+from rig import scenario
+from rig.results.result import RunResult
+from rig.run import runner
 
 TS = 1e-4  # s per ISR (checked against the wire's time base in the tests)
 

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig import params as paramtable
 from rig.commissioning.session import BenchSession
 from rig.commissioning.telemetry import Window
-from rig.load_bench import BenchMeasurement
+from rig.drive import params as paramtable
+from rig.loadbench.client import BenchMeasurement
 
 RAMP_DT_S = 0.01  # load-machine speed ramps: one setpoint per 10 ms of bench time
 

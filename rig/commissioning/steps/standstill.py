@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from rig.commissioning.drive import DriveError
+from rig.commissioning.checked_drive import DriveError
 from rig.commissioning.results import Quantity, StepResult, Table
 from rig.commissioning.session import BenchSession
 from rig.commissioning.steps.common import (

@@ -7,17 +7,10 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "../check.h"
 #include "hilbus.h"
 #include "../../../hilbus/src/hilbus_internal.h"
 
-static int failures;
-#define CHECK(cond)                                                                  \
-    do {                                                                             \
-        if (!(cond)) {                                                               \
-            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-            failures++;                                                              \
-        }                                                                            \
-    } while (0)
 
 static const char *transport;
 static char channel[64];
@@ -184,10 +177,7 @@ int main(int argc, char **argv)
     test_invalid_frames();
     test_full_receiver_counts_drops();
     test_dead_peer_removed();
-    if (failures) {
-        fprintf(stderr, "%d check(s) failed\n", failures);
-        return 1;
-    }
-    printf("test_hilbus (%s): all checks passed\n", transport);
-    return 0;
+    char name[96];
+    snprintf(name, sizeof name, "test_hilbus (%s)", transport);
+    return check_report(name);
 }

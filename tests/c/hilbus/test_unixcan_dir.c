@@ -15,16 +15,9 @@
 #include <sys/un.h>
 #include <unistd.h>
 
+#include "../check.h"
 #include "hilbus.h"
 
-static int failures;
-#define CHECK(cond)                                                                  \
-    do {                                                                             \
-        if (!(cond)) {                                                               \
-            fprintf(stderr, "%s:%d: check failed: %s\n", __FILE__, __LINE__, #cond); \
-            failures++;                                                              \
-        }                                                                            \
-    } while (0)
 
 static char root[128];
 
@@ -319,10 +312,5 @@ int main(int argc, char **argv)
     char rm[300];
     fmt(rm, sizeof rm, "rm -rf '%s' '%s'-* 2>/dev/null", root, root);
     if (system(rm) != 0) fprintf(stderr, "could not remove %s\n", root);
-    if (failures) {
-        fprintf(stderr, "%d check(s) failed\n", failures);
-        return 1;
-    }
-    printf("test_unixcan_dir: all checks passed\n");
-    return 0;
+    return check_report("test_unixcan_dir");
 }

@@ -6,17 +6,8 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "../check.h"
 #include "hil_log_limit.h"
-
-static int failures;
-
-#define EXPECT(cond)                                                        \
-    do {                                                                    \
-        if (!(cond)) {                                                      \
-            fprintf(stdout, "%s:%d: EXPECT(%s) failed\n", __FILE__, __LINE__, #cond); \
-            failures++;                                                     \
-        }                                                                   \
-    } while (0)
 
 int main(void)
 {
@@ -27,35 +18,34 @@ int main(void)
     int fd = mkstemp(path);
     FILE *f;
     int k, allowed = 0;
-    EXPECT(fd >= 0);
-    EXPECT(freopen(path, "w", stderr) != NULL);
+    CHECK(fd >= 0);
+    CHECK(freopen(path, "w", stderr) != NULL);
 
     hil_log_limit_init(&l, "node", 3, 5 * s);
     for (k = 0; k < 10; k++) {
         allowed += hil_log_limit_allow(&l, 5 * s + k * 1000);
     }
-    EXPECT(allowed == 3);
-    EXPECT(l.suppressed == 7);
-    EXPECT(!hil_log_limit_allow(&l, 6 * s - 1)); /* still the first window */
+    CHECK(allowed == 3);
+    CHECK(l.suppressed == 7);
+    CHECK(!hil_log_limit_allow(&l, 6 * s - 1)); /* still the first window */
     /* the next window: the report line, then 3 more lines allowed */
-    EXPECT(hil_log_limit_allow(&l, 6 * s));
-    EXPECT(l.suppressed == 0 && l.lines == 1);
+    CHECK(hil_log_limit_allow(&l, 6 * s));
+    CHECK(l.suppressed == 0 && l.lines == 1);
     /* a quiet window writes no report line */
-    EXPECT(hil_log_limit_allow(&l, 8 * s));
+    CHECK(hil_log_limit_allow(&l, 8 * s));
     fflush(stderr);
 
     f = fopen(path, "r");
-    EXPECT(f != NULL);
+    CHECK(f != NULL);
     if (f != NULL) {
         size_t n = fread(text, 1, sizeof text - 1, f);
         text[n] = '\0';
         fclose(f);
     }
     unlink(path);
-    EXPECT(strcmp(text, "node: (8 more messages not logged)\n") == 0);
-    if (failures) {
+    CHECK(strcmp(text, "node: (8 more messages not logged)\n") == 0);
+    if (g_failures) {
         fprintf(stdout, "stderr was: \"%s\"\n", text);
     }
-    printf("%d failures\n", failures);
-    return failures ? 1 : 0;
+    return check_report("test_log_limit");
 }

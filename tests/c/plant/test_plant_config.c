@@ -3,7 +3,7 @@
 #include <stdio.h>
 #include <string.h>
 
-#include "plant_check.h"
+#include "../check.h"
 #include "plant_core.h"
 
 static int load_text(const char *text, plant_config_t *cfg, char *err, size_t errlen)

@@ -8,7 +8,8 @@
 
 #include "hil_bench.h"
 #include "hil_vio.h"
-#include "plant_check.h"
+#include "../check.h"
+#include "plant_cmd.h"
 #include "plant_internal.h"
 #include "plant_link.h"
 #include "plant_vio.h"
@@ -28,16 +29,11 @@ static plant_t *plant_default(void)
     return p;
 }
 
-static void cmd_set(plant_pwm_cmd_t *c, int up0, int dn0, int up1, int dn1, int up2, int dn2)
+/* every fault test samples the currents once, at the period's middle */
+static void cmd_set_sampled(plant_pwm_cmd_t *c, int up0, int dn0, int up1, int dn1, int up2,
+                            int dn2)
 {
-    memset(c, 0, sizeof(*c));
-    c->cmp_up[0] = (uint16_t)up0;
-    c->cmp_dn[0] = (uint16_t)dn0;
-    c->cmp_up[1] = (uint16_t)up1;
-    c->cmp_dn[1] = (uint16_t)dn1;
-    c->cmp_up[2] = (uint16_t)up2;
-    c->cmp_dn[2] = (uint16_t)dn2;
-    c->gate_enable = 1;
+    cmd_set(c, up0, dn0, up1, dn1, up2, dn2);
     c->n_soc = 1;
     c->soc[0] = 5000;
 }
@@ -65,7 +61,7 @@ static void test_adc_channel_faults(void)
         ++g_failures;
         return;
     }
-    cmd_set(&c, 5000, 5000, 5000, 5000, 5000, 5000);
+    cmd_set_sampled(&c, 5000, 5000, 5000, 5000, 5000, 5000);
     c.gate_enable = 0; /* standstill, gates off: every current is exactly zero */
     plant_step(p, &c, &s, NULL);
     CHECK(s.ia_code[0] == code_of(0.0) && s.ib_code[0] == code_of(0.0));
@@ -107,7 +103,7 @@ static void drive_phase_a(plant_t *p, int n, plant_truth_t *t, plant_samples_t *
 {
     plant_pwm_cmd_t c;
     int k;
-    cmd_set(&c, 4000, 4000, 5000, 5000, 5000, 5000); /* a high for 2000 of 10000 ticks */
+    cmd_set_sampled(&c, 4000, 4000, 5000, 5000, 5000, 5000); /* a high for 2000 of 10000 ticks */
     for (k = 0; k < n; ++k) {
         plant_step(p, &c, s, t);
     }
@@ -188,7 +184,7 @@ static void test_dc_link(void)
         ++g_failures;
         return;
     }
-    cmd_set(&c, 5000, 5000, 5000, 5000, 5000, 5000);
+    cmd_set_sampled(&c, 5000, 5000, 5000, 5000, 5000, 5000);
     c.gate_enable = 0;
     plant_step(p, &c, &s, &t);
     CHECK(t.vdc == 200.0);

@@ -2,7 +2,7 @@
  * positive definite everywhere; the inversion recovers the current from any start. */
 #include <string.h>
 
-#include "plant_check.h"
+#include "../check.h"
 #include "plant_internal.h"
 
 static void check_profile(const char *name)

@@ -3,22 +3,11 @@
  * determinism of the noise. */
 #include <string.h>
 
-#include "plant_check.h"
+#include "../check.h"
+#include "plant_cmd.h"
 #include "plant_internal.h"
 
 #define PI 3.14159265358979323846
-
-static void cmd_set(plant_pwm_cmd_t *c, int up0, int dn0, int up1, int dn1, int up2, int dn2)
-{
-    memset(c, 0, sizeof(*c));
-    c->cmp_up[0] = (uint16_t)up0;
-    c->cmp_dn[0] = (uint16_t)dn0;
-    c->cmp_up[1] = (uint16_t)up1;
-    c->cmp_dn[1] = (uint16_t)dn1;
-    c->cmp_up[2] = (uint16_t)up2;
-    c->cmp_dn[2] = (uint16_t)dn2;
-    c->gate_enable = 1;
-}
 
 static void test_schedule(void)
 {

@@ -2,7 +2,7 @@
 #include <string.h>
 
 #include "hil_vio.h"
-#include "plant_check.h"
+#include "../check.h"
 #include "plant_vio.h"
 
 static void good_cmd(plant_pwm_cmd_t *c, uint32_t period)

@@ -8,7 +8,7 @@ import can
 import pytest
 
 from rig import protocols
-from rig.frames import FrameDecoder
+from rig.bus.frames import FrameDecoder
 
 
 @pytest.fixture
@@ -30,7 +30,7 @@ def test_good_frame_round_trips(decoder: FrameDecoder) -> None:
 
 
 def test_unknown_id(decoder: FrameDecoder, caplog: pytest.LogCaptureFixture) -> None:
-    with caplog.at_level(logging.WARNING, logger="rig.frames"):
+    with caplog.at_level(logging.WARNING, logger="rig.bus.frames"):
         assert decoder.decode(can.Message(arbitration_id=0x5A5, data=b"\0" * 8,
                                           is_extended_id=False)) is None
     assert decoder.rejected["unknown_id"] == 1
@@ -70,7 +70,7 @@ def test_encoder_refuses_out_of_range(decoder: FrameDecoder) -> None:
 def test_rejections_are_logged_sparingly(decoder: FrameDecoder,
                                          caplog: pytest.LogCaptureFixture) -> None:
     bad = can.Message(arbitration_id=0x5A5, data=b"", is_extended_id=False)
-    with caplog.at_level(logging.WARNING, logger="rig.frames"):
+    with caplog.at_level(logging.WARNING, logger="rig.bus.frames"):
         for _ in range(2500):
             decoder.decode(bad)
     assert decoder.rejected["unknown_id"] == 2500

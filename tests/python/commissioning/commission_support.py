@@ -7,7 +7,7 @@ import tomllib
 from collections.abc import Callable
 
 from rig import _paths
-from rig import bench_description as bd
+from rig.bench import description as bd
 
 MakeDesc = Callable[..., bd.BenchDescription]
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from rig import _paths
-from rig import bench_description as bd
+from rig.bench import description as bd
 from rig.commissioning.session import BenchSession
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

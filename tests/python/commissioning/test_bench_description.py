@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import bench_description as bd
+from rig.bench import description as bd
 from rig.commissioning.config import CommissioningConfig
 from rig.commissioning.steps import ALL, STEPS
 

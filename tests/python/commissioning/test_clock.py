@@ -15,7 +15,7 @@ from commission_support import MakeDesc
 
 from rig import bus as rigbus
 from rig import protocols
-from rig.commissioning import runner
+from rig.commissioning import commission
 from rig.link.bus import BusLink
 from rig.link.clock import BenchTimeout, WallClock
 
@@ -86,7 +86,7 @@ def test_connectivity_on_the_wall_clock(make_desc: MakeDesc, tmp_path: Path) -> 
     plant: it idles in INIT) and the load bench."""
     desc = make_desc("clock.mode=wall", 'virtual.programs=["fw_host", "loadbench"]')
     assert not desc.lockstep
-    run = runner.commission(desc, ["connectivity"], tmp_path / "run")
+    run = commission.commission(desc, ["connectivity"], tmp_path / "run")
     assert run.passed, run.report_path.read_text()
     checks = {c.name: c.detail for c in run.step("connectivity").checks}
     assert checks["bench clock"].startswith("wall:")

@@ -20,9 +20,10 @@ import numpy as np
 import pytest
 from commission_support import MakeDesc, cross_saturation_per_ampere, paper_truth
 
-from rig import _paths, commissioned_drive, protocols
-from rig.commissioning import runner
-from rig.firmware_from_profile import firmware_settings
+from rig import _paths, protocols
+from rig.bench.configuration import firmware_settings
+from rig.commissioning import commission
+from rig.drive import commissioned
 
 
 def within(value: float, truth: float, rel: float) -> bool:
@@ -31,7 +32,7 @@ def within(value: float, truth: float, rel: float) -> bool:
 
 def test_commission_all_identifies_the_paper_machine(make_desc: MakeDesc,
                                                      tmp_path: Path) -> None:
-    run = runner.commission(make_desc(), ["all"], tmp_path / "run")
+    run = commission.commission(make_desc(), ["all"], tmp_path / "run")
     assert run.passed, run.report_path.read_text()
     truth = paper_truth()
     got = {k: run.value(k) for k in ("rs_ohm", "ld_h", "lq_h", "lambda_m_wb")}
@@ -61,7 +62,7 @@ def test_identification_follows_the_plant_not_the_nominal(make_desc: MakeDesc,
     machine = {"machine.rs_ohm": 2.4, "magnetics.ld_h": 0.0165, "magnetics.lq_h": 0.035,
                "machine.lambda_m_wb": 0.2}
     desc = make_desc(*(f"virtual.plant.{k}={v}" for k, v in machine.items()))
-    run = runner.commission(desc, ["standstill", "flux"], tmp_path / "run")
+    run = commission.commission(desc, ["standstill", "flux"], tmp_path / "run")
     assert run.passed, run.report_path.read_text()
     assert within(run.value("rs_ohm"), machine["machine.rs_ohm"], 0.02)
     assert within(run.value("ld_h"), machine["magnetics.ld_h"], 0.05)
@@ -81,20 +82,20 @@ def test_xsat_identifies_the_harsh_machines_cross_saturation(make_desc: MakeDesc
     2 N*m cells by ~1.4 deg. Before the turn was averaged as a complex number and rs
     identified first: -51 %. The drive the harsh scenarios run (rig/commissioned/harsh.toml)
     carries what this identifies."""
-    run = runner.commission(make_desc("virtual.profile=harsh"), ["standstill", "xsat"],
+    run = commission.commission(make_desc("virtual.profile=harsh"), ["standstill", "xsat"],
                             tmp_path / "run")
     assert run.passed, run.report_path.read_text()
     k = run.value("xsat_ldq_per_a")
     truth = cross_saturation_per_ampere("harsh")
     assert within(k, truth, 0.15), (k, truth)
     assert run.data["written"] == {"xsat_ldq_per_a": k}
-    shipped = commissioned_drive.parameters("harsh")["xsat_ldq_per_a"]
+    shipped = commissioned.parameters("harsh")["xsat_ldq_per_a"]
     assert within(shipped, k, 0.15), (shipped, k)
 
 
 def test_xsat_finds_no_cross_saturation_on_the_paper_machine(make_desc: MakeDesc,
                                                              tmp_path: Path) -> None:
-    run = runner.commission(make_desc(), ["standstill", "xsat"], tmp_path / "run")
+    run = commission.commission(make_desc(), ["standstill", "xsat"], tmp_path / "run")
     assert run.passed, run.report_path.read_text()
     assert cross_saturation_per_ampere("paper") == 0.0
     # a tenth of the harsh machine's at most
@@ -107,7 +108,7 @@ def test_rs_does_not_depend_on_where_the_rotor_stops(make_desc: MakeDesc, tmp_pa
     """The rotor is turned until the q current lies on a phase axis before the rs steps:
     the identified rs must not depend on the angle the drive started at."""
     desc = make_desc(f"virtual.plant.initial.theta_e_deg={theta0}")
-    run = runner.commission(desc, ["standstill"], tmp_path / "run")
+    run = commission.commission(desc, ["standstill"], tmp_path / "run")
     assert run.passed, run.report_path.read_text()
     assert within(run.value("rs_ohm"), paper_truth()["rs_ohm"], 0.02), run.value("rs_ohm")
     aligned = [c for c in run.step("standstill").checks if c.name.startswith("q axis on")]
@@ -166,7 +167,7 @@ def test_standstill_from_12_start_angles(make_desc: MakeDesc, tmp_path: Path,
                                          theta0: int) -> None:
     """Polarity, Ld, Lq and rs wherever the rotor happens to stop."""
     desc = make_desc(f"virtual.plant.initial.theta_e_deg={theta0}")
-    run = runner.commission(desc, ["standstill"], tmp_path / "run")
+    run = commission.commission(desc, ["standstill"], tmp_path / "run")
     facts = run.step("standstill").facts
     starts = angle_errors_per_start(tmp_path / "run" / "bus.log")
     assert len(starts) == (1 if facts["polarity_first"] == "correct" else 2), facts
@@ -246,7 +247,7 @@ def test_silent_console_stops_within_its_time_out(make_desc: MakeDesc,
     try:
         desc = make_desc(f"console.port={os.ttyname(slave)}", "console.timeout_s=0.5")
         t0 = time.monotonic()
-        run = runner.commission(desc, ["all"], tmp_path / "run")
+        run = commission.commission(desc, ["all"], tmp_path / "run")
         wall = time.monotonic() - t0
     finally:
         os.close(master)
@@ -269,7 +270,7 @@ def test_unreachable_load_bench_stops_with_a_clear_error(make_desc: MakeDesc,
     sock.close()
     desc = make_desc('virtual.programs=["plant_rt", "fw_host"]', f"modbus.port={port}",
                      "modbus.timeout_s=0.5")
-    run = runner.commission(desc, ["connectivity"], tmp_path / "run")
+    run = commission.commission(desc, ["connectivity"], tmp_path / "run")
     assert not run.passed
     err = run.step("connectivity").error or ""
     assert f"modbus tcp 127.0.0.1:{port} unit 1: cannot connect" in err
@@ -278,8 +279,8 @@ def test_unreachable_load_bench_stops_with_a_clear_error(make_desc: MakeDesc,
 
 @pytest.mark.vcan
 def test_commission_over_socketcan(programs_built: None, tmp_path: Path) -> None:
-    from rig import bench_description as bd
     from rig import bus as rigbus
+    from rig.bench import description as bd
 
     if not rigbus.kernel_has_can():
         pytest.skip("this kernel has no CAN (run inside the VM: rig vm -- pytest -m vcan)")
@@ -291,6 +292,6 @@ def test_commission_over_socketcan(programs_built: None, tmp_path: Path) -> None
     desc = bd.load("virtual", ["can.transport=socketcan", "can.channel=vcan0",
                                "modbus.port=0", "virtual.ready_timeout_s=180.0",
                                "modbus.timeout_s=5.0", "console.timeout_s=10.0"])
-    run = runner.commission(desc, ["connectivity", "polarity"], tmp_path / "run")
+    run = commission.commission(desc, ["connectivity", "polarity"], tmp_path / "run")
     assert run.passed, run.report_path.read_text()
     assert run.data["can"] == "socketcan vcan0"

@@ -1,4 +1,4 @@
-"""rig.console.ConsoleClient against fw_host's console pty on a running virtual bench: every
+"""rig.drive.console.ConsoleClient against fw_host's console pty on a running virtual bench: every
 command of protocols/console.json, every error code, line limits, time-outs, URLs, and the
 ``rig console`` command line."""
 
@@ -19,7 +19,7 @@ import pytest
 
 from rig import _paths
 from rig.commissioning.session import BenchSession
-from rig.console import (
+from rig.drive.console import (
     ConsoleClient,
     ConsoleError,
     ConsoleLinkError,

@@ -12,10 +12,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from test_load_bench import Server, start_server
+from test_loadbench import Server, start_server
 
 from rig import protocols
-from rig.loadbench_server import ServeOptions, serve
+from rig.loadbench.server import ServeOptions, serve
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""CAN parameter access (rig.params over PARAM_REQ / PARAM_RESP) against fw_host on a running
+"""CAN parameter access (rig.drive.params over PARAM_REQ / PARAM_RESP) against fw_host on a running
 virtual bench, and ``rig param``. Expected values come from protocols/parameters.csv."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import pytest
 from rig import _paths
 from rig.bus import unixcan
 from rig.commissioning.session import BenchSession
+from rig.drive.params import ParamClient, ParamError, ParamTimeout, table
 from rig.link.bus import BusLink
-from rig.params import ParamClient, ParamError, ParamTimeout, table
 
 
 def csv_rows() -> dict[str, dict[str, str]]:

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from commission_support import paper_truth
 
-from rig import commissioned_drive
 from rig.cli import main as rig_main
+from rig.drive import commissioned
 
 
 def _commission(channel: str, save: Path, out: Path) -> list[str]:
@@ -34,7 +34,7 @@ def test_standstill_saves_the_parameters_it_identified(unix_channel: str, progra
     assert code == 0, captured.err
     assert "commissioning PASSED" in captured.out
     text = save.read_text()
-    assert text.startswith(commissioned_drive.HEADER)
+    assert text.startswith(commissioned.HEADER)
     saved = tomllib.loads(text)["firmware"]
     truth = paper_truth()
     assert set(saved) == {"rs_ohm", "ld_h", "lq_h"}
@@ -85,7 +85,7 @@ print("saved" if commission._save_params(Path(sys.argv[1]), data, desc) else "no
 
 def test_a_full_disk_leaves_the_saved_file_whole(tmp_path: Path) -> None:
     save = tmp_path / "paper.toml"
-    before = commissioned_drive.render({"xsat_ldq_per_a": -0.0002}, "paper", ["rig"])
+    before = commissioned.render({"xsat_ldq_per_a": -0.0002}, "paper", ["rig"])
     save.write_text(before)
     done = subprocess.run([sys.executable, "-c", WRITER, str(save)], capture_output=True,
                           text=True, timeout=60, check=False, env=dict(os.environ))

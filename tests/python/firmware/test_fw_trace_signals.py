@@ -17,8 +17,11 @@ import numpy as np
 import pytest
 from cantools.database.can import Database, Message, Signal
 
-from rig import capture, protocols, recording, sil
-from rig.trace import TraceWriter
+from rig import protocols
+from rig.bench import sil
+from rig.data import capture
+from rig.data.trace import TraceWriter
+from rig.results import recording
 
 REPO = Path(__file__).resolve().parents[3]
 PERIODS = 40

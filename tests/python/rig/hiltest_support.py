@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from rig import protocols
-from rig.trace import TraceWriter
+from rig.data.trace import TraceWriter
 
 TS = protocols.timebase().ts
 TICK = 1.0 / protocols.timebase().tbclk_hz

@@ -1,5 +1,6 @@
-"""Baselines (rig.baseline): the band over seeds, the classification of a run's values, the
-file round trip, what a record refuses, and a run judged against a baseline end to end."""
+"""Baselines (rig.regression.baseline): the band over seeds, the classification of a run's
+values, the file round trip, what a record refuses, and a run judged against a baseline end
+to end."""
 
 from __future__ import annotations
 
@@ -9,9 +10,11 @@ import random
 from pathlib import Path
 
 import pytest
+import scenario_text
 
-from rig import baseline, cli, scenario
-from rig.baseline import (
+from rig import cli, scenario
+from rig.regression import baseline
+from rig.regression.baseline import (
     CHANGED,
     EITHER,
     HIGHER,
@@ -84,29 +87,12 @@ def test_band_catches_a_four_times_worse_cell() -> None:
 
 # -- building and the file ---------------------------------------------------------------
 
-SCENARIO = """\
-description = "baseline test scenario"
-profile = "paper"
-duration = 0.3
-[[speed]]
-kind = "ramp"
-to = 300.0
-duration = 0.2
-[[speed]]
-kind = "hold"
-duration = 0.1
-[[criteria]]
-name = "position"
-metric = "pos_err_max_deg"
-window = [0.2, "end"]
-limit = 5
-[[criteria]]
-name = "no polarity loss"
-metric = "polarity_loss_count"
-window = [0.05, "end"]
-limit = 0
-comparison = "=="
-"""
+SCENARIO = scenario_text.scenario(
+    "baseline test scenario", profile="paper", duration=0.3,
+    speed=[scenario_text.ramp(300.0, 0.2), scenario_text.hold(0.1)],
+    criteria=[scenario_text.criterion("position", "pos_err_max_deg", (0.2, "end"), 5),
+              scenario_text.criterion("no polarity loss", "polarity_loss_count", (0.05, "end"),
+                                      0, "==")])
 
 
 @pytest.fixture

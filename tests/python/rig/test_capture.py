@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from hiltest_support import TS, Synthetic
 
-from rig import capture
+from rig.data import capture
 
 
 def _build(tmp: Path, syn: Synthetic, expected: bool = True, **kw):  # type: ignore[no-untyped-def]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import cli, outdirs
+from rig import cli, outputs
 
 
 def _run(root: Path, name: str, *, age_days: float, schema: str = "hil-result/1",
@@ -58,23 +58,23 @@ def test_removes_old_auto_named_runs_beyond_the_newest(root: Path) -> None:
 
 
 def test_older_than_and_all(root: Path) -> None:
-    runs = list(outdirs.find_runs(root))
+    runs = list(outputs.find_runs(root))
     assert len(runs) == 9  # the suite's scenario folder is part of the suite
-    chosen = outdirs.select(runs, keep_last=0, older_than_days=2.5, include_named=False)
+    chosen = outputs.select(runs, keep_last=0, older_than_days=2.5, include_named=False)
     assert [r.path.name for r in chosen] == [f"smoke-2026010{i}-120000" for i in (6, 5, 4, 3)]
-    everything = outdirs.select(runs, keep_last=0, older_than_days=None, include_named=True)
+    everything = outputs.select(runs, keep_last=0, older_than_days=None, include_named=True)
     assert {r.path.name for r in everything} == {
         "paper", *(f"smoke-2026010{i}-120000" for i in range(7))}  # never the KEEP folder
     for r in everything:
-        outdirs.remove(r, root)
+        outputs.remove(r, root)
     assert sorted(p.name for p in root.iterdir()) == ["fuzz", "smoke-20250101-120000"]
 
 
 def test_refuses_a_folder_outside_the_root(tmp_path: Path, root: Path) -> None:
     elsewhere = _run(tmp_path / "mine", "smoke-20260101-000000", age_days=9)
-    run = next(iter(outdirs.find_runs(tmp_path / "mine")))
+    run = next(iter(outputs.find_runs(tmp_path / "mine")))
     with pytest.raises(ValueError, match="not inside"):
-        outdirs.remove(run, root)
+        outputs.remove(run, root)
     assert elsewhere.is_dir()
 
 

@@ -9,19 +9,20 @@ from pathlib import Path
 
 import pytest
 
-from rig import _paths, commissioned_drive, params
-from rig.run import programs
+from rig import _paths
+from rig.drive import commissioned, params
 from rig.run.errors import EnvironmentProblem
+from rig.run.single import bench_configuration
 from rig.scenario import load as load_scenario
 
 
 def test_every_shipped_file_names_writable_parameters_in_range() -> None:
     table = params.table()
-    files = sorted(commissioned_drive.FOLDER.glob("*.toml"))
+    files = sorted(commissioned.FOLDER.glob("*.toml"))
     assert files, "no commissioned drive shipped"
     for f in files:
         assert (_paths.data_dir("profiles") / f.name).is_file(), f"{f.name}: no such profile"
-        values = commissioned_drive.parameters(f.stem)
+        values = commissioned.parameters(f.stem)
         assert values, f
         for name, v in values.items():
             info = table.lookup(name)
@@ -31,12 +32,12 @@ def test_every_shipped_file_names_writable_parameters_in_range() -> None:
 def test_harsh_scenarios_run_the_commissioned_drive_and_the_scenario_wins() -> None:
     sc = load_scenario("table2_0001rpm_2nm")
     assert sc.profile == "paper"
-    k = commissioned_drive.parameters("harsh")["xsat_ldq_per_a"]
-    sets = programs.firmware_sets(sc.with_profile("harsh"), {})
+    k = commissioned.parameters("harsh")["xsat_ldq_per_a"]
+    sets = bench_configuration(sc.with_profile("harsh")).fw_sets
     assert [float(s.split("=")[1]) for s in sets if s.startswith("xsat_ldq_per_a=")] == [k]
-    assert not any(s.startswith("xsat_ldq_per_a=") for s in programs.firmware_sets(sc, {}))
+    assert not any(s.startswith("xsat_ldq_per_a=") for s in bench_configuration(sc).fw_sets)
     own = dataclasses.replace(sc.with_profile("harsh"), firmware={"xsat_ldq_per_a": 0.0})
-    assert [s for s in programs.firmware_sets(own, {}) if s.startswith("xsat")] == \
+    assert [s for s in bench_configuration(own).fw_sets if s.startswith("xsat")] == \
         ["xsat_ldq_per_a=0"]
 
 
@@ -52,21 +53,21 @@ def test_harsh_scenarios_run_the_commissioned_drive_and_the_scenario_wins() -> N
 def test_a_bad_file_is_an_error_naming_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                           text: str, message: str) -> None:
     (tmp_path / "bench.toml").write_text(text)
-    monkeypatch.setattr(commissioned_drive, "FOLDER", tmp_path)
-    with pytest.raises(commissioned_drive.CommissionedError) as info:
-        commissioned_drive.parameters("bench")
+    monkeypatch.setattr(commissioned, "FOLDER", tmp_path)
+    with pytest.raises(commissioned.CommissionedError) as info:
+        commissioned.parameters("bench")
     assert "bench.toml" in str(info.value) and message in str(info.value)
 
 
 def test_a_profile_path_or_an_unknown_profile_has_none() -> None:
-    assert commissioned_drive.parameters("no_such_profile") == {}
-    assert commissioned_drive.parameters("plant_rt/profiles/harsh.toml") == {}
+    assert commissioned.parameters("no_such_profile") == {}
+    assert commissioned.parameters("plant_rt/profiles/harsh.toml") == {}
 
 
 def test_a_broken_commissioned_drive_stops_the_run_before_it_starts(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     (tmp_path / "harsh.toml").write_text("[firmware]\nxsat_ldq_per_a = 1.0\n")
-    monkeypatch.setattr(commissioned_drive, "FOLDER", tmp_path)
+    monkeypatch.setattr(commissioned, "FOLDER", tmp_path)
     sc = load_scenario("table2_0001rpm_2nm").with_profile("harsh")
     with pytest.raises(EnvironmentProblem, match="outside"):
-        programs.firmware_sets(sc, {})
+        bench_configuration(sc)

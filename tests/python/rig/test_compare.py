@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from rig import baseline, cli, compare
-from rig.baseline import Band, Baseline, Entry, Record
+from rig import cli
+from rig.regression import baseline, compare
+from rig.regression.baseline import Band, Baseline, Entry, Record
 
 
 def suite_folder(folder: Path, values: dict[str, float], outcome: str = "pass") -> Path:

@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from rig import recording
+from rig.results import recording
 
 # Also runs inside the VM on SocketCAN vcan0 (the bus is auto-selected there).
 pytestmark = pytest.mark.vcan

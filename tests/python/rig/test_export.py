@@ -23,9 +23,10 @@ import numpy as np
 import pytest
 from asammdf import MDF
 
-from rig import capture, cli, protocols
-from rig.run.result import RunResult
-from rig.trace import HEADER_SIZE, RECORD_SIZE, TraceFile, frame_ids
+from rig import cli, protocols
+from rig.data import capture
+from rig.data.trace import HEADER_SIZE, RECORD_SIZE, TraceFile, frame_ids
+from rig.results.result import RunResult
 
 PREFIX = {"BENCH_TRUTH": "truth", "BENCH_TRUTH_MAG": "mag", "FW_TRACE": "fw"}
 WHOLE_BUS = {"VIO_ADC_0", "VIO_PWM", "BENCH_TRUTH", "BENCH_TRUTH_MAG", "FW_TRACE", "DRIVE_CMD",

@@ -13,33 +13,25 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scenario_text
 
-from rig import drive_link, faults, metrics, params, profiles, protocols, sil
+from rig import protocols
 from rig import scenario as sc
+from rig.bench import profiles, sil
+from rig.data import metrics
+from rig.drive import params
+from rig.link import frame_faults
 from rig.link.bus import BusLink
-from rig.link.drive import DriveCommand, DriveLimits, DriveMaster
+from rig.link.drive_master import DriveCommand, DriveLimits, DriveMaster
 from rig.run.plan import Plan
-
-BASE = """\
-description = "a fault scenario of the tests"
-profile = "{profile}"
-duration = {duration}
-
-[[speed]]
-kind = "ramp"
-to = 300.0
-duration = 0.1
-
-{faults}
-[[criteria]]
-name = "report"
-metric = "pos_err_max_deg"
-comparison = "report"
-"""
+from rig.scenario import faults
 
 
 def _text(faults_toml: str, duration: float = 0.3, profile: str = "ideal") -> str:
-    return BASE.format(faults=faults_toml, duration=duration, profile=profile)
+    return scenario_text.scenario(
+        "a fault scenario of the tests", profile=profile, duration=duration,
+        speed=[scenario_text.ramp(300.0, 0.1)], other=faults_toml,
+        criteria=[scenario_text.criterion("report", "pos_err_max_deg", comparison="report")])
 
 
 def _parse(tmp: Path, faults_toml: str, **kw: object) -> sc.Scenario:
@@ -186,7 +178,7 @@ kind = "heartbeat_loss"
     assert [c["kind"] for c in plan.fault_cmds[start]] == [kind["open_phase"]]
     assert plan.fault_cmds[start][0]["phase"] == faults.choices("phase")["c"]
     assert [(c["kind"], c["slot"]) for c in plan.fault_cmds[end]] == [(kind["none"], 0)]
-    assert plan.link_windows == [drive_link.Window("DRIVE_CMD", "frame_loss", 2000, 3000)]
+    assert plan.link_windows == [frame_faults.Window("DRIVE_CMD", "frame_loss", 2000, 3000)]
     # the FAULT_CMD encodes within the DBC (strict) and decodes back
     m = protocols.database("bench").get_message_by_name("FAULT_CMD")
     data = m.encode({**plan.fault_cmds[start][0], "seq": 1}, strict=True)
@@ -219,10 +211,10 @@ def test_drive_link_drops_corrupts_and_delays() -> None:
     lim_id = protocols.database("drive").get_message_by_name("DRIVE_LIMITS").frame_id
     c = faults.corruption("DRIVE_CMD", "speed_ref", 0x20000)
     assert (c.byte, c.mask) == (2, 0x20000)  # speed_ref: bits 16..47, byte 2
-    link = drive_link.DriveLink([
-        drive_link.Window("DRIVE_CMD", "frame_corrupt", 10, 20, byte=c.byte, mask=c.mask),
-        drive_link.Window("DRIVE_LIMITS", "frame_delay", 10, 20, delay=5),
-        drive_link.Window("DRIVE_CMD", "frame_loss", 30, 40),
+    link = frame_faults.FrameFaults([
+        frame_faults.Window("DRIVE_CMD", "frame_corrupt", 10, 20, byte=c.byte, mask=c.mask),
+        frame_faults.Window("DRIVE_LIMITS", "frame_delay", 10, 20, delay=5),
+        frame_faults.Window("DRIVE_CMD", "frame_loss", 30, 40),
     ])
     port = _Port()
     bus_link = BusLink(port, frame_faults=link)  # type: ignore[arg-type]

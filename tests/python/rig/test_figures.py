@@ -1,6 +1,6 @@
-"""A run's pictures (rig.figures): written into its folder, embedded in report.md, linked from
-a suite's report; a criterion that did not pass gets a picture showing its window and its
-limit; the envelope that keeps them cheap never drops a peak."""
+"""A run's pictures (rig.results.figures): written into its folder, embedded in report.md,
+linked from a suite's report; a criterion that did not pass gets a picture showing its window
+and its limit; the envelope that keeps them cheap never drops a peak."""
 
 from __future__ import annotations
 
@@ -12,24 +12,18 @@ from pathlib import Path
 import matplotlib.image
 import numpy as np
 import pytest
+import scenario_text
 from matplotlib.patches import Polygon, Rectangle
 
-from rig import capture, cli, figures
+from rig import cli
+from rig.data import capture
+from rig.results import figures
 
 SMOKE = Path(__file__).resolve().parents[3] / "rig" / "scenarios" / "smoke.toml"
-TIGHT = """
-[[criteria]]
-name = "too tight"
-metric = "pos_err_max_deg"
-window = [0.3, "end"]
-limit = 0.01
-
-[[criteria]]
-name = "speed too tight"
-metric = "speed_track_err_max_rpm"
-window = [0.35, "end"]
-limit = 1.0
-"""
+TIGHT = scenario_text.tables("criteria", [
+    scenario_text.criterion("too tight", "pos_err_max_deg", (0.3, "end"), 0.01),
+    scenario_text.criterion("speed too tight", "speed_track_err_max_rpm", (0.35, "end"), 1.0),
+])
 
 
 def test_the_envelope_keeps_every_peak_in_time_order() -> None:

@@ -185,7 +185,7 @@ def test_a_perfect_progress_spoof_is_caught_by_the_counts(tmp_path: Path,
     """Issue 23.6: a BENCH_PROGRESS with the very seq and end of the grant just sent (all the
     rig can check when it arrives) says the grant is done before the plant got there: the
     rig moves its plan on early (a load step came 999 periods early and the run passed).
-    The count of the BENCH_PROGRESS frames the plant sent names it afterwards."""
+    The plant's count of the BENCH_PROGRESS frames it received names it afterwards."""
     out = tmp_path / "run"
     injector = Injector(
         out, channel, lambda v: v["run_until"] >= 1500,
@@ -197,7 +197,13 @@ def test_a_perfect_progress_spoof_is_caught_by_the_counts(tmp_path: Path,
     assert injector.error is None and injector.sent, injector.error
     _foreign(code, text, data, "BENCH_PROGRESS")
     c = data["counters"]
-    assert c["rig.rx.BENCH_PROGRESS"] > c["plant.tx.BENCH_PROGRESS"]
+    # the plant, which never receives its own frames, got the spoof: that names it whatever
+    # the rig's count (the rig stops reading when the run ends, so its count of the plant's
+    # frames can be short of the plant's, measured 12 of 13). When the spoof arrives after the
+    # plant's own frame of that grant, the rig's link sees a BENCH_PROGRESS the plant cannot
+    # have sent and stops the run at once; which comes first is the machine's timing, the
+    # verdict is the same.
+    assert c["plant.rx.BENCH_PROGRESS"] >= 1
 
 
 def test_one_stray_adc_frame_ahead_of_the_plant_does_not_stall_the_lockstep(

@@ -11,6 +11,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+import scenario_text
 import xmlschema
 from junitparser import Error, Failure, JUnitXml, Properties, Skipped, TestCase
 
@@ -19,20 +20,11 @@ from rig import cli
 XSD = Path(__file__).parent / "data" / "junit.xsd"
 SMOKE = Path(__file__).resolve().parents[3] / "rig" / "scenarios" / "smoke.toml"
 
-CRITERIA = """
-[[criteria]]
-name = "too tight"
-metric = "pos_err_max_deg"
-window = [0.3, "end"]
-limit = 0.001
-
-[[criteria]]
-name = "known short"
-metric = "pos_err_max_deg"
-window = [0.3, "end"]
-limit = 0.002
-xfail = "measured 0.06 deg: a test of the xfail mapping"
-"""
+CRITERIA = scenario_text.tables("criteria", [
+    scenario_text.criterion("too tight", "pos_err_max_deg", (0.3, "end"), 0.001),
+    scenario_text.criterion("known short", "pos_err_max_deg", (0.3, "end"), 0.002,
+                            xfail="measured 0.06 deg: a test of the xfail mapping"),
+])
 
 
 def _props(case: TestCase) -> dict[str, str]:

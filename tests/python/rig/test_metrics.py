@@ -10,7 +10,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.optimize import brentq
 
-from rig import metrics, protocols
+from rig import protocols
+from rig.data import metrics
 
 TS = protocols.timebase().ts
 
@@ -129,7 +130,7 @@ def test_compute_registry_and_compare() -> None:
 def test_progress_line_plain_and_tty() -> None:
     import io
 
-    from rig.progress import Progress
+    from rig.run.progress import Progress
 
     plain = io.StringIO()
     p = Progress("smoke", 0.5, plain, plain_interval_s=3600)

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from rig import _paths
-from rig.mutation import campaign, catalogue
+from rig.regression.mutation import campaign, catalogue
 
 
 def test_every_mutant_applies_once_and_changes_its_file() -> None:

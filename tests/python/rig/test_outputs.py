@@ -1,92 +1,67 @@
-"""What a run keeps: result.json, report.md and the recording always; the full-rate traces and
-capture columns only for a run that did not pass, or for every run with --keep-all. The
-recording alone reproduces every criterion's value (its evidence is the rows they read).
-
-The runs are on the in-process bench (no bus): the same files as a bus run, in a second."""
+"""Issue 16.8: output-path problems are exit 3 with a message before any program starts,
+and a result file is whole or absent (never truncated by a full disk)."""
 
 from __future__ import annotations
 
-import json
-import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
-import numpy as np
+import pytest
 
-from rig import cli, metrics, recording
-from rig import scenario as sc
-
-FULL_RATE = ("plant.trace", "fw.trace", "rig.trace", "capture")
+from rig import outputs
+from rig.cli import main as rig_main
 
 
-def _failing_scenario(tmp_path: Path) -> Path:
-    """The smoke scenario with a position limit no drive meets."""
-    text = sc.load("smoke").file.read_text()
-    text = text.replace("limit = 10.0", "limit = 0.000001")
-    path = tmp_path / "smoke_impossible.toml"
-    path.write_text(text)
-    return path
+@pytest.mark.parametrize("where", ["through_a_file", "proc"])
+def test_rig_run_refuses_an_output_path_it_cannot_use(
+        where: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    if where == "through_a_file":
+        (tmp_path / "plain").write_text("a file")
+        out = tmp_path / "plain" / "run"
+    else:
+        out = Path("/proc/self/rig-out")
+    code = rig_main(["run", "smoke", "--bus", "unixcan", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 3, err
+    assert "output folder" in err and str(out) in err
+    assert "Traceback" not in err
+    assert "plant_rt" not in err  # nothing was started
 
 
-def test_a_passing_run_keeps_result_report_and_recording(
-        hil_run) -> None:  # type: ignore[no-untyped-def]
-    r = hil_run("smoke", bus="inproc", keep="failing")
-    assert r.passed, r.explain()
-    for name in FULL_RATE:
-        assert not (r.out_dir / name).exists(), name
-    for name in ("result.json", "report.md", "recording.rrd", "scenario.toml"):
-        assert (r.out_dir / name).is_file(), name
-    kept = json.loads((r.out_dir / "result.json").read_text())["kept"]
-    assert kept["full_rate"] is False and kept["policy"] == "failing"
-    assert kept["removed"] == list(FULL_RATE) and kept["removed_bytes"] > 1_000_000
-    assert r.capture is None
-    assert "full-rate traces and capture removed" in (r.out_dir / "report.md").read_text()
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_folder_is_refused(tmp_path: Path) -> None:
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o555)
+    with pytest.raises(outputs.OutputError, match="cannot write"):
+        outputs.prepare(ro)
 
 
-def test_the_recording_alone_reproduces_every_criterion(
-        hil_run) -> None:  # type: ignore[no-untyped-def]
-    r = hil_run("smoke", bus="inproc", keep="failing")
-    data = json.loads((r.out_dir / "result.json").read_text())
-    manifest, evidence = recording.read_evidence(r.out_dir / "recording.rrd")
-    assert set(manifest["columns"]) == {"pos_err_deg", "speed_ref_rpm", "speed_true_rpm"}
-    n, first = data["capture"]["periods"], data["capture"]["first_period"]
-    assert manifest["first_period"] == first
-    cols: dict[str, np.ndarray] = {"period": np.arange(first, first + n)}
-    for name, values in evidence.items():
-        padded = np.full(n, np.nan)
-        padded[: values.size] = values
-        cols[name] = padded
-    reads: list[tuple[str, int, int]] = []
-    for cr, recorded in zip(sc.load("smoke").criteria, data["criteria"], strict=True):
-        w = metrics.Window(cols, cr.window[0], cr.window[1], ts=manifest["ts"],
-                           first_period=first, counters=data["counters"], reads=reads)
-        value = metrics.compute(cr.metric, w, cr.params)
-        assert value == recorded["value"], cr.name  # exactly: the same rows, the same values
-    # and what they read lies inside what the recording says it holds
-    for name, a, b in reads:
-        assert any(lo <= a and b <= hi for lo, hi in manifest["rows"][name]), (name, a, b)
-        assert not math.isnan(float(np.nanmax(np.abs(cols[name][a:b]))))
+def test_not_enough_room_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(outputs.OutputError, match="MB free"):
+        outputs.prepare(tmp_path, periods=10**15)
 
 
-def test_a_failing_run_keeps_its_full_rate_data(
-        hil_run, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    r = hil_run(_failing_scenario(tmp_path), bus="inproc", keep="failing")
-    assert not r.passed
-    for name in FULL_RATE:
-        assert (r.out_dir / name).exists(), name
-    kept = json.loads((r.out_dir / "result.json").read_text())["kept"]
-    assert kept == {"full_rate": True, "policy": "failing", "removed": [], "removed_bytes": 0}
-    assert r.capture is not None and r.capture.n >= 4999
+WRITER = r"""
+import resource, signal, sys
+from pathlib import Path
+from rig import outputs
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000))  # a disk that fills at 1000 bytes
+try:
+    outputs.write_text(Path(sys.argv[1]), "x" * 5000)
+except outputs.OutputError as exc:
+    print("refused:", exc)
+"""
 
 
-def test_rig_run_keeps_full_rate_data_only_when_asked(tmp_path: Path,
-                                                      hil_binaries: object) -> None:
-    plain, kept = tmp_path / "plain", tmp_path / "kept"
-    assert cli.main(["run", "smoke", "--bus", "inproc", "--quiet", "--out", str(plain)]) == 0
-    assert cli.main(["run", "smoke", "--bus", "inproc", "--quiet", "--keep-all",
-                     "--out", str(kept)]) == 0
-    assert not any((plain / name).exists() for name in FULL_RATE)
-    assert all((kept / name).exists() for name in FULL_RATE)
-    assert json.loads((kept / "result.json").read_text())["kept"]["policy"] == "all"
-    # the recordings are the same kind either way
-    assert recording.entity_rows(plain / "recording.rrd") == recording.entity_rows(
-        kept / "recording.rrd")
+def test_a_full_disk_leaves_the_previous_result_whole(tmp_path: Path) -> None:
+    result = tmp_path / "result.json"
+    outputs.write_text(result, '{"complete": true}')
+    done = subprocess.run([sys.executable, "-c", WRITER, str(result)], capture_output=True,
+                          text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    assert "refused: cannot write" in done.stdout
+    assert result.read_text() == '{"complete": true}'
+    assert [p.name for p in tmp_path.iterdir()] == ["result.json"]  # no temporary left

@@ -16,46 +16,24 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import scenario_text
 
-from rig import capture
+from rig.data import capture
 
 DURATION = 3.0
-SCENARIO = f"""\
-description = "closed loop on the ideal plant, cut short by the test"
-profile = "ideal"
-duration = {DURATION}
-
-[[speed]]
-kind = "ramp"
-to = 300.0
-duration = 0.2
-
-[[criteria]]
-name = "early window"
-metric = "pos_err_max_deg"
-window = [0.0, 0.05]
-comparison = "report"
-
-[[criteria]]
-name = "no polarity loss"
-metric = "polarity_loss_count"
-window = [0.1, "end"]
-limit = 0
-comparison = "=="
-
-[[criteria]]
-name = "known failure over the whole run"
-metric = "pos_err_max_deg"
-window = [0.5, "end"]
-limit = 0.0
-xfail = "a limit nothing meets: an XFAIL must not stand in for missing data either"
-
-[[criteria]]
-name = "no capture loss"
-metric = "capture_lost"
-limit = 0
-comparison = "=="
-"""
+SCENARIO = scenario_text.scenario(
+    "closed loop on the ideal plant, cut short by the test", profile="ideal",
+    duration=DURATION, speed=[scenario_text.ramp(300.0, 0.2)],
+    criteria=[
+        scenario_text.criterion("early window", "pos_err_max_deg", (0.0, 0.05),
+                                comparison="report"),
+        scenario_text.criterion("no polarity loss", "polarity_loss_count", (0.1, "end"), 0,
+                                "=="),
+        scenario_text.criterion(
+            "known failure over the whole run", "pos_err_max_deg", (0.5, "end"), 0.0,
+            xfail="a limit nothing meets: an XFAIL must not stand in for missing data either"),
+        scenario_text.criterion("no capture loss", "capture_lost", limit=0, comparison="=="),
+    ])
 
 # the plant's trace is written in 1 MiB blocks of BENCH_TRUTH + BENCH_TRUTH_MAG records: the
 # kill comes once two blocks are on disk (about 1.5 s of the 3 s simulated)

@@ -6,6 +6,7 @@ from importlib import metadata
 from pathlib import Path
 
 import pytest
+import scenario_text
 
 from rig.pytest_plugin import channel_for
 
@@ -24,19 +25,10 @@ import json
 import pytest
 
 TINY = """
-description = "tiny"
-profile = "ideal"
-duration = 0.1
-[[speed]]
-kind = "ramp"
-to = 100.0
-duration = 0.05
-[[criteria]]
-name = "position error"
-metric = "pos_err_max_deg"
-window = [0.02, "end"]
-limit = 1.0
-"""
+''' + scenario_text.scenario(
+    "tiny", profile="ideal", duration=0.1, speed=[scenario_text.ramp(100.0, 0.05)],
+    criteria=[scenario_text.criterion("position error", "pos_err_max_deg", (0.02, "end"), 1.0)],
+) + '''"""
 
 
 @pytest.fixture

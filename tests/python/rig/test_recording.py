@@ -11,7 +11,8 @@ import rerun as rr
 from hiltest_support import Synthetic
 from rerun.chunk import RrdReader
 
-from rig import capture, recording
+from rig.data import capture
+from rig.results import recording
 
 
 @pytest.fixture

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import cli, outdirs
+from rig import cli, outputs
 from rig.cli import main as rig_main
 
 FROZEN = dt.datetime(2026, 3, 1, 12, 0, 0)
@@ -39,12 +39,12 @@ class _FrozenClock(dt.datetime):
 def test_runs_started_in_the_same_second_get_a_folder_each(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("HIL_OUT", str(tmp_path / "out"))
-    monkeypatch.setattr(outdirs, "dt", types.SimpleNamespace(datetime=_FrozenClock))
+    monkeypatch.setattr(outputs, "dt", types.SimpleNamespace(datetime=_FrozenClock))
     got: list[Path] = []
     lock = threading.Lock()
 
     def claim() -> None:
-        p = outdirs.default_out("table2_1000rpm_1nm")
+        p = outputs.default_out("table2_1000rpm_1nm")
         with lock:
             got.append(p)
 
@@ -57,7 +57,7 @@ def test_runs_started_in_the_same_second_get_a_folder_each(
     assert all(p.is_dir() and not any(p.iterdir()) for p in got)  # made, empty, each its own
     names = sorted(p.name for p in got)
     assert names[0] == "table2_1000rpm_1nm-20260301-120000"
-    assert all(outdirs.AUTO_NAME.fullmatch(n) for n in names)  # rig clean still knows them
+    assert all(outputs.AUTO_NAME.fullmatch(n) for n in names)  # rig clean still knows them
 
 
 def test_parallel_runs_without_out_keep_their_own_data(tmp_path: Path) -> None:

@@ -18,56 +18,37 @@ import numpy as np
 import psutil
 import pytest
 import rerun as rr
+import scenario_text
 
-from rig import recording, runner, verdict
 from rig import scenario as sc
+from rig.link.clock import STALL_S
+from rig.results import recording, verdict
+from rig.results.result import RunResult
+from rig.run import runner
 from rig.run.plan import Plan
-from rig.run.result import RunResult
 from rig.run.suite import evaluate_comparison
 
-TINY = """\
-description = "tiny closed loop for the runner's tests"
-profile = "ideal"
-duration = {duration}
 
-[[speed]]
-kind = "ramp"
-to = 200.0
-duration = 0.1
-
-[[load]]
-at = 0.12
-kind = "step"
-torque = 0.2
-
-[run]
-ready_timeout_s = 120.0  # the Python stand-ins start slowly inside the (emulated) VM
-
-[[criteria]]
-name = "position error"
-metric = "pos_err_max_deg"
-window = [0.05, "end"]
-limit = 0.6
-
-[[criteria]]
-name = "error is the stand-in's offset"
-metric = "pos_err_mean_deg"
-window = [0.05, "end"]
-limit = {mean_limit}
-comparison = ">="
-
-[[criteria]]
-name = "no capture loss"
-metric = "capture_lost"
-limit = 0
-comparison = "=="
-"""
+def _tiny(duration: float, mean_limit: float) -> str:
+    return scenario_text.scenario(
+        "tiny closed loop for the runner's tests", profile="ideal", duration=duration,
+        speed=[scenario_text.ramp(200.0, 0.1)],
+        load=[{"at": 0.12, "kind": "step", "torque": 0.2}],
+        # the Python stand-ins start slowly inside the (emulated) VM
+        other="[run]\nready_timeout_s = 120.0\n",
+        criteria=[
+            scenario_text.criterion("position error", "pos_err_max_deg", (0.05, "end"), 0.6),
+            scenario_text.criterion("error is the stand-in's offset", "pos_err_mean_deg",
+                                    (0.05, "end"), mean_limit, ">="),
+            scenario_text.criterion("no capture loss", "capture_lost", limit=0,
+                                    comparison="=="),
+        ])
 
 
 def _scenario(tmp: Path, name: str = "tiny", duration: float = 0.2,
               mean_limit: float = 0.49) -> Path:
     p = tmp / f"{name}.toml"
-    p.write_text(TINY.format(duration=duration, mean_limit=mean_limit))
+    p.write_text(_tiny(duration, mean_limit))
     return p
 
 
@@ -87,7 +68,7 @@ def _ready_pid(path: Path, timeout: float = 10.0) -> int:
 
 
 def test_plan_grants_end_on_breakpoints() -> None:
-    s = sc.parse_scenario(Path("plan.toml"), TINY.format(duration=0.35, mean_limit=0))
+    s = sc.parse_scenario(Path("plan.toml"), _tiny(0.35, 0))
     plan = Plan.build(s)
     grants = plan.grants()
     assert grants[0][0] == 0 and grants[-1][1] == 3500
@@ -235,13 +216,20 @@ def test_realtime_mode(with_fakes: Path, channel: str, tmp_path: Path) -> None:
     # else its trace starts after the window began: it joined the bus late
 
 
+# A rig that missed a crash or a kill would notice only when the lockstep stalls (STALL_S
+# without progress); one that watches its children ends within ~0.3 s of CPU, 1-2.5 s of
+# wall time on a loaded 2-core machine. Half the stall time tells the two apart without
+# timing the machine.
+PROMPT_S = STALL_S / 2
+
+
 def _rig(args: list[str], env_extra: dict[str, str]) -> subprocess.Popen[str]:
     env = dict(os.environ, **env_extra)
     return subprocess.Popen([sys.executable, "-m", "rig", "run", *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def test_firmware_crash_ends_the_run_within_2s(with_fakes: Path, channel: str,
+def test_firmware_crash_ends_the_run_before_the_stall_timeout(with_fakes: Path, channel: str,
                                                tmp_path: Path) -> None:
     path = _scenario(tmp_path, duration=1.0)
     out = tmp_path / "out"
@@ -253,7 +241,7 @@ def test_firmware_crash_ends_the_run_within_2s(with_fakes: Path, channel: str,
     crash = re.search(r"injected crash at period 3000 \(t=([0-9.]+)\)",
                       (out / "fw_host.stderr.log").read_text())
     assert crash is not None
-    assert t_end - float(crash.group(1)) < 2.0
+    assert t_end - float(crash.group(1)) < PROMPT_S
     assert "fw_host: exited unexpectedly (exit status 3)" in text
     assert "injected crash at period 3000" in text  # the log tail
     data = json.loads((out / "result.json").read_text())
@@ -262,7 +250,7 @@ def test_firmware_crash_ends_the_run_within_2s(with_fakes: Path, channel: str,
 
 
 @pytest.mark.parametrize("target", ["plant", "rig"])
-def test_kill_mid_run_ends_within_2s(with_fakes: Path, channel: str, tmp_path: Path,
+def test_kill_mid_run_ends_before_the_stall_timeout(with_fakes: Path, channel: str, tmp_path: Path,
                                      target: str) -> None:
     path = _scenario(tmp_path, duration=5.0)
     out = tmp_path / "out"
@@ -278,7 +266,7 @@ def test_kill_mid_run_ends_within_2s(with_fakes: Path, channel: str, tmp_path: P
     text, _ = proc.communicate(timeout=30)
     elapsed = time.monotonic() - t0
     print(f"ended {elapsed:.3f} s after the {target} event")
-    assert elapsed < 2.0, text
+    assert elapsed < PROMPT_S, text
     data = json.loads((out / "result.json").read_text())
     if target == "plant":
         assert proc.returncode == 1
@@ -352,7 +340,7 @@ def test_scenario_over_socketcan(with_fakes: Path, tmp_path: Path) -> None:
 
 
 def test_xfail_xpass_and_report_outcomes() -> None:
-    from rig import report
+    from rig.results import report
 
     counters = {"rig.x": 3.0}
     fail = sc.Criterion("a", "rig.x", (0.0, 1.0), 1.0)

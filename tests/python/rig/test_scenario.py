@@ -138,16 +138,24 @@ BAD_CASES = [
 ]
 
 
-@pytest.mark.parametrize("text, line, field, fragment", BAD_CASES)
-def test_schema_errors_name_file_line_and_field(tmp_path: Path, text: str, line: int,
-                                                field: str, fragment: str) -> None:
-    path = _write(tmp_path, text)
+def schema_error(tmp: Path, text: str, line: int, field: str,
+                 fragment: str) -> sc.ScenarioError:
+    """The error loading ``text`` raises, which names the file, ``line`` and ``field`` and
+    says ``fragment``."""
+    path = _write(tmp, text)
     with pytest.raises(sc.ScenarioError) as info:
         sc.load_scenario(path)
     msg = str(info.value)
     assert f"{path}:{line}: {field}: " in msg, msg
-    assert fragment in msg
-    assert len(info.value.issues) == 1, msg
+    assert fragment in msg, msg
+    return info.value
+
+
+@pytest.mark.parametrize("text, line, field, fragment", BAD_CASES)
+def test_schema_errors_name_file_line_and_field(tmp_path: Path, text: str, line: int,
+                                                field: str, fragment: str) -> None:
+    error = schema_error(tmp_path, text, line, field, fragment)
+    assert len(error.issues) == 1, str(error)
 
 
 def test_all_problems_are_reported_at_once(tmp_path: Path) -> None:
@@ -342,20 +350,26 @@ def test_duplicate_names_only_on_a_common_profile(tmp_path: Path) -> None:
 
 
 def test_table2_files_are_what_the_generator_writes() -> None:
-    """The grid cells are generated (rig/scenarios/gen_table2.py is their source)."""
-    import importlib.util
+    """The grid cells are generated (rig/scenario/table2.py is their source)."""
+    from rig.scenario import SCENARIO_DIR, table2
 
-    from rig.scenario import SCENARIO_DIR
-
-    spec = importlib.util.spec_from_file_location("gen_table2", SCENARIO_DIR / "gen_table2.py")
-    assert spec is not None and spec.loader is not None
-    gen = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(gen)
-    files = gen.render()
+    files = table2.render()
     assert len(files) == 17
     for name, text in files.items():
-        assert (SCENARIO_DIR / name).read_text() == text, f"{name} is stale: rerun gen_table2.py"
+        assert (SCENARIO_DIR / name).read_text() == text, \
+            f"{name} is stale: rerun rig.scenario.table2"
         assert "not measured yet" not in text, f"{name}: run the grid, then --measured"
+
+
+def test_start_files_are_what_the_generator_writes() -> None:
+    """The starts' scenarios and suite are generated (rig/scenario/starts.py is their source)."""
+    from rig.scenario import SCENARIO_DIR, starts
+
+    files = starts.files()
+    assert len(files) == 14  # 5 starts against a load, 8 flying starts, the suite
+    for name, text in files.items():
+        assert (SCENARIO_DIR / name).read_text() == text, \
+            f"{name} is stale: rerun python -m rig.scenario.starts"
 
 
 COMPARED = '''description = "two runs compared"

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from test_scenario import GOOD, _write
+from test_scenario import GOOD, _write, schema_error
 
 from rig import scenario as sc
 from rig.cli import main as rig_main
@@ -41,12 +41,7 @@ CASES = [
 @pytest.mark.parametrize("text, line, field, fragment", CASES)
 def test_bad_values_name_file_line_and_field(tmp_path: Path, text: str, line: int,
                                              field: str, fragment: str) -> None:
-    path = _write(tmp_path, text)
-    with pytest.raises(sc.ScenarioError) as info:
-        sc.load_scenario(path)
-    msg = str(info.value)
-    assert f"{path}:{line}: {field}: " in msg, msg
-    assert fragment in msg, msg
+    schema_error(tmp_path, text, line, field, fragment)
 
 
 def test_good_overrides_and_firmware_values_load(tmp_path: Path) -> None:

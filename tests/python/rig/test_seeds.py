@@ -8,41 +8,23 @@ import json
 from pathlib import Path
 
 import pytest
+import scenario_text
 
-from rig import cli, scenario, stats
+from rig import cli, scenario
+from rig.regression import stats
 from rig.run import multi_seed
 from rig.run.suite import evaluate_comparison
 from rig.scenario import Comparison
 
-SCENARIO = """\
-description = "seed test scenario"
-profile = "paper"
-duration = 0.25
-{run}
-[[speed]]
-kind = "ramp"
-to = 300.0
-duration = 0.15
-[[speed]]
-kind = "hold"
-duration = 0.1
-[[criteria]]
-name = "position"
-metric = "pos_err_max_deg"
-window = [0.15, "end"]
-limit = {limit}
-[[criteria]]
-name = "mean speed"
-metric = "speed_mean_rpm"
-window = [0.15, "end"]
-limit = 150
-comparison = ">="
-"""
-
 
 def write(folder: Path, name: str, run: str = "", limit: float = 5.0) -> Path:
     path = folder / f"{name}.toml"
-    path.write_text(SCENARIO.format(run=run, limit=limit))
+    path.write_text(scenario_text.scenario(
+        "seed test scenario", profile="paper", duration=0.25,
+        speed=[scenario_text.ramp(300.0, 0.15), scenario_text.hold(0.1)], other=run,
+        criteria=[scenario_text.criterion("position", "pos_err_max_deg", (0.15, "end"), limit),
+                  scenario_text.criterion("mean speed", "speed_mean_rpm", (0.15, "end"), 150,
+                                          ">=")]))
     return path
 
 
@@ -172,11 +154,11 @@ def test_the_seed_dithers_the_start_angle(tmp_path: Path) -> None:
     """Seed 1 is the scenario as written; another seed moves the start by (seed - 1)
     thousandths of a degree on top of the scenario's own start angle, and the set-up a
     baseline is keyed on does not change with it."""
-    from rig import baseline
-    from rig.run.programs import plant_sets
+    from rig.regression import baseline
+    from rig.run.single import bench_configuration
 
     sc = scenario.load_scenario(write(tmp_path, "dither"))
     assert sc.with_seed(1).start_theta_deg == sc.initial_theta_deg
     assert sc.with_seed(4).start_theta_deg == pytest.approx(sc.initial_theta_deg + 0.003)
-    assert "initial.theta_e_deg=0.003" in " ".join(plant_sets(sc.with_seed(4)))
+    assert "initial.theta_e_deg=0.003" in " ".join(bench_configuration(sc.with_seed(4)).plant_sets)
     assert baseline.setup_digest(sc.with_seed(4)) == baseline.setup_digest(sc)

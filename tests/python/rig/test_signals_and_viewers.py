@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import webview
+from rig.results import webview
 
 VENV_BIN = str(Path(sys.executable).parent)
 

@@ -1,4 +1,4 @@
-"""The in-process bench's Python side (rig.sil): configuration errors, frame checks, the
+"""The in-process bench's Python side (rig.bench.sil): configuration errors, frame checks, the
 hardware-parameter table shared with the rig, and the CLI's refusal of real time."""
 
 from __future__ import annotations
@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from rig import _paths, protocols, sil
-from rig.firmware_from_profile import FIRMWARE_FROM_PROFILE
+from rig import _paths, protocols
+from rig.bench import sil
+from rig.bench.configuration import FIRMWARE_FROM_PROFILE
 
 PAPER = _paths.data_dir("profiles") / "paper.toml"
 

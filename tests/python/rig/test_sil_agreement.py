@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import capture, scenario
-from rig.run.result import RunResult
+from rig import scenario
+from rig.data import capture
+from rig.results.result import RunResult
 
 SAMPLE = ("smoke", "fig09_load_step_realtime", "fig08_flux_600rpm@harsh")
 
@@ -62,7 +63,7 @@ def _assert_agree(on_bus: RunResult, inproc: RunResult) -> None:
 
 def _by_message(path: Path) -> dict[str, np.ndarray]:
     from rig import protocols
-    from rig.trace import TraceFile, frame_ids
+    from rig.data.trace import TraceFile, frame_ids
 
     records = np.asarray(TraceFile.open(path).records())
     ids = frame_ids(records["can_id"])

@@ -10,14 +10,14 @@ import subprocess
 import sys
 from pathlib import Path
 
-from rig import bench_startup
+from rig.benchmarks import startup
 
 
 def test_nothing_heavy_is_loaded_before_the_closed_loop_starts(tmp_path: Path) -> None:
-    mark, _imports, _cpu, _wall = bench_startup._child(
+    mark, _imports, _cpu, _wall = startup._child(
         ["run", "smoke", "--bus", "inproc", "--no-record", "--quiet", "--out",
          str(tmp_path / "run")])
-    assert mark["loaded"] == []  # none of bench_startup.HEAVY
+    assert mark["loaded"] == []  # none of startup.HEAVY
     assert (tmp_path / "run" / "result.json").is_file()
 
 
@@ -49,5 +49,5 @@ def test_largest_imports_reads_importtime_lines() -> None:
             "import time:       100 |        150 |   numpy._core\n"
             "import time:        50 |       2000 | numpy\n"
             "import time:        10 |        500 | rig\n")
-    total, top = bench_startup.largest_imports(text, 1)
+    total, top = startup.largest_imports(text, 1)
     assert total == 2.5 and top == [{"module": "numpy", "cumulative_ms": 2.0}]

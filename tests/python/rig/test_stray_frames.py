@@ -13,7 +13,8 @@ from pathlib import Path
 
 import can
 
-from rig import protocols, runner, scenario
+from rig import protocols, scenario
+from rig.run import runner
 
 
 def _inject(out: Path, channel: str, done: threading.Event, drops: list[int]) -> None:

@@ -106,7 +106,7 @@ def test_plots_name_their_units() -> None:
     assert [spec.unit_of(n) for n in ("rs", "ld", "lambda_m", "noise", "dead_time", "vdc",
                                       "magnetics.lq_sat_per_a2", "speed_scale")] == [
         "Ω", "H", "Wb", "A", "s", "V", "1/A²", "factor"]
-    from rig import params
+    from rig.drive import params
 
     assert spec.unit_of("firmware.spd_kp") == params.table().lookup("spd_kp").unit
     rows = [{"point": 0, "param.rs": 1.9, "param.speed_scale": 1.0, "passed": True,

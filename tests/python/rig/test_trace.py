@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rig import protocols
-from rig.trace import (
+from rig.data.trace import (
     HEADER,
     RECORD_DTYPE,
     MessageDecoder,

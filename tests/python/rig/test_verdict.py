@@ -1,6 +1,6 @@
-"""Verdicts only on data that exists (rig.verdict): a criterion whose window the capture does
-not hold, or a run metric of a run that did not reach its end, is not evaluated; a window
-the capture holds is evaluated as before."""
+"""Verdicts only on data that exists (rig.results.verdict): a criterion whose window the
+capture does not hold, or a run metric of a run that did not reach its end, is not
+evaluated; a window the capture holds is evaluated as before."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 from hiltest_support import Synthetic
 
-from rig import capture, report, verdict
 from rig import scenario as sc
+from rig.data import capture
+from rig.results import report, verdict
 
 PLANNED = 2000  # a scenario of 0.2 s
 

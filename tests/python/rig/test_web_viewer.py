@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from rig import browser, cli, recording, webview
+from rig import cli
+from rig.results import browser, recording, webview
 
 pytestmark = pytest.mark.skipif(
     browser.chromium_path() is None,

@@ -1,4 +1,4 @@
-"""The web viewer's server (rig.webview): it listens where it says, says when a port is
+"""The web viewer's server (rig.results.webview): it listens where it says, says when a port is
 taken, and leaves no process behind (python -m rerun runs the viewer binary as a child)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import webview
+from rig.results import webview
 
 
 def _group(pgid: int) -> str:

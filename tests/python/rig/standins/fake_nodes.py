@@ -32,7 +32,7 @@ import can
 
 from rig import bus as rigbus
 from rig import protocols
-from rig.trace import TraceWriter
+from rig.data.trace import TraceWriter
 
 TS = protocols.timebase().ts
 POLE_PAIRS = 2

@@ -1,0 +1,41 @@
+"""Runs a scenario: once (``rig.run.single``), or once per seed of its own and decided over
+all of them (``rig.run.multi_seed``, ``[run] seeds``); and what ``rig run`` exits with."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rig import outputs
+from rig.results.result import RunResult
+from rig.run.multi_seed import run_over_own_seeds
+from rig.run.options import RunOptions
+from rig.run.single import run_single
+from rig.scenario import Scenario
+
+__all__ = ["RunOptions", "default_out", "exit_code", "run_scenario"]
+
+EXIT_PASS = 0
+EXIT_FAIL = 1
+EXIT_USAGE = 2
+EXIT_ENV = 3
+EXIT_INTERRUPTED = 130
+
+
+def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
+    """Runs one scenario into ``opts.out``; always writes result.json and report.md."""
+    if sc.seeds:
+        return run_over_own_seeds(sc, opts)
+    return run_single(sc, opts)
+
+
+def exit_code(passed: bool, status: str) -> int:
+    if passed:
+        return EXIT_PASS
+    if status == "error":
+        return EXIT_ENV
+    return EXIT_FAIL
+
+
+def default_out(name: str) -> Path:
+    """``$HIL_OUT`` (else ``./out``) / ``<name>-<YYYYmmdd-HHMMSS>`` (``rig.outputs``)."""
+    return outputs.default_out(name)
