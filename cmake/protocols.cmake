@@ -25,15 +25,20 @@ set(HIL_WIRE_GEN ${CMAKE_SOURCE_DIR}/firmware_c2000/tools/gen_wire.py)
 set(HIL_WIRE_DEPENDS ${HIL_WIRE_GEN} ${CMAKE_SOURCE_DIR}/firmware_c2000/tools/c_codegen.py
     ${CMAKE_SOURCE_DIR}/protocols/drive.dbc ${CMAKE_SOURCE_DIR}/protocols/vio.dbc
     ${CMAKE_SOURCE_DIR}/protocols/bench.dbc)
-execute_process(
-  COMMAND ${Python3_EXECUTABLE} ${HIL_WIRE_GEN} host ${HIL_GEN_DIR} ${CMAKE_SOURCE_DIR}/protocols
-  RESULT_VARIABLE HIL_WIRE_RESULT
-  ERROR_VARIABLE HIL_WIRE_ERROR)
-if(NOT HIL_WIRE_RESULT EQUAL 0)
-  message(FATAL_ERROR "gen_wire.py host failed: ${HIL_WIRE_ERROR}")
-endif()
+# hil_arrays.h: the signals spelled <name>_<k> (VIO_ADC_x.ia_k, VIO_PWM.soc_k) read and written
+# by index, so neither side unrolls them by hand.
+foreach(mode host arrays)
+  execute_process(
+    COMMAND ${Python3_EXECUTABLE} ${HIL_WIRE_GEN} ${mode} ${HIL_GEN_DIR}
+            ${CMAKE_SOURCE_DIR}/protocols
+    RESULT_VARIABLE HIL_WIRE_RESULT
+    ERROR_VARIABLE HIL_WIRE_ERROR)
+  if(NOT HIL_WIRE_RESULT EQUAL 0)
+    message(FATAL_ERROR "gen_wire.py ${mode} failed: ${HIL_WIRE_ERROR}")
+  endif()
+endforeach()
 set_property(DIRECTORY APPEND PROPERTY CMAKE_CONFIGURE_DEPENDS ${HIL_WIRE_DEPENDS})
-list(APPEND HIL_PROTOCOL_SOURCES ${HIL_GEN_DIR}/hil_wire.c)
+list(APPEND HIL_PROTOCOL_SOURCES ${HIL_GEN_DIR}/hil_wire.c ${HIL_GEN_DIR}/hil_arrays.c)
 
 add_library(hil_protocols STATIC ${HIL_PROTOCOL_SOURCES})
 target_include_directories(hil_protocols PUBLIC ${HIL_GEN_DIR})

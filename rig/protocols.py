@@ -99,3 +99,9 @@ def timebase() -> TimeBase:
     return TimeBase(_attribute("vio", "HilTbclkHz"), _attribute("vio", "HilTbprd"),
                     _attribute("drive", "HilSpeedLoopDivider"))
 
+
+
+def id_range(db: str) -> tuple[int, int]:
+    """The 11-bit CAN IDs a database owns, (first, last) both included: its attributes
+    ``HilIdFirst``, ``HilIdLast`` (the C programs get theirs generated into hil_wire.h)."""
+    return _attribute(db, "HilIdFirst"), _attribute(db, "HilIdLast")

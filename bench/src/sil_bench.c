@@ -1,5 +1,7 @@
 /* sil_bench.c - see sil_bench.h. The glue between the plant's and the firmware's frame code;
- * everything that decides a value lives in the units the bus programs link. */
+ * everything that decides a value lives in the units the bus programs link: the firmware side
+ * is fw_host's own state and frame handlers (fw_host.h), sending through a sink into this
+ * bench instead of onto a bus. */
 #define _POSIX_C_SOURCE 199309L /* clock_gettime */
 #include "sil_bench.h"
 
@@ -10,13 +12,14 @@
 #include <string.h>
 #include <time.h>
 
-#include "adc_assembly.h"
 #include "core_journal.h"
 #include "drive_codec.h"
 #include "fw_core.h"
+#include "fw_host.h"
 #include "hil_bench.h"
 #include "hil_drive.h"
 #include "hil_vio.h"
+#include "hil_wire.h"
 #include "hiltrace.h"
 #include "param_file.h"
 #include "plant_core.h"
@@ -25,16 +28,19 @@
 #include "vio_codec.h"
 
 struct sil_bench {
-    fw_core_t core; /* first: the large, aligned member */
+    fwh_t fw; /* first (holds the large control core): fw_host's state, handlers' sink here */
     plant_t *plant;
     plant_link_t link;      /* frame faults and the exchange of each period (plant_link.h) */
     /* the ADC frames of a period as they leave the plant (with held-back ones now due) */
     struct canfd_frame out[PLANT_VIO_ADC_FRAMES_MAX + PLANT_LINK_HELD_MAX];
-    fwh_adc_asm_t adc;
     plant_pwm_cmd_t pwm;    /* command of the plant's next period */
     plant_truth_t truth;    /* at the start of the last simulated period */
-    hiltrace_t *plant_trace, *fw_trace;
+    hiltrace_t *plant_trace;
     int trace_vio;
+    struct canfd_frame pwm_out; /* VIO_PWM the firmware sent while handling a frame */
+    int pwm_sent;
+    uint32_t sync_seq;
+    char line[256];          /* the firmware's last rejection or log line */
     int timing;
     double last_isr_ns;
     uint8_t alive;
@@ -42,9 +48,8 @@ struct sil_bench {
     void *hook_ctx;
     fw_adc_t last_adc;
     fw_pwm_t last_pwm;
-    sil_bench_stats_t st;
+    sil_bench_stats_t st;   /* the plant's side and the timings (the firmware's: fw.cnt) */
     uint64_t plant_rejects[PLANT_REJ_COUNT];
-    uint64_t fw_rejects[FWH_REJ_COUNT];
     core_journal_t *journal; /* every core call (sil_bench_journal_open), or NULL */
 };
 
@@ -116,37 +121,71 @@ static void fail(char *err, size_t errlen, const char *fmt, ...)
     va_end(ap);
 }
 
-/* The three calls into the core while running, each journalled when a journal is open. */
-static void core_isr(sil_bench_t *b, const fw_adc_t *adc, fw_pwm_t *pwm)
+/* The handlers' calls into the core (fwh_core_calls_t), each journalled when a journal is
+ * open; the ISR timed (sil_bench_time_isr) and its ADC data first handed to the hook. */
+static void core_isr(void *ctx, fw_core_t *core, const fw_adc_t *adc, fw_pwm_t *pwm)
 {
-    core_journal_before(b->journal, &b->core);
+    sil_bench_t *b = (sil_bench_t *)ctx;
+    if (adc != NULL) {
+        b->last_adc = *adc;
+        if (b->hook != NULL) {
+            b->hook(b->hook_ctx, &b->last_adc);
+        }
+        adc = &b->last_adc;
+    }
+    core_journal_before(b->journal, core);
     if (b->timing) {
         const double t0 = now_ns();
-        fw_core_isr(&b->core, adc, pwm);
+        fw_core_isr(core, adc, pwm);
         b->last_isr_ns = now_ns() - t0;
         b->st.isr_ns_total += b->last_isr_ns;
     } else {
-        fw_core_isr(&b->core, adc, pwm);
+        fw_core_isr(core, adc, pwm);
     }
-    core_journal_isr(b->journal, &b->core, adc, pwm);
+    core_journal_isr(b->journal, core, adc, pwm);
+    if (adc != NULL) {
+        b->last_pwm = *pwm;
+    }
 }
 
-static int16_t core_command(sil_bench_t *b, const fw_cmd_t *cmd)
+static int16_t core_command(void *ctx, fw_core_t *core, const fw_cmd_t *cmd)
 {
+    sil_bench_t *b = (sil_bench_t *)ctx;
     int16_t st;
-    core_journal_before(b->journal, &b->core);
-    st = fw_core_command(&b->core, cmd);
+    core_journal_before(b->journal, core);
+    st = fw_core_command(core, cmd);
     core_journal_command(b->journal, cmd, st);
     return st;
 }
 
-static int16_t core_limits(sil_bench_t *b, real_t i_max, real_t speed_max, real_t accel)
+static int16_t core_limits(void *ctx, fw_core_t *core, real_t i_max, real_t speed_max,
+                           real_t accel)
 {
+    sil_bench_t *b = (sil_bench_t *)ctx;
     int16_t st;
-    core_journal_before(b->journal, &b->core);
-    st = fw_core_set_limits(&b->core, i_max, speed_max, accel);
+    core_journal_before(b->journal, core);
+    st = fw_core_set_limits(core, i_max, speed_max, accel);
     core_journal_limits(b->journal, i_max, speed_max, accel, st);
     return st;
+}
+
+/* The handlers' sink: VIO_PWM kept for the plant; DRIVE_STATUS and VIO_SYNC_ACK have no
+ * receiver here (the bench is in lockstep by construction). */
+static int sink_send(void *ctx, const struct canfd_frame *f, int fd)
+{
+    sil_bench_t *b = (sil_bench_t *)ctx;
+    (void)fd;
+    if ((f->can_id & CAN_SFF_MASK) == HIL_VIO_VIO_PWM_FRAME_ID) {
+        b->pwm_out = *f;
+        b->pwm_sent = 1;
+    }
+    return 0;
+}
+
+static void sink_log(void *ctx, const char *line)
+{
+    sil_bench_t *b = (sil_bench_t *)ctx;
+    snprintf(b->line, sizeof(b->line), "%s", line);
 }
 
 static int open_plant(sil_bench_t *b, const sil_bench_config_t *cfg, char *err, size_t errlen)
@@ -180,9 +219,17 @@ static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *er
     char msg[512];
     int k, failed = 0, changed = 0;
     int16_t st;
-    fw_core_init(&b->core);
-    fwh_adc_init(&b->adc);
-    fwh_adc_lockstep(&b->adc); /* as fw_host in lockstep: periods skip only behind a barrier */
+    fw_core_init(&b->fw.core);
+    fwh_adc_init(&b->fw.adc);
+    fwh_adc_lockstep(&b->fw.adc); /* as fw_host in lockstep: periods skip only behind a barrier */
+    b->fw.pty.master = -1;        /* no console */
+    b->fw.sink.send = sink_send;
+    b->fw.sink.log = sink_log;
+    b->fw.sink.ctx = b;
+    b->fw.calls.isr = core_isr;
+    b->fw.calls.command = core_command;
+    b->fw.calls.limits = core_limits;
+    b->fw.calls.ctx = b;
     if (cfg->n_fw_sets + N_HARDWARE > FWH_PARAM_ITEMS_MAX) {
         fail(err, errlen, "firmware: more than %d parameters", FWH_PARAM_ITEMS_MAX - N_HARDWARE);
         return -1;
@@ -212,7 +259,7 @@ static int open_firmware(sil_bench_t *b, const sil_bench_config_t *cfg, char *er
         fw_sets.items[fw_sets.n].line = fw_sets.n + 1;
         fw_sets.n++;
     }
-    st = fw_sets.n > 0 ? fwh_params_apply(&b->core, &fw_sets, &failed, &changed) : FW_STATUS_OK;
+    st = fw_sets.n > 0 ? fwh_params_apply(&b->fw.core, &fw_sets, &failed, &changed) : FW_STATUS_OK;
     if (st != FW_STATUS_OK) {
         fail(err, errlen,
              "firmware: %s: rejected by the control core (status %d: not a whole number, or "
@@ -241,7 +288,7 @@ sil_bench_t *sil_bench_open(const sil_bench_config_t *cfg, char *err, size_t err
         sil_bench_close(b);
         return NULL;
     }
-    if (cfg->fw_trace != NULL && (b->fw_trace = hiltrace_open(cfg->fw_trace)) == NULL) {
+    if (cfg->fw_trace != NULL && (b->fw.trace = hiltrace_open(cfg->fw_trace)) == NULL) {
         fail(err, errlen, "trace: cannot create %s: %s", cfg->fw_trace, strerror(errno));
         sil_bench_close(b);
         return NULL;
@@ -263,7 +310,7 @@ int sil_bench_close(sil_bench_t *b)
     if (b->plant_trace != NULL && hiltrace_close(b->plant_trace) != 0) {
         rc = -1;
     }
-    if (b->fw_trace != NULL && hiltrace_close(b->fw_trace) != 0) {
+    if (b->fw.trace != NULL && hiltrace_close(b->fw.trace) != 0) {
         rc = -1;
     }
     plant_free(b->plant);
@@ -273,54 +320,26 @@ int sil_bench_close(sil_bench_t *b)
 
 /* ------------------------------------------------------------------------ frames in */
 
-static int reject_fw(sil_bench_t *b, int reason, const char *why, char *err, size_t errlen)
-{
-    b->fw_rejects[reason]++;
-    b->st.fw_rejected++;
-    fail(err, errlen, "firmware rejected (%s): %s", fwh_reject_name(reason), why);
-    return -1;
-}
-
+/* A drive-protocol frame through fw_host's handler (drive_protocol.c). PARAM_REQ is not
+ * served here: parameters are set at open, and the bench has no way back to the requester. */
 static int drive_frame(sil_bench_t *b, const struct canfd_frame *f, int fd, char *err,
                        size_t errlen)
 {
-    char why[200];
+    char why[160];
     int reason = 0;
-    switch (fwh_drive_classify(f, fd, &reason, why, sizeof(why))) {
-    case FWH_DRIVE_REJECTED:
-        return reject_fw(b, reason, why, err, errlen);
-    case FWH_DRIVE_CMD: {
-        fw_cmd_t cmd;
-        if (fwh_drive_cmd_decode(f->data, f->len, &cmd, why, sizeof(why)) != 0) {
-            return reject_fw(b, FWH_REJ_OUT_OF_RANGE, why, err, errlen);
-        }
-        b->st.drive_cmds++;
-        if (core_command(b, &cmd) != FW_STATUS_OK) {
-            b->st.cmds_refused++; /* DRIVE_STATUS.cmd_status says so, as on the bus */
-        }
-        return 0;
-    }
-    case FWH_DRIVE_LIMITS: {
-        fwh_limits_t lim;
-        if (fwh_drive_limits_decode(f->data, f->len, &lim, why, sizeof(why)) != 0) {
-            return reject_fw(b, FWH_REJ_OUT_OF_RANGE, why, err, errlen);
-        }
-        b->st.limits++;
-        if (core_limits(b, (real_t)lim.i_max_a, (real_t)lim.speed_max_rpm,
-                               (real_t)lim.accel_rpm_s) != FW_STATUS_OK) {
-            b->st.limits_refused++;
-            return reject_fw(b, FWH_REJ_REFUSED, "DRIVE_LIMITS refused by the control core",
-                             err, errlen);
-        }
-        return 0;
-    }
-    case FWH_DRIVE_PARAM_REQ:
+    const int kind = fwh_drive_classify(f, fd, &reason, why, sizeof(why));
+    const uint64_t rejected = fwh_rejected_total(&b->fw);
+    if (kind == FWH_DRIVE_PARAM_REQ) {
         fail(err, errlen, "PARAM_REQ: not served by the in-process bench (parameters are set "
                           "at open)");
         return 1;
-    default:
-        return 1; /* what a drive sends */
     }
+    fwh_drive_frame(&b->fw, f, fd);
+    if (fwh_rejected_total(&b->fw) != rejected) {
+        fail(err, errlen, "firmware %s", b->line);
+        return -1;
+    }
+    return kind == FWH_DRIVE_NOT_OURS ? 1 : 0; /* what a drive sends */
 }
 
 int sil_bench_frame(sil_bench_t *b, uint32_t can_id, int fd, const uint8_t *data, uint8_t len,
@@ -361,7 +380,7 @@ int sil_bench_frame(sil_bench_t *b, uint32_t can_id, int fd, const uint8_t *data
         b->st.load_cmds++;
         return 0;
     }
-    if (id >= 0x100u && id <= 0x1FFu) {
+    if (hil_drive_id_in_range(id)) {
         return drive_frame(b, &f, fd, err, errlen);
     }
     return 1;
@@ -423,74 +442,41 @@ static void trace(sil_bench_t *b, hiltrace_t *t, const struct canfd_frame *f)
     }
 }
 
-static void fw_trace(sil_bench_t *b)
+/* Rejections that refuse a frame (an incomplete period is counted but refuses nothing). */
+static uint64_t refusals(const fwh_t *fw)
 {
-    fw_status_t s;
-    struct canfd_frame f;
-    if (b->fw_trace == NULL) {
-        return;
-    }
-    fw_core_status(&b->core, &s);
-    fwh_vio_trace_pack(&s, &f);
-    if (hiltrace_write(b->fw_trace, &f) == 0) {
-        b->st.trace_records++;
-    } else {
-        b->st.trace_errors++;
-    }
+    return fwh_rejected_total(fw) - fw->cnt.rejects[FWH_REJ_INCOMPLETE];
 }
 
-/* The firmware side of one ADC frame (bus_io.c's feed() without the bus): 1 when the ISR ran
- * and *pwm_frame holds VIO_PWM of the next period, 0 when more frames are needed, -1 when
- * the data was refused. */
-static int firmware_adc(sil_bench_t *b, const struct canfd_frame *adc_frame,
-                        struct canfd_frame *pwm_frame)
+/* One ADC frame through fw_host's handler (bus_io.c: feed, the ISRs of lost periods, the
+ * ISR, VIO_PWM out): 1 when *pwm holds the VIO_PWM it sent, 0 when more frames are needed,
+ * -1 when the data was refused. */
+static int firmware_adc(sil_bench_t *b, const struct canfd_frame *adc, struct canfd_frame *pwm)
 {
-    fwh_vio_adc_t m;
-    fwh_adc_result_t r;
-    char why[160];
-    int reason = 0;
-    uint32_t k;
-    fw_pwm_t pwm;
-    if (fwh_vio_adc_decode(adc_frame, 1, &m, &reason, why, sizeof(why)) <= 0 ||
-        !fwh_vio_adc_codes_ok(&b->core, &m, &reason, why, sizeof(why))) {
-        reject_fw(b, reason, why, NULL, 0);
+    const uint64_t refused = refusals(&b->fw);
+    b->pwm_sent = 0;
+    fwh_bus_vio_frame(&b->fw, adc, 1, 0);
+    if (refusals(&b->fw) != refused) {
         return -1;
     }
-    fwh_adc_feed(&b->adc, m.index, m.period, (int16_t)m.n_soc, m.vdc, m.ia, m.ib, &r);
-    if (r.incomplete) {
-        b->fw_rejects[FWH_REJ_INCOMPLETE]++;
-        b->st.fw_rejected++;
-    }
-    for (k = 0; k < r.n_lost; k++) {
-        core_isr(b, NULL, &pwm);
-        b->st.isr_no_data++;
-        fw_trace(b);
-    }
-    if (r.verdict != FWH_ADC_OK) {
-        const int why_code = r.verdict == FWH_ADC_STALE    ? FWH_REJ_STALE_PERIOD
-                             : r.verdict == FWH_ADC_FUTURE ? FWH_REJ_FUTURE_PERIOD
-                                                           : FWH_REJ_MALFORMED;
-        b->fw_rejects[why_code]++;
-        b->st.fw_rejected++;
-        return -1;
-    }
-    if (!r.complete) {
-        return 0;
-    }
-    b->last_adc = *r.adc;
-    if (b->hook != NULL) {
-        b->hook(b->hook_ctx, &b->last_adc);
-    }
-    core_isr(b, &b->last_adc, &pwm);
-    b->last_pwm = pwm;
-    if (!fwh_vio_pwm_pack(&pwm, r.adc->period + 1u, pwm_frame)) {
-        b->st.pwm_invalid++;
-    }
-    if (!r.repeat) {
-        b->st.isr++;
-        fw_trace(b);
-    }
-    return 1;
+    *pwm = b->pwm_out;
+    return b->pwm_sent;
+}
+
+/* VIO_SYNC after the period's frames, as plant_rt sends it after a faulted exchange: the
+ * firmware's handler marks the barrier (the plant may skip periods from now on). */
+static void firmware_sync(sil_bench_t *b, uint32_t period)
+{
+    struct hil_vio_vio_sync_t m;
+    struct canfd_frame f;
+    memset(&m, 0, sizeof(m));
+    memset(&f, 0, sizeof(f));
+    m.period = period;
+    m.seq = b->sync_seq++;
+    f.can_id = HIL_VIO_VIO_SYNC_FRAME_ID;
+    f.len = HIL_VIO_VIO_SYNC_LENGTH;
+    hil_vio_vio_sync_pack(f.data, &m, sizeof(f.data));
+    fwh_bus_vio_frame(&b->fw, &f, 1, 0);
 }
 
 int sil_bench_step(sil_bench_t *b)
@@ -552,7 +538,7 @@ int sil_bench_step(sil_bench_t *b)
     if (barrier) {
         /* the barrier (VIO_SYNC after the period's frames, as on the bus): everything the
          * firmware made of these frames is in */
-        fwh_adc_barrier(&b->adc);
+        firmware_sync(b, s.period);
         plant_link_resolve(&b->link);
     }
     if (!plant_link_decided(&b->link)) {
@@ -578,9 +564,22 @@ uint32_t sil_bench_next_period(const sil_bench_t *b)
     return plant_next_period(b->plant);
 }
 
+/* The plant's side and the timings as counted here, the firmware's from fw_host's counters
+ * (isr there counts the ISRs without data too). */
 void sil_bench_get_stats(const sil_bench_t *b, sil_bench_stats_t *stats)
 {
+    const fwh_counters_t *c = &b->fw.cnt;
     *stats = b->st;
+    stats->isr = c->isr - c->isr_no_data;
+    stats->isr_no_data = c->isr_no_data;
+    stats->pwm_invalid = c->pwm_invalid;
+    stats->fw_rejected = fwh_rejected_total(&b->fw);
+    stats->drive_cmds = c->drive_cmds;
+    stats->cmds_refused = c->cmds_refused;
+    stats->limits = c->limits;
+    stats->limits_refused = c->rejects[FWH_REJ_REFUSED]; /* DRIVE_LIMITS only */
+    stats->trace_records = c->trace_records;
+    stats->trace_errors = b->st.trace_errors + c->trace_errors;
 }
 
 void sil_bench_time_isr(sil_bench_t *b, int on)
@@ -600,7 +599,7 @@ int sil_bench_journal_open(sil_bench_t *b, const char *path, const uint32_t *win
         fail(err, errlen, "journal: already open");
         return -1;
     }
-    b->journal = core_journal_open(path, &b->core, win_start, win_len, n_win, err, errlen);
+    b->journal = core_journal_open(path, &b->fw.core, win_start, win_len, n_win, err, errlen);
     return b->journal != NULL ? 0 : -1;
 }
 
@@ -627,7 +626,7 @@ struct plant *sil_bench_plant(sil_bench_t *b)
 
 struct fw_core *sil_bench_core(sil_bench_t *b)
 {
-    return &b->core;
+    return &b->fw.core;
 }
 
 const struct plant_truth *sil_bench_truth(const sil_bench_t *b)
@@ -666,21 +665,23 @@ int sil_bench_counters_json(const sil_bench_t *b, char *buf, size_t len)
 {
     size_t used = 0;
     plant_stats_t ps;
+    sil_bench_stats_t st;
     fw_status_t s;
     int k;
     plant_get_stats(b->plant, &ps);
-    fw_core_status(&b->core, &s);
+    sil_bench_get_stats(b, &st);
+    fw_core_status(&b->fw.core, &s);
     APPEND("{\"plant\": {\"program\": \"sil_bench\", \"mode\": \"inproc\", \"periods\": %llu, "
            "\"next_period\": %u, \"rejected\": %llu, \"rejects\": {",
-           (unsigned long long)b->st.periods, (unsigned)plant_next_period(b->plant),
-           (unsigned long long)b->st.plant_rejected);
+           (unsigned long long)st.periods, (unsigned)plant_next_period(b->plant),
+           (unsigned long long)st.plant_rejected);
     for (k = 1; k < PLANT_REJ_COUNT; k++) {
         APPEND("%s\"%s\": %llu", k > 1 ? ", " : "", plant_reject_name(k),
                (unsigned long long)b->plant_rejects[k]);
     }
     APPEND("}, \"adc_clipped\": %llu, \"load_cmds\": %llu, \"conduction_events\": %llu, "
            "\"newton_failures\": %llu, \"mode_loops_cut\": %llu, \"late_cmds\": %llu, ",
-           (unsigned long long)b->st.adc_clipped, (unsigned long long)b->st.load_cmds,
+           (unsigned long long)st.adc_clipped, (unsigned long long)st.load_cmds,
            (unsigned long long)ps.conduction_events, (unsigned long long)ps.newton_failures,
            (unsigned long long)ps.mode_loops_cut, (unsigned long long)b->link.st.held);
     {
@@ -690,17 +691,17 @@ int sil_bench_counters_json(const sil_bench_t *b, char *buf, size_t len)
     }
     APPEND("\"firmware\": {\"program\": \"sil_bench\", \"mode\": \"inproc\", \"isr\": %llu, "
            "\"isr_no_data\": %llu, \"pwm_invalid\": %llu, \"rx_rejected\": %llu, \"rejects\": {",
-           (unsigned long long)b->st.isr, (unsigned long long)b->st.isr_no_data,
-           (unsigned long long)b->st.pwm_invalid, (unsigned long long)b->st.fw_rejected);
+           (unsigned long long)st.isr, (unsigned long long)st.isr_no_data,
+           (unsigned long long)st.pwm_invalid, (unsigned long long)st.fw_rejected);
     for (k = 0; k < FWH_REJ_COUNT; k++) {
         APPEND("%s\"%s\": %llu", k ? ", " : "", fwh_reject_name(k),
-               (unsigned long long)b->fw_rejects[k]);
+               (unsigned long long)b->fw.cnt.rejects[k]);
     }
     APPEND("}, \"drive_cmds\": %llu, \"cmds_refused\": %llu, \"limits\": %llu, "
            "\"trace_records\": %llu, \"trace_errors\": %llu, \"fault_code\": %u, "
            "\"core_overruns\": %u}}",
-           (unsigned long long)b->st.drive_cmds, (unsigned long long)b->st.cmds_refused,
-           (unsigned long long)b->st.limits, (unsigned long long)b->st.trace_records,
-           (unsigned long long)b->st.trace_errors, s.fault_code, s.isr_overruns);
+           (unsigned long long)st.drive_cmds, (unsigned long long)st.cmds_refused,
+           (unsigned long long)st.limits, (unsigned long long)st.trace_records,
+           (unsigned long long)st.trace_errors, s.fault_code, s.isr_overruns);
     return (int)used;
 }

@@ -3,12 +3,17 @@
 
 #include <string.h>
 
-static const int first_soc[3] = {0, 7, 14};
-static const int socs_in[3] = {7, 7, 2};
+#include "hil_arrays.h"
+
+/* The SOCs VIO_ADC_0..2 carry (ia_<k>, ib_<k> of vio.dbc) */
+static const int first_soc[3] = {HIL_VIO_VIO_ADC_0_IA_FIRST, HIL_VIO_VIO_ADC_1_IA_FIRST,
+                                 HIL_VIO_VIO_ADC_2_IA_FIRST};
+static const int socs_in[3] = {HIL_VIO_VIO_ADC_0_IA_COUNT, HIL_VIO_VIO_ADC_1_IA_COUNT,
+                               HIL_VIO_VIO_ADC_2_IA_COUNT};
 
 int fwh_adc_frames_for(int16_t n_soc)
 {
-    return n_soc > 14 ? 3 : n_soc > 7 ? 2 : 1;
+    return n_soc > first_soc[2] ? 3 : n_soc > first_soc[1] ? 2 : 1;
 }
 
 void fwh_adc_init(fwh_adc_asm_t *a)

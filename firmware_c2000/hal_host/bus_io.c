@@ -18,14 +18,6 @@
 #include "hil_vio.h"
 #include "vio_codec.h"
 
-#define VIO_RANGE_LO 0x10u
-#define VIO_RANGE_HI 0x2Fu
-
-int fwh_bus_is_vio(uint32_t id)
-{
-    return id >= VIO_RANGE_LO && id <= VIO_RANGE_HI;
-}
-
 /* ------------------------------------------------------------------------ PWM out */
 
 static void send_pwm(fwh_t *app, const fw_pwm_t *p, uint32_t want_period)
@@ -37,7 +29,7 @@ static void send_pwm(fwh_t *app, const fw_pwm_t *p, uint32_t want_period)
                      "%d, gate_enable %d): sent with the gates off",
                 (unsigned long)want_period, (unsigned long)p->period, p->n_soc, p->gate_enable);
     }
-    (void)hilbus_send(app->bus, &f, 1); /* failures and drops are counted by hilbus */
+    (void)fwh_send(app, &f, 1); /* failures and drops are counted by the sink's owner */
     app->cnt.pwm_sent++;
 }
 
@@ -58,7 +50,7 @@ static void write_trace(fwh_t *app, const fw_status_t *s)
         }
     }
     if (app->opt.send_trace) {
-        if (hilbus_send(app->bus, &f, 1) == 0) {
+        if (fwh_send(app, &f, 1) == 0) {
             app->cnt.trace_sent++;
         } else {
             app->cnt.fw_trace_tx_errors++;
@@ -84,7 +76,7 @@ static void run_isr_without_data(fwh_t *app)
 {
     fw_pwm_t pwm;
     fwh_command_refresh(app, hil_now_ns());
-    fw_core_isr(&app->core, NULL, &pwm);
+    fwh_core_isr(app, NULL, &pwm);
     app->cnt.isr++;
     app->cnt.isr_no_data++;
     after_isr(app);
@@ -97,7 +89,7 @@ static void run_isr(fwh_t *app, const fw_adc_t *adc, int repeat, int64_t t_rx_ns
     if (!repeat) {
         fwh_command_refresh(app, t_rx_ns);
     }
-    fw_core_isr(&app->core, adc, &pwm);
+    fwh_core_isr(app, adc, &pwm);
     send_pwm(app, &pwm, adc->period + 1u);
     latency = hil_now_ns() - t_rx_ns;
     if (latency > app->cnt.max_latency_ns) {
@@ -182,7 +174,7 @@ static void answer_sync(fwh_t *app, const struct canfd_frame *f, int fd)
     out.can_id = HIL_VIO_VIO_SYNC_ACK_FRAME_ID;
     out.len = HIL_VIO_VIO_SYNC_ACK_LENGTH;
     hil_vio_vio_sync_ack_pack(out.data, &ack, sizeof(out.data));
-    (void)hilbus_send(app->bus, &out, 1); /* failures and drops are counted by hilbus */
+    (void)fwh_send(app, &out, 1); /* failures and drops are counted by the sink's owner */
     app->cnt.syncs++;
 }
 

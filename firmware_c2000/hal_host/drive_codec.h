@@ -19,8 +19,8 @@ enum {
     FWH_DRIVE_PARAM_REQ
 };
 
-/* What a frame of the drive range (0x100-0x1FF, flags checked by the caller) is: one of the
- * FWH_DRIVE_* kinds; unknown ids, CAN FD frames and wrong lengths are FWH_DRIVE_REJECTED. */
+/* What a frame of the drive range (hil_drive_id_in_range, flags checked by the caller) is:
+ * one of the FWH_DRIVE_* kinds; unknown ids, CAN FD frames and wrong lengths are FWH_DRIVE_REJECTED. */
 int fwh_drive_classify(const struct canfd_frame *f, int fd, int *reason, char *why,
                        size_t whylen);
 

@@ -20,14 +20,7 @@
 #include "hil_drive.h"
 #include "param_file.h"
 
-#define DRIVE_RANGE_LO 0x100u
-#define DRIVE_RANGE_HI 0x1FFu
 #define PARAM_VALUE_LIMIT 1.0e9f /* PARAM_RESP.value range */
-
-int fwh_drive_is_drive(uint32_t id)
-{
-    return id >= DRIVE_RANGE_LO && id <= DRIVE_RANGE_HI;
-}
 
 static void send_classic(fwh_t *app, uint32_t id, const uint8_t *data, uint8_t len)
 {
@@ -36,14 +29,14 @@ static void send_classic(fwh_t *app, uint32_t id, const uint8_t *data, uint8_t l
     f.can_id = id;
     f.len = len;
     memcpy(f.data, data, len);
-    (void)hilbus_send(app->bus, &f, 0); /* failures are counted by hilbus (tx_errors) */
+    (void)fwh_send(app, &f, 0); /* failures are counted by the sink's owner */
 }
 
 /* ------------------------------------------------------------------------ commands */
 
 int16_t fwh_command(fwh_t *app, const fw_cmd_t *cmd, int owner)
 {
-    int16_t st = fw_core_command(&app->core, cmd);
+    int16_t st = fwh_core_command(app, cmd);
     if (st == FW_STATUS_OK) {
         app->cmd = *cmd;
         app->owner = owner;
@@ -53,10 +46,9 @@ int16_t fwh_command(fwh_t *app, const fw_cmd_t *cmd, int owner)
 
 void fwh_command_refresh(fwh_t *app, int64_t now_ns)
 {
-    static int refreshing;
     int live;
     if (app->owner != FWH_OWNER_CONSOLE) {
-        refreshing = 0;
+        app->console_refreshing = 0;
         return;
     }
     live = app->console_connected &&
@@ -65,10 +57,10 @@ void fwh_command_refresh(fwh_t *app, int64_t now_ns)
     if (live) {
         fw_cmd_t c = app->cmd;
         c.fault_reset = 0;
-        (void)fw_core_command(&app->core, &c);
-        refreshing = 1;
-    } else if (refreshing) {
-        refreshing = 0;
+        (void)fwh_core_command(app, &c);
+        app->console_refreshing = 1;
+    } else if (app->console_refreshing) {
+        app->console_refreshing = 0;
         app->cnt.console_keepalive_lapses++;
         fwh_log(app, "console session %s: its command is no longer refreshed (the command "
                      "time-out protects the drive)",
@@ -105,8 +97,8 @@ static void on_drive_limits(fwh_t *app, const uint8_t *data, uint8_t len)
         return;
     }
     app->cnt.limits++;
-    if (fw_core_set_limits(&app->core, (real_t)lim.i_max_a, (real_t)lim.speed_max_rpm,
-                           (real_t)lim.accel_rpm_s) != FW_STATUS_OK) {
+    if (fwh_core_limits(app, (real_t)lim.i_max_a, (real_t)lim.speed_max_rpm,
+                        (real_t)lim.accel_rpm_s) != FW_STATUS_OK) {
         fwh_reject(app, FWH_REJ_REFUSED,
                    "DRIVE_LIMITS refused by the control core: i_max %.3f A (must stay below "
                    "oc_trip_a), speed_max %.0f r/min, accel %.1f r/min/s",

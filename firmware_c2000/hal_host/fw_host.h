@@ -4,6 +4,10 @@
  * The ISR runs when the ADC data of a PWM period is complete (bus_io.c); the drive protocol
  * (drive_protocol.c) and the SCI console (console.c) act on the core between ISRs, as the
  * background loop of the DSP does.
+ *
+ * The frame handlers (bus_io.c, drive_protocol.c) know no bus: they send through the sink
+ * in their state, so fw_host (main.c: the bus), the in-process bench (bench/: its plant) and
+ * the fuzz harnesses (nowhere) run the same handlers.
  */
 #ifndef FW_HOST_H
 #define FW_HOST_H
@@ -37,6 +41,26 @@ typedef struct {
     int64_t first_period; /* --first-period, or -1: the first ADC period may be any */
 } fwh_options_t;
 
+/* Where the handlers' frames and lines go. send: 0 sent, -1 lost (FW_TRACE counts its
+ * losses; the owner of the sink counts the rest). log: a rejection ("rejected (REASON):
+ * why") or log line, each one; NULL: stderr, at most 10 lines a second (log_limit). */
+typedef struct {
+    int (*send)(void *ctx, const struct canfd_frame *f, int fd);
+    void (*log)(void *ctx, const char *line);
+    void *ctx;
+} fwh_sink_t;
+
+/* The control core's entries the handlers call, for an owner that watches them (the
+ * in-process bench journals and times them, and edits the ADC data under test). A NULL
+ * member: the core's own function. */
+typedef struct {
+    void (*isr)(void *ctx, fw_core_t *core, const fw_adc_t *adc, fw_pwm_t *pwm);
+    int16_t (*command)(void *ctx, fw_core_t *core, const fw_cmd_t *cmd);
+    int16_t (*limits)(void *ctx, fw_core_t *core, real_t i_max, real_t speed_max_rpm,
+                      real_t accel_rpm_s);
+    void *ctx;
+} fwh_core_calls_t;
+
 typedef struct {
     uint64_t rejects[FWH_REJ_COUNT];
     uint64_t isr, isr_no_data, repeats, pwm_sent, pwm_invalid, overruns, resyncs, syncs;
@@ -58,7 +82,8 @@ typedef struct {
 typedef struct fwh {
     fwh_options_t opt;
     fw_core_t core;
-    hilbus_t *bus;
+    fwh_sink_t sink;
+    fwh_core_calls_t calls;
     hiltrace_t *trace;
     fwh_adc_asm_t adc;
     fwh_pty_t pty;
@@ -67,6 +92,7 @@ typedef struct fwh {
     int console_hup;           /* the line reported a hang-up: probed every 10 ms */
     int64_t console_retry_ns;
     int64_t console_last_ns;   /* last line received (keep-alive) */
+    int console_refreshing;    /* the session's command is being refreshed every ISR */
     char console_in[512];      /* input read but not taken yet (a reply was still queued) */
     size_t console_in_off, console_in_len;
     /* the command both sources write (last writer wins) */
@@ -89,13 +115,18 @@ uint64_t fwh_rejected_total(const fwh_t *app);
 void fwh_reject(fwh_t *app, int reason, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 void fwh_log(fwh_t *app, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* A frame out through the sink: 0 sent, -1 lost. */
+int fwh_send(fwh_t *app, const struct canfd_frame *f, int fd);
+/* The core's entries through app->calls (the core's own functions when NULL). */
+void fwh_core_isr(fwh_t *app, const fw_adc_t *adc, fw_pwm_t *pwm);
+int16_t fwh_core_command(fwh_t *app, const fw_cmd_t *cmd);
+int16_t fwh_core_limits(fwh_t *app, real_t i_max, real_t speed_max_rpm, real_t accel_rpm_s);
 
-/* bus_io.c: virtual I/O (ADC in, PWM out, FW_TRACE, telemetry) */
-int fwh_bus_is_vio(uint32_t id);
+/* bus_io.c: virtual I/O (ADC in, PWM out, FW_TRACE, telemetry); a frame whose id is in
+ * vio.dbc's range (hil_vio_id_in_range, hil_wire.h) */
 void fwh_bus_vio_frame(fwh_t *app, const struct canfd_frame *f, int fd, int64_t t_rx_ns);
 
-/* drive_protocol.c */
-int fwh_drive_is_drive(uint32_t id);
+/* drive_protocol.c: frames whose id is in drive.dbc's range (hil_drive_id_in_range) */
 void fwh_drive_frame(fwh_t *app, const struct canfd_frame *f, int fd);
 void fwh_drive_send_status(fwh_t *app);
 void fwh_drive_send_heartbeat(fwh_t *app);

@@ -23,6 +23,14 @@
 #define CONSOLE_PROBE_NS (10LL * 1000000LL)
 
 static fwh_t app; /* the core object is large: static storage, as on the DSP */
+static hilbus_t *bus;
+
+/* The frame handlers' sink: the bus (failures and drops are counted by hilbus). */
+static int send_on_bus(void *ctx, const struct canfd_frame *f, int fd)
+{
+    (void)ctx;
+    return hilbus_send(bus, f, fd);
+}
 static fwh_param_list_t start_list;
 
 /* ------------------------------------------------------------------------ options */
@@ -210,21 +218,28 @@ static int load_parameters(const fwh_param_list_t *sets)
 
 static int open_bus(void)
 {
-    /* 11-bit data frames of the drive (0x100-0x1FF) and virtual-I/O (0x00-0x3F) ranges */
-    const struct can_filter filters[2] = {
-        {.can_id = 0x100u, .can_mask = 0x700u | CAN_EFF_FLAG | CAN_RTR_FLAG},
-        {.can_id = 0x000u, .can_mask = 0x7C0u | CAN_EFF_FLAG | CAN_RTR_FLAG},
-    };
-    app.bus = hil_node_open_bus(&app.opt.node);
-    if (app.bus == NULL) {
+    /* 11-bit data frames of the drive and virtual-I/O ranges (drive.dbc, vio.dbc: hil_wire.h) */
+    struct can_filter filters[HIL_DRIVE_ID_BLOCKS + HIL_VIO_ID_BLOCKS];
+    int n = 0, k;
+    for (k = 0; k < HIL_DRIVE_ID_BLOCKS; k++, n++) {
+        filters[n].can_id = hil_drive_id_blocks[k].id;
+        filters[n].can_mask = hil_drive_id_blocks[k].mask | CAN_EFF_FLAG | CAN_RTR_FLAG;
+    }
+    for (k = 0; k < HIL_VIO_ID_BLOCKS; k++, n++) {
+        filters[n].can_id = hil_vio_id_blocks[k].id;
+        filters[n].can_mask = hil_vio_id_blocks[k].mask | CAN_EFF_FLAG | CAN_RTR_FLAG;
+    }
+    bus = hil_node_open_bus(&app.opt.node);
+    if (bus == NULL) {
         return -1;
     }
-    if (hilbus_set_filters(app.bus, filters, 2) != 0) {
+    app.sink.send = send_on_bus;
+    if (hilbus_set_filters(bus, filters, n) != 0) {
         fprintf(stderr, "fw_host: bus filters: %s\n", strerror(errno));
         return -1;
     }
     if (app.opt.spin_us > 0) {
-        hilbus_set_spin(app.bus, app.opt.spin_us);
+        hilbus_set_spin(bus, app.opt.spin_us);
     }
     return 0;
 }
@@ -239,9 +254,9 @@ static void handle_frame(const struct canfd_frame *f, int fd)
         app.cnt.non_data_frames++; /* outside this protocol's 11-bit data frames */
         return;
     }
-    if (fwh_bus_is_vio(id)) {
+    if (hil_vio_id_in_range(id)) {
         fwh_bus_vio_frame(&app, f, fd, t_rx);
-    } else if (fwh_drive_is_drive(id)) {
+    } else if (hil_drive_id_in_range(id)) {
         fwh_drive_frame(&app, f, fd);
     }
 }
@@ -258,7 +273,7 @@ static int drain_bus(void)
     int fd, r, n = 0;
     int64_t timeout = 0;
     while (n < DRAIN_MAX && !app.stop && !periods_done()) {
-        r = hilbus_recv(app.bus, &f, &fd, timeout);
+        r = hilbus_recv(bus, &f, &fd, timeout);
         if (r < 0) {
             if (errno == EINTR || errno == EAGAIN) {
                 return 0;
@@ -372,7 +387,7 @@ static int run(int tfd)
         struct pollfd p[3];
         int n = 0, i_bus, i_tim, i_pty = -1;
         int64_t now;
-        p[n].fd = hilbus_fileno(app.bus), p[n].events = POLLIN, p[n].revents = 0, i_bus = n++;
+        p[n].fd = hilbus_fileno(bus), p[n].events = POLLIN, p[n].revents = 0, i_bus = n++;
         p[n].fd = tfd, p[n].events = POLLIN, p[n].revents = 0, i_tim = n++;
         if (app.pty_open && !app.console_hup) {
             p[n].fd = app.pty.master;
@@ -430,7 +445,7 @@ static void print_counters(void)
     const fwh_counters_t *c = &app.cnt;
     fw_core_status(&app.core, &s);
     hil_json_init(&j, buf, sizeof(buf));
-    hil_node_json_begin(&j, &app.opt.node, app.bus);
+    hil_node_json_begin(&j, &app.opt.node, bus);
     hil_json_u64(&j, "isr", c->isr);
     hil_json_u64(&j, "isr_no_data", c->isr_no_data);
     hil_json_u64(&j, "repeats", c->repeats);
@@ -466,7 +481,7 @@ static void print_counters(void)
     hil_json_u64(&j, "fault_code", s.fault_code);
     hil_json_str(&j, "fault_name", fwh_fault_name(s.fault_code));
     hil_json_u64(&j, "core_overruns", s.isr_overruns);
-    hil_node_json_bus(&j, app.bus, c->non_data_frames);
+    hil_node_json_bus(&j, bus, c->non_data_frames);
     hil_json_str(&j, "rt", app.rt_note != NULL ? app.rt_note : HIL_NODE_RT_NONE);
     hil_json_end(&j);
     fprintf(stderr, "%s\n", buf);
@@ -507,14 +522,14 @@ int main(int argc, char **argv)
     hil_node_signals(&app.stop, 1); /* SIGHUP too: the console's terminal may hang up */
 
     if (open_bus() != 0) {
-        if (app.bus != NULL) {
-            hilbus_close(app.bus);
+        if (bus != NULL) {
+            hilbus_close(bus);
         }
         return 1;
     }
     app.trace = hil_node_open_trace(&app.opt.node, &trace_failed);
     if (trace_failed) {
-        hilbus_close(app.bus);
+        hilbus_close(bus);
         return 1;
     }
     if (!app.opt.no_console) {
@@ -523,7 +538,7 @@ int main(int argc, char **argv)
             if (app.trace != NULL) {
                 hiltrace_close(app.trace);
             }
-            hilbus_close(app.bus);
+            hilbus_close(bus);
             return 1;
         }
         app.pty_open = 1;
@@ -545,7 +560,7 @@ int main(int argc, char **argv)
     hil_log_limit_init(&app.log_limit, "fw_host", LOG_LINES_PER_S, app.t0_ns);
     housekeeping(app.t0_ns);
     fprintf(stderr, "fw_host: %s on %s/%s, console %s%s%s\n",
-            app.opt.node.realtime ? "real time" : "lockstep", hilbus_transport(app.bus),
+            app.opt.node.realtime ? "real time" : "lockstep", hilbus_transport(bus),
             app.opt.node.channel, app.pty_open ? app.pty.slave_path : "off",
             app.pty.link[0] ? " linked from " : "", app.pty.link);
     rc = hil_node_ready(&app.opt.node) != 0 ? 1 : 0;
@@ -564,6 +579,6 @@ int main(int argc, char **argv)
         fwh_pty_close(&app.pty);
     }
     close(tfd);
-    hilbus_close(app.bus);
+    hilbus_close(bus);
     return rc;
 }

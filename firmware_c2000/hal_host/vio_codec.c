@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "fw_trace_gen.h"
+#include "hil_arrays.h"
 #include "hil_vio.h"
 #include "param_file.h"
 
@@ -13,7 +14,7 @@ int fwh_vio_adc_decode(const struct canfd_frame *f, int fd, fwh_vio_adc_t *out, 
                        char *why, size_t whylen)
 {
     const uint32_t id = f->can_id & CAN_SFF_MASK;
-    int index;
+    int index, j;
     switch (id) {
     case HIL_VIO_VIO_ADC_0_FRAME_ID:
         index = 0;
@@ -55,10 +56,10 @@ int fwh_vio_adc_decode(const struct canfd_frame *f, int fd, fwh_vio_adc_t *out, 
             snprintf(why, whylen, "VIO_ADC_0: vdc_code outside its range");
             return -1;
         }
-        out->ia[0] = m.ia_0, out->ib[0] = m.ib_0, out->ia[1] = m.ia_1, out->ib[1] = m.ib_1;
-        out->ia[2] = m.ia_2, out->ib[2] = m.ib_2, out->ia[3] = m.ia_3, out->ib[3] = m.ib_3;
-        out->ia[4] = m.ia_4, out->ib[4] = m.ib_4, out->ia[5] = m.ia_5, out->ib[5] = m.ib_5;
-        out->ia[6] = m.ia_6, out->ib[6] = m.ib_6;
+        for (j = 0; j < HIL_VIO_VIO_ADC_0_IA_COUNT; j++) {
+            out->ia[j] = hil_vio_vio_adc_0_ia_get(&m, j);
+            out->ib[j] = hil_vio_vio_adc_0_ib_get(&m, j);
+        }
         out->period = m.period, out->n_soc = m.n_soc, out->vdc = m.vdc_code;
     } else if (index == 1) {
         struct hil_vio_vio_adc_1_t m;
@@ -68,10 +69,10 @@ int fwh_vio_adc_decode(const struct canfd_frame *f, int fd, fwh_vio_adc_t *out, 
             snprintf(why, whylen, "VIO_ADC_1: vdc_code outside its range");
             return -1;
         }
-        out->ia[0] = m.ia_7, out->ib[0] = m.ib_7, out->ia[1] = m.ia_8, out->ib[1] = m.ib_8;
-        out->ia[2] = m.ia_9, out->ib[2] = m.ib_9, out->ia[3] = m.ia_10, out->ib[3] = m.ib_10;
-        out->ia[4] = m.ia_11, out->ib[4] = m.ib_11, out->ia[5] = m.ia_12, out->ib[5] = m.ib_12;
-        out->ia[6] = m.ia_13, out->ib[6] = m.ib_13;
+        for (j = 0; j < HIL_VIO_VIO_ADC_1_IA_COUNT; j++) {
+            out->ia[j] = hil_vio_vio_adc_1_ia_get(&m, j);
+            out->ib[j] = hil_vio_vio_adc_1_ib_get(&m, j);
+        }
         out->period = m.period, out->n_soc = m.n_soc, out->vdc = m.vdc_code;
     } else {
         struct hil_vio_vio_adc_2_t m;
@@ -81,7 +82,10 @@ int fwh_vio_adc_decode(const struct canfd_frame *f, int fd, fwh_vio_adc_t *out, 
             snprintf(why, whylen, "VIO_ADC_2: vdc_code outside its range");
             return -1;
         }
-        out->ia[0] = m.ia_14, out->ib[0] = m.ib_14, out->ia[1] = m.ia_15, out->ib[1] = m.ib_15;
+        for (j = 0; j < HIL_VIO_VIO_ADC_2_IA_COUNT; j++) {
+            out->ia[j] = hil_vio_vio_adc_2_ia_get(&m, j);
+            out->ib[j] = hil_vio_vio_adc_2_ib_get(&m, j);
+        }
         out->period = m.period, out->n_soc = m.n_soc, out->vdc = m.vdc_code;
     }
     if (!hil_vio_vio_adc_0_n_soc_is_in_range(out->n_soc)) {
@@ -143,10 +147,9 @@ int fwh_vio_pwm_pack(const fw_pwm_t *in, uint32_t want_period, struct canfd_fram
     m.cmp_c_dn = p.cmp_dn[2];
     m.n_soc = (uint8_t)p.n_soc;
     m.gate_enable = (uint8_t)p.gate_enable;
-    m.soc_0 = soc[0], m.soc_1 = soc[1], m.soc_2 = soc[2], m.soc_3 = soc[3];
-    m.soc_4 = soc[4], m.soc_5 = soc[5], m.soc_6 = soc[6], m.soc_7 = soc[7];
-    m.soc_8 = soc[8], m.soc_9 = soc[9], m.soc_10 = soc[10], m.soc_11 = soc[11];
-    m.soc_12 = soc[12], m.soc_13 = soc[13], m.soc_14 = soc[14], m.soc_15 = soc[15];
+    for (k = 0; k < HIL_VIO_VIO_PWM_SOC_COUNT; k++) {
+        hil_vio_vio_pwm_soc_set(&m, k, soc[k]);
+    }
     memset(f, 0, sizeof(*f));
     f->can_id = HIL_VIO_VIO_PWM_FRAME_ID;
     f->len = HIL_VIO_VIO_PWM_LENGTH;

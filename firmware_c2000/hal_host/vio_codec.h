@@ -10,11 +10,13 @@
 #include <stdint.h>
 
 #include "fw_core.h"
+#include "hil_arrays.h"
 #include "rx_reject.h"
 
 /* One VIO_ADC_x frame: index x, its period and n_soc, the DC-link code and the up to 7
  * current code pairs it carries. */
-#define FWH_VIO_ADC_MAX_SAMPLES 7 /* samples one VIO_ADC frame carries */
+/* samples one VIO_ADC frame carries at most: VIO_ADC_0's (vio.dbc, hil_arrays.h) */
+#define FWH_VIO_ADC_MAX_SAMPLES HIL_VIO_VIO_ADC_0_IA_COUNT
 
 typedef struct {
     int index;
@@ -24,7 +26,7 @@ typedef struct {
     int32_t ia[FWH_VIO_ADC_MAX_SAMPLES], ib[FWH_VIO_ADC_MAX_SAMPLES];
 } fwh_vio_adc_t;
 
-/* A virtual-I/O frame (id 0x10-0x2F, flags already checked by the caller):
+/* A virtual-I/O frame (id in vio.dbc's range, flags already checked by the caller):
  *   1  a VIO_ADC frame, *out filled;
  *   0  not ADC data (VIO_PWM, FW_TRACE, VIO_SYNC_ACK: what a firmware sends; VIO_SYNC:
  *      the plant's lockstep barrier, answered by the HAL);

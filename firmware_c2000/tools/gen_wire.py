@@ -12,16 +12,26 @@ whose facts disagree with each other (the build stops with the reason):
   ``FW_FWMODE_*``, ``FW_STATUS_*`` (CORE_TABLES below);
 * ``host OUT_DIR PROTOCOLS_DIR``: ``hil_wire.h`` / ``hil_wire.c`` for the programs on the bus
   (plant_rt, fw_host, the in-process bench): ``HIL_TBCLK_HZ``, ``HIL_TBPRD``,
-  ``HIL_PERIOD_TICKS``, ``HIL_PERIOD_NS``, ``HIL_SPEED_LOOP_DIVIDER``, ``HIL_MAX_SOC`` and,
-  for every value table, ``const char *hil_<db>_<message>_<signal>_name(long value)`` (NULL
-  for a value the table does not name);
+  ``HIL_PERIOD_TICKS``, ``HIL_PERIOD_NS``, ``HIL_SPEED_LOOP_DIVIDER``, ``HIL_MAX_SOC``; per
+  database its CAN ID range (database attributes ``HilIdFirst``, ``HilIdLast``):
+  ``HIL_<DB>_ID_FIRST``, ``HIL_<DB>_ID_LAST``, ``hil_<db>_id_in_range(id)`` and the receive
+  filter blocks ``hil_<db>_id_blocks[HIL_<DB>_ID_BLOCKS]`` (``(id & mask) == id`` blocks
+  that make up the range exactly); and, for every value table,
+  ``const char *hil_<db>_<message>_<signal>_name(long value)`` (NULL for a value the table
+  does not name);
+* ``arrays OUT_DIR PROTOCOLS_DIR``: ``hil_arrays.h`` / ``hil_arrays.c``: the signals a DBC
+  spells as one array, ``<name>_<k>`` for consecutive k (``VIO_ADC_0.ia_0`` .. ``ia_6``,
+  ``VIO_PWM.soc_0`` .. ``soc_15``), read and written by index:
+  ``hil_<db>_<message>_<name>_get(const struct *m, int j)`` and ``_set(struct *m, int j, v)``
+  for element j = signal ``<name>_<FIRST + j>``, with ``HIL_<DB>_<MESSAGE>_<NAME>_FIRST`` and
+  ``_COUNT``;
 * ``trace OUT_DIR PROTOCOLS_DIR``: ``fw_trace_gen.h`` / ``fw_trace_gen.c``:
   ``fwh_trace_from_status()``, FW_TRACE (vio.dbc) filled from ``fw_status_t``, every signal
   from the status field of the same name (a signal without such a field does not compile).
   Float signals are assigned; integer signals (scale 1, offset 0) are saturated into their
   DBC range.
 
-Usage: gen_wire.py core|host|trace OUT_DIR PROTOCOLS_DIR
+Usage: gen_wire.py core|host|arrays|trace OUT_DIR PROTOCOLS_DIR
 """
 
 from __future__ import annotations
@@ -34,10 +44,11 @@ from pathlib import Path
 import cantools
 from c_codegen import banner, write_if_changed
 from cantools.database.can import Database, Message, Signal
-from cantools.database.can.c_source import camel_to_snake_case
+from cantools.database.can.c_source import CodeGenSignal, camel_to_snake_case
 
 DATABASES = ("drive", "vio", "bench")
 IDENT = re.compile(r"^[A-Z][A-Z0-9_]*$")
+ELEMENT = re.compile(r"^(?P<name>[A-Za-z][A-Za-z0-9_]*?)_(?P<k>[0-9]+)$")
 
 # (database, message, signal, C prefix): the value tables the control core uses.
 CORE_TABLES = (
@@ -99,6 +110,60 @@ def attribute(db: Database, file: str, name: str) -> int:
     if not isinstance(value, int) or value < 1:
         raise WireError(f"{file}: {name} = {value!r}: a positive integer")
     return value
+
+
+SFF_MASK = 0x7FF  # 11-bit identifiers
+
+
+@dataclass(frozen=True)
+class IdRange:
+    """The CAN IDs a database owns, first..last (11-bit, both included)."""
+
+    db: str
+    first: int
+    last: int
+
+    def blocks(self) -> list[tuple[int, int]]:
+        """(id, mask) pairs, each matching the ids with ``(x & mask) == id``, that together
+        match exactly first..last (largest aligned power-of-two blocks, lowest first)."""
+        out: list[tuple[int, int]] = []
+        lo = self.first
+        while lo <= self.last:
+            size = lo & -lo if lo else SFF_MASK + 1
+            while size > self.last - lo + 1:
+                size //= 2
+            out.append((lo, SFF_MASK & ~(size - 1)))
+            lo += size
+        return out
+
+
+def id_ranges(dbs: dict[str, Database]) -> list[IdRange]:
+    """Every database's declared ID range, checked: 11-bit, holding all its messages (standard
+    frames), no two overlapping."""
+    ranges: list[IdRange] = []
+    for db in DATABASES:
+        attrs = dbs[db].dbc.attributes if dbs[db].dbc is not None else {}
+        ends = []
+        for name in ("HilIdFirst", "HilIdLast"):
+            if name not in attrs:
+                raise WireError(f"{db}.dbc: database attribute {name} missing (BA_ \"{name}\" ...)")
+            value = attrs[name].value
+            if not isinstance(value, int) or not 0 <= value <= SFF_MASK:
+                raise WireError(f"{db}.dbc: {name} = {value!r}: an 11-bit CAN ID")
+            ends.append(value)
+        r = IdRange(db, ends[0], ends[1])
+        if r.first > r.last:
+            raise WireError(f"{db}.dbc: HilIdFirst 0x{r.first:X} after HilIdLast 0x{r.last:X}")
+        for message in dbs[db].messages:
+            if message.is_extended_frame or not r.first <= message.frame_id <= r.last:
+                raise WireError(f"{db}.dbc: {message.name} (0x{message.frame_id:X}) outside "
+                                f"the database's ID range 0x{r.first:X}..0x{r.last:X}")
+        for other in ranges:
+            if r.first <= other.last and other.first <= r.last:
+                raise WireError(f"{db}.dbc: ID range 0x{r.first:X}..0x{r.last:X} overlaps "
+                                f"{other.db}.dbc's 0x{other.first:X}..0x{other.last:X}")
+        ranges.append(r)
+    return ranges
 
 
 def timebase(dbs: dict[str, Database]) -> TimeBase:
@@ -194,6 +259,7 @@ def host_files(dbs: dict[str, Database]) -> tuple[str, str]:
     check_same_values(dbs)
     src = "protocols/drive.dbc, vio.dbc and bench.dbc"
     h = [*banner("gen_wire.py", src), "#ifndef HIL_WIRE_H", "#define HIL_WIRE_H", "",
+         "#include <stdint.h>", "",
          "/* PWM time base (vio.dbc HilTbclkHz, HilTbprd; drive.dbc HilSpeedLoopDivider) */",
          f"#define HIL_TBCLK_HZ {c_float(tb.tbclk_hz, '')} /* ticks per second */",
          f"#define HIL_TBPRD {tb.tbprd} /* up-down count half period, ticks */",
@@ -202,8 +268,22 @@ def host_files(dbs: dict[str, Database]) -> tuple[str, str]:
          f"#define HIL_SPEED_LOOP_DIVIDER {tb.speed_loop_divider} /* PWM periods per speed-loop "
          "period */",
          f"#define HIL_MAX_SOC {max_soc(dbs)} /* ADC conversions per period (VIO_PWM.n_soc) */", "",
-         "/* The name a value table gives a value, NULL when it names none. */"]
+         "/* CAN ID ranges (database attributes HilIdFirst, HilIdLast): the 11-bit ids a",
+         " * database owns. A receive filter matches (id & mask) == id for one of the blocks. */",
+         "typedef struct {", "    uint32_t id, mask;", "} hil_id_block_t;"]
     c = [*banner("gen_wire.py", src), '#include "hil_wire.h"', "", "#include <stddef.h>"]
+    for r in id_ranges(dbs):
+        up, blocks = r.db.upper(), r.blocks()
+        h += ["", f"#define HIL_{up}_ID_FIRST 0x{r.first:03X}u /* {r.db}.dbc */",
+              f"#define HIL_{up}_ID_LAST 0x{r.last:03X}u",
+              f"#define HIL_{up}_ID_BLOCKS {len(blocks)}",
+              f"extern const hil_id_block_t hil_{r.db}_id_blocks[HIL_{up}_ID_BLOCKS];",
+              f"static inline int hil_{r.db}_id_in_range(uint32_t id)", "{",
+              f"    return id - HIL_{up}_ID_FIRST <= HIL_{up}_ID_LAST - HIL_{up}_ID_FIRST;", "}"]
+        c += ["", f"const hil_id_block_t hil_{r.db}_id_blocks[HIL_{up}_ID_BLOCKS] = {{"]
+        c += [f"    {{0x{i:03X}u, 0x{m:03X}u}}," for i, m in blocks]
+        c.append("};")
+    h += ["", "/* The name a value table gives a value, NULL when it names none. */"]
     for db in DATABASES:
         for message in dbs[db].messages:
             for sig in message.signals:
@@ -215,6 +295,76 @@ def host_files(dbs: dict[str, Database]) -> tuple[str, str]:
                 c += [f'    case {int(v)}: return "{n}";' for v, n in sorted(
                     (int(v), str(n)) for v, n in sig.choices.items())]
                 c += ["    default: return NULL;", "    }", "}"]
+    h += ["", "#endif", ""]
+    c.append("")
+    return "\n".join(h), "\n".join(c)
+
+
+@dataclass(frozen=True)
+class SignalArray:
+    """Signals ``<name>_<first>`` .. ``<name>_<first + count - 1>`` of one message, one C type."""
+
+    db: str
+    message: Message
+    name: str
+    first: int
+    signals: tuple[Signal, ...]
+
+    @property
+    def c_type(self) -> str:
+        return CodeGenSignal(self.signals[0]).type_name
+
+    @property
+    def prefix(self) -> str:
+        return f"hil_{self.db}_{camel_to_snake_case(self.message.name)}_{self.name}"
+
+
+def signal_arrays(dbs: dict[str, Database]) -> list[SignalArray]:
+    """Every run of two or more signals ``<name>_<k>``, k consecutive, of one C type."""
+    out: list[SignalArray] = []
+    for db in DATABASES:
+        for message in dbs[db].messages:
+            groups: dict[str, list[tuple[int, Signal]]] = {}
+            for sig in message.signals:
+                m = ELEMENT.match(sig.name)
+                if m is not None:
+                    groups.setdefault(m["name"], []).append((int(m["k"]), sig))
+            for name, members in groups.items():
+                members.sort(key=lambda x: x[0])
+                ks = [k for k, _ in members]
+                sigs = tuple(s for _, s in members)
+                if len(members) < 2 or ks != list(range(ks[0], ks[0] + len(ks))):
+                    continue
+                if len({CodeGenSignal(s).type_name for s in sigs}) != 1:
+                    raise WireError(f"{db}.dbc: {message.name}.{name}_<k> signals of different "
+                                    "C types cannot be one array")
+                out.append(SignalArray(db, message, camel_to_snake_case(name), ks[0], sigs))
+    return out
+
+
+def array_files(dbs: dict[str, Database]) -> tuple[str, str]:
+    src = "protocols/drive.dbc, vio.dbc and bench.dbc"
+    h = [*banner("gen_wire.py", src), "#ifndef HIL_ARRAYS_H", "#define HIL_ARRAYS_H", "",
+         '#include "hil_bench.h"', '#include "hil_drive.h"', '#include "hil_vio.h"', "",
+         "/* Signals <name>_<k> as arrays: element j is signal <name>_<FIRST + j>. get returns 0",
+         " * and set does nothing for a j outside 0 .. COUNT-1. */"]
+    c = [*banner("gen_wire.py", src), '#include "hil_arrays.h"']
+    for a in signal_arrays(dbs):
+        msg = f"struct hil_{a.db}_{camel_to_snake_case(a.message.name)}_t"
+        up = a.prefix.upper()
+        members = [camel_to_snake_case(s.name) for s in a.signals]
+        first, last = a.signals[0].name, a.signals[-1].name
+        h += ["", f"/* {a.message.name}.{first} .. {last} ({a.db}.dbc) */",
+              f"#define {up}_FIRST {a.first}", f"#define {up}_COUNT {len(a.signals)}",
+              f"{a.c_type} {a.prefix}_get(const {msg} *m, int j);",
+              f"void {a.prefix}_set({msg} *m, int j, {a.c_type} value);"]
+        c += ["", f"{a.c_type} {a.prefix}_get(const {msg} *m, int j)", "{", "    switch (j) {"]
+        c += [f"    case {j}: return m->{n};" for j, n in enumerate(members)]
+        c += ["    default: return 0;", "    }", "}",
+              "", f"void {a.prefix}_set({msg} *m, int j, {a.c_type} value)", "{",
+              "    switch (j) {"]
+        c += [f"    case {j}: m->{n} = value; break;" for j, n in enumerate(members)]
+        c += ["    default: break;", "    }", "}"]
     h += ["", "#endif", ""]
     c.append("")
     return "\n".join(h), "\n".join(c)
@@ -253,7 +403,7 @@ def trace_files(dbs: dict[str, Database]) -> tuple[str, str]:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 4 or argv[1] not in ("core", "host", "trace"):
+    if len(argv) != 4 or argv[1] not in ("core", "host", "arrays", "trace"):
         print(__doc__, file=sys.stderr)
         return 2
     mode, out_dir, protocols = argv[1], Path(argv[2]), Path(argv[3])
@@ -264,6 +414,8 @@ def main(argv: list[str]) -> int:
             files["fw_wire_gen.h"] = core_header(dbs)
         elif mode == "host":
             files["hil_wire.h"], files["hil_wire.c"] = host_files(dbs)
+        elif mode == "arrays":
+            files["hil_arrays.h"], files["hil_arrays.c"] = array_files(dbs)
         else:
             files["fw_trace_gen.h"], files["fw_trace_gen.c"] = trace_files(dbs)
     except WireError as exc:

@@ -24,6 +24,7 @@
 
 #include "hil_bench.h"
 #include "hil_vio.h"
+#include "hil_wire.h"
 #include "hilnode.h"
 #include "plant_core.h"
 #include "plant_link.h"
@@ -31,10 +32,6 @@
 
 #define HOUSEKEEPING_NS (100LL * 1000000LL) /* counters, progress: every 100 ms */
 #define RESEND_NS (100LL * 1000000LL)       /* lockstep: ADC(k) again after 100 ms */
-#define VIO_RANGE_LO 0x10u
-#define VIO_RANGE_HI 0x2Fu
-#define BENCH_RANGE_LO 0x300u
-#define BENCH_RANGE_HI 0x33Fu
 #define WAKE_HIST_BINS 10000 /* wake-up lateness histogram: 1 us bins, 0 .. 10 ms */
 
 static volatile sig_atomic_t g_stop = 0;
@@ -413,8 +410,7 @@ static void handle_frame(app_t *a, const struct canfd_frame *f, int fd, inbox_t 
         }
         return;
     }
-    if (!known_id(id) && ((id >= VIO_RANGE_LO && id <= VIO_RANGE_HI) ||
-                          (id >= BENCH_RANGE_LO && id <= BENCH_RANGE_HI))) {
+    if (!known_id(id) && (hil_vio_id_in_range(id) || hil_bench_id_in_range(id))) {
         reject(a, PLANT_REJ_UNKNOWN_ID, id, 0);
     }
     /* anything else (drive protocol, firmware trace, our own kind of frames) is not ours */

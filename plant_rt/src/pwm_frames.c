@@ -2,6 +2,7 @@
  * "Bad input"), and the names of the reasons a frame is refused. */
 #include <string.h>
 
+#include "hil_arrays.h"
 #include "hil_vio.h"
 #include "plant_vio.h"
 
@@ -49,6 +50,7 @@ int plant_decode_pwm(uint32_t can_id, int fd, const uint8_t *data, size_t len,
                      uint32_t expected_period, plant_pwm_cmd_t *out)
 {
     struct hil_vio_vio_pwm_t m;
+    int k;
     if (can_id != HIL_VIO_VIO_PWM_FRAME_ID) {
         return PLANT_REJ_UNKNOWN_ID;
     }
@@ -75,21 +77,8 @@ int plant_decode_pwm(uint32_t can_id, int fd, const uint8_t *data, size_t len,
     out->cmp_dn[2] = m.cmp_c_dn;
     out->n_soc = m.n_soc;
     out->gate_enable = m.gate_enable;
-    out->soc[0] = m.soc_0;
-    out->soc[1] = m.soc_1;
-    out->soc[2] = m.soc_2;
-    out->soc[3] = m.soc_3;
-    out->soc[4] = m.soc_4;
-    out->soc[5] = m.soc_5;
-    out->soc[6] = m.soc_6;
-    out->soc[7] = m.soc_7;
-    out->soc[8] = m.soc_8;
-    out->soc[9] = m.soc_9;
-    out->soc[10] = m.soc_10;
-    out->soc[11] = m.soc_11;
-    out->soc[12] = m.soc_12;
-    out->soc[13] = m.soc_13;
-    out->soc[14] = m.soc_14;
-    out->soc[15] = m.soc_15;
+    for (k = 0; k < HIL_VIO_VIO_PWM_SOC_COUNT; k++) {
+        out->soc[k] = hil_vio_vio_pwm_soc_get(&m, k);
+    }
     return plant_pwm_validate(out, expected_period);
 }

@@ -2,6 +2,7 @@
  * in-process bench packs and checks exactly what the bus program does. */
 #include <string.h>
 
+#include "hil_arrays.h"
 #include "hil_bench.h"
 #include "hil_vio.h"
 #include "plant_vio.h"
@@ -22,54 +23,34 @@ static void frame(struct canfd_frame *f, uint32_t id, const uint8_t *buf, uint8_
     memcpy(f->data, buf, len);
 }
 
+/* VIO_ADC_<X> when the period has a sample for it: SOCs FIRST .. FIRST + COUNT - 1 (ia_<k>,
+ * ib_<k> by index through hil_arrays.h), the DC-link code of its first SOC. */
+#define PACK_ADC(X)                                                                  \
+    if (n > HIL_VIO_VIO_ADC_##X##_IA_FIRST) {                                        \
+        struct hil_vio_vio_adc_##X##_t m;                                            \
+        const int32_t *ia = s->ia_code + HIL_VIO_VIO_ADC_##X##_IA_FIRST;             \
+        const int32_t *ib = s->ib_code + HIL_VIO_VIO_ADC_##X##_IB_FIRST;             \
+        int j;                                                                       \
+        memset(&m, 0, sizeof(m));                                                    \
+        m.period = s->period;                                                        \
+        m.n_soc = (uint8_t)n;                                                        \
+        m.vdc_code = s->vdc_code[HIL_VIO_VIO_ADC_##X##_IA_FIRST];                    \
+        for (j = 0; j < HIL_VIO_VIO_ADC_##X##_IA_COUNT; j++) {                       \
+            hil_vio_vio_adc_##X##_ia_set(&m, j, ia[j]);                              \
+            hil_vio_vio_adc_##X##_ib_set(&m, j, ib[j]);                              \
+        }                                                                            \
+        hil_vio_vio_adc_##X##_pack(buf, &m, sizeof(buf));                            \
+        frame(&out[count++], HIL_VIO_VIO_ADC_##X##_FRAME_ID, buf, 64);               \
+    }
+
 int plant_pack_adc(const plant_samples_t *s, struct canfd_frame out[PLANT_VIO_ADC_FRAMES_MAX])
 {
     uint8_t buf[64];
     const uint32_t n = s->n_soc;
     int count = 0;
-    if (n > 0) {
-        struct hil_vio_vio_adc_0_t m;
-        memset(&m, 0, sizeof(m));
-        m.period = s->period;
-        m.n_soc = (uint8_t)n;
-        m.vdc_code = s->vdc_code[0];
-        m.ia_0 = s->ia_code[0], m.ib_0 = s->ib_code[0];
-        m.ia_1 = s->ia_code[1], m.ib_1 = s->ib_code[1];
-        m.ia_2 = s->ia_code[2], m.ib_2 = s->ib_code[2];
-        m.ia_3 = s->ia_code[3], m.ib_3 = s->ib_code[3];
-        m.ia_4 = s->ia_code[4], m.ib_4 = s->ib_code[4];
-        m.ia_5 = s->ia_code[5], m.ib_5 = s->ib_code[5];
-        m.ia_6 = s->ia_code[6], m.ib_6 = s->ib_code[6];
-        hil_vio_vio_adc_0_pack(buf, &m, sizeof(buf));
-        frame(&out[count++], HIL_VIO_VIO_ADC_0_FRAME_ID, buf, 64);
-    }
-    if (n > 7) {
-        struct hil_vio_vio_adc_1_t m;
-        memset(&m, 0, sizeof(m));
-        m.period = s->period;
-        m.n_soc = (uint8_t)n;
-        m.vdc_code = s->vdc_code[7];
-        m.ia_7 = s->ia_code[7], m.ib_7 = s->ib_code[7];
-        m.ia_8 = s->ia_code[8], m.ib_8 = s->ib_code[8];
-        m.ia_9 = s->ia_code[9], m.ib_9 = s->ib_code[9];
-        m.ia_10 = s->ia_code[10], m.ib_10 = s->ib_code[10];
-        m.ia_11 = s->ia_code[11], m.ib_11 = s->ib_code[11];
-        m.ia_12 = s->ia_code[12], m.ib_12 = s->ib_code[12];
-        m.ia_13 = s->ia_code[13], m.ib_13 = s->ib_code[13];
-        hil_vio_vio_adc_1_pack(buf, &m, sizeof(buf));
-        frame(&out[count++], HIL_VIO_VIO_ADC_1_FRAME_ID, buf, 64);
-    }
-    if (n > 14) {
-        struct hil_vio_vio_adc_2_t m;
-        memset(&m, 0, sizeof(m));
-        m.period = s->period;
-        m.n_soc = (uint8_t)n;
-        m.vdc_code = s->vdc_code[14];
-        m.ia_14 = s->ia_code[14], m.ib_14 = s->ib_code[14];
-        m.ia_15 = s->ia_code[15], m.ib_15 = s->ib_code[15];
-        hil_vio_vio_adc_2_pack(buf, &m, sizeof(buf));
-        frame(&out[count++], HIL_VIO_VIO_ADC_2_FRAME_ID, buf, 64);
-    }
+    PACK_ADC(0)
+    PACK_ADC(1)
+    PACK_ADC(2)
     return count;
 }
 

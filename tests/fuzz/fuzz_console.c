@@ -3,6 +3,7 @@
 #define _POSIX_C_SOURCE 200809L /* setenv, getpid */
 #include <stddef.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 #include "fuzz_host.h"
 

@@ -100,9 +100,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         if (f.can_id & (CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG)) {
             continue;
         }
-        if (fwh_bus_is_vio(f.can_id & CAN_SFF_MASK)) {
+        if (hil_vio_id_in_range(f.can_id & CAN_SFF_MASK)) {
             fwh_bus_vio_frame(&fuzz_app, &f, fd, hil_now_ns());
-        } else if (fwh_drive_is_drive(f.can_id & CAN_SFF_MASK)) {
+        } else if (hil_drive_id_in_range(f.can_id & CAN_SFF_MASK)) {
             fwh_drive_frame(&fuzz_app, &f, fd);
         }
     }

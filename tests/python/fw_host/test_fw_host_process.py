@@ -142,3 +142,19 @@ def test_spin_does_not_change_results(start_fw: StartFw, peer: Peer) -> None:
     assert [p["period"] for p in pwms] == list(range(1, 21))
     assert time.monotonic() - t0 < 20
     assert fw.stop() == 0
+
+
+def test_receives_exactly_the_dbc_id_ranges(start_fw: StartFw, peer: Peer) -> None:
+    # fw_host's receive filters are drive.dbc's and vio.dbc's ID ranges (HilIdFirst ..
+    # HilIdLast), no wider: ids just outside vio.dbc's 0x10-0x2F never reach the program.
+    fw = start_fw()
+    outside = (0x0F, 0x30, 0x3F, 0x200)
+    for ident in outside:
+        peer.send_raw(ident, bytes(8), fd=False)
+    peer.run(0, 1)  # its PWM comes after fw_host took everything sent before
+    assert fw.stop() == 0
+    c = fw.counters()
+    if c["transport"] != "unixcan":
+        pytest.skip("SocketCAN filters in the kernel: filtered frames are not counted")
+    assert c["rx_filtered"] == len(outside) and c["rx_rejected"] == 0
+    assert not {str(i) for i in outside} & set(c["rx_ids"]) and str(0x11) in c["rx_ids"]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import _paths
+from rig import _paths, protocols
 from rig.bench import sil
 from rig.bench.configuration import FIRMWARE_FROM_PROFILE
 
@@ -49,3 +49,18 @@ def test_realtime_on_the_bench_is_a_usage_error() -> None:
     r = subprocess.run([sys.executable, "-m", "rig", "run", "smoke", "--bus", "inproc",
                         "--realtime", "--quiet"], capture_output=True, text=True, check=False)
     assert r.returncode == 2 and "lockstep only" in r.stderr
+
+
+def test_drive_frames_go_through_fw_hosts_handler() -> None:
+    # The bench hands drive frames to fw_host's own handler (drive_protocol.c), so a refusal
+    # is counted and worded as fw_host words it: a DRIVE_LIMITS whose i_max is inside the DBC
+    # range (10 A) but not below oc_trip_a (9.5 A) names the rule it broke and the values.
+    limits = protocols.database("drive").get_message_by_name("DRIVE_LIMITS")
+    data = limits.encode({"i_max": 9.8, "speed_max": 3000, "accel_max": 1000})
+    with sil.SilBench(PAPER, [], []) as b:
+        assert b.frame(limits.frame_id, data, fd=False) == -1
+        c = b.counters()["firmware"]
+        assert c["rejects"]["refused"] == 1 and c["limits"] == 1 and c["rx_rejected"] == 1
+        assert b.rejected == ["firmware rejected (refused): DRIVE_LIMITS refused by the control "
+                              "core: i_max 9.800 A (must stay below oc_trip_a), speed_max "
+                              "3000 r/min, accel 1000.0 r/min/s"]
