@@ -682,34 +682,14 @@ static fw_cplx_t current_loop(fw_core_t *c, int16_t have_data, fw_angle_t *apply
     return fw_cmul(fw_c(vd, vq), apply->e);
 }
 
-void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
+/* 1. Which period this is and whether its data is complete: the period k the ADC frame
+ * names (the next one when none came), the tracker advanced to it, the plan that ran in it
+ * made current; a missing or incomplete period counts towards ADC_LOSS. */
+static int16_t take_period(fw_core_t *c, const fw_adc_t *adc, uint32_t *period)
 {
-    const real_t *p;
+    const real_t *p = c->p;
     int16_t data_ok = 0;
     uint32_t k;
-    int16_t bad_est = 0;
-    fw_polarity_out_t pol_out;
-    int16_t slow;
-    fw_angle_t mid2 = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
-    fw_angle_t apply = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
-    fw_cplx_t mid_conj = {FW_REAL(0.0), FW_REAL(0.0)};
-
-    if (c == 0 || pwm == 0) {
-        return;
-    }
-    p = c->p;
-    /* a repeated ADC(k) gets the same PWM(k+1) (docs/interfaces.md, lockstep re-send) */
-    if (adc != 0 && c->have_period && c->pwm_valid && adc->period == c->period) {
-        *pwm = c->pwm_last;
-        return;
-    }
-    c->isr_count++;
-    slow = (int16_t)((c->isr_count % (uint32_t)FW_SPEED_DIVIDER) == 0u);
-    if (c->ticks_since_cmd < 0xFFFFFFF0u) {
-        c->ticks_since_cmd++;
-    }
-
-    /* 1. which period is this, and is its data complete? */
     if (adc == 0) {
         k = c->have_period ? c->period + 1u : 0u;
     } else if (!c->have_period) {
@@ -749,8 +729,15 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     if (c->state == FW_STATE_INIT) {
         c->state = FW_STATE_IDLE;
     }
+    *period = k;
+    return data_ok;
+}
 
-    /* 2. protection */
+/* 2. Protection: the DC link and this period's phase currents, the command time-out; then
+ * the modulation range and the voltage the current loop may ask for. */
+static void protect(fw_core_t *c, const fw_adc_t *adc, int16_t data_ok)
+{
+    const real_t *p = c->p;
     if (data_ok) {
         uint16_t f;
         real_t vdc = (real_t)adc->vdc * c->adc_v_lsb;
@@ -776,8 +763,38 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     c->v_lim = (c->full_mod ? p[FW_IDX_FULL_VLIM_FRACTION] * FW_SIX_STEP * c->vdc
                             : fw_svpwm_vmax(c->vdc, c->pwm_cfg.tmin)) *
                p[FW_IDX_VLIM_FRACTION];
+}
 
-    /* 3.-4. estimation (the tracker's gains for the present speed first) */
+/* The controlled current: the period mean without the ripple the pattern's dipole adds
+ * (Gamma(theta) Q, svpwm.c), i.e. the mean of the period's start and end currents; an A/B
+ * pair's dipoles cancel, so its mean torque is this current's. */
+static void controlled_current(fw_core_t *c, const fw_angle_t *mid2, fw_cplx_t mid_conj)
+{
+    fw_cplx_t q = c->plan_cur.dipole;
+    fw_cplx_t rot2, rot_m, g, i_ctl, idq;
+    if (mid2->valid) { /* the tracker is as estimate_position found it */
+        rot2 = mid2->e;
+        rot_m = mid_conj;
+    } else {
+        real_t th_mid = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
+        rot2 = fw_cexpj(FW_REAL(2.0) * th_mid);
+        rot_m = fw_cexpj(-th_mid);
+    }
+    g = fw_cscale(rot2, c->pe.gamma1_f);
+    i_ctl = fw_csub(c->i_avg, fw_cadd(fw_cscale(q, c->pe.gamma0_f), fw_cmul(g, fw_cconj(q))));
+    idq = fw_cmul(i_ctl, rot_m);
+    c->id = idq.re;
+    c->iq = idq.im;
+}
+
+/* 3.-4. Estimation (the tracker's gains for the present speed first): the position from this
+ * period's slopes, or from the flux above the hand-over speed; the current in the estimated
+ * frame; the machine's parameters and flux. Returns 1 when the estimate was implausible. */
+static int16_t estimate(fw_core_t *c, const fw_adc_t *adc, int16_t data_ok)
+{
+    int16_t bad_est = 0;
+    fw_angle_t mid2 = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
+    fw_cplx_t mid_conj = {FW_REAL(0.0), FW_REAL(0.0)};
     (void)fw_tracker_schedule(&c->trk);
     /* (the polarity test runs with the tracker running: polarity_detect.c) */
     if (data_ok) {
@@ -785,28 +802,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         c->flux_pos_active = by_flux;
         bad_est = estimate_position(c, adc, by_flux, &mid2, &mid_conj);
         fw_recon_current(c, adc, &mid2);
-        {
-            /* the controlled current: the period mean without the ripple the pattern's dipole
-             * adds (Gamma(theta) Q, svpwm.c), i.e. the mean of the period's start and end
-             * currents; an A/B pair's dipoles cancel, so its mean torque is this current's */
-            fw_cplx_t q = c->plan_cur.dipole;
-            fw_cplx_t rot2, rot_m, g, i_ctl, idq;
-            if (mid2.valid) { /* the tracker is as estimate_position found it */
-                rot2 = mid2.e;
-                rot_m = mid_conj;
-            } else {
-                real_t th_mid =
-                    c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
-                rot2 = fw_cexpj(FW_REAL(2.0) * th_mid);
-                rot_m = fw_cexpj(-th_mid);
-            }
-            g = fw_cscale(rot2, c->pe.gamma1_f);
-            i_ctl = fw_csub(c->i_avg,
-                            fw_cadd(fw_cscale(q, c->pe.gamma0_f), fw_cmul(g, fw_cconj(q))));
-            idq = fw_cmul(i_ctl, rot_m);
-            c->id = idq.re;
-            c->iq = idq.im;
-        }
+        controlled_current(c, &mid2, mid_conj);
         update_parameters_and_flux(c, (int16_t)(c->plan_cur.layout != FW_LAYOUT_OFF));
         xsat_learn(c);
         if (by_flux) {
@@ -818,6 +814,14 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         c->stamp = (int16_t)FW_H_TICKS;
         c->theta_hat = c->trk.init ? fw_tracker_predict(&c->trk, FW_H_TICKS) : FW_REAL(0.0);
     }
+    return bad_est;
+}
+
+/* The estimate's health: the current sensors (RUN), a run of implausible periods faults
+ * ESTIMATOR; the filtered speed and the over-speed trip. */
+static void supervise_estimate(fw_core_t *c, int16_t data_ok, int16_t bad_est)
+{
+    const real_t *p = c->p;
     if (c->state == FW_STATE_RUN && data_ok) {
         current_sensor_check(c);
     }
@@ -841,8 +845,12 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
     } else {
         c->speed_f_rpm = FW_REAL(0.0);
     }
+}
 
-    /* 5. states */
+/* 5. States: a disable, a fault reset, a start (the DC link checked first). */
+static void next_state(fw_core_t *c, int16_t data_ok)
+{
+    const real_t *p = c->p;
     if (!c->cmd.enable && (c->state == FW_STATE_POLARITY || c->state == FW_STATE_RUN)) {
         c->state = FW_STATE_IDLE;
     }
@@ -865,8 +873,14 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             fw_polarity_start(&c->pol);
         }
     }
+}
 
-    /* 6. outputs for period k+1 */
+/* 6. The outputs for period k+1 by state: the polarity test's (and the hand-over to RUN),
+ * the current loop's, or all off; *apply gets the angle the voltage is rotated with. */
+static void outputs(fw_core_t *c, const fw_adc_t *adc, int16_t data_ok, int16_t slow,
+                    uint32_t k, fw_pwm_t *pwm, fw_angle_t *apply)
+{
+    fw_polarity_out_t pol_out;
     switch (c->state) {
     case FW_STATE_POLARITY: {
         int16_t r = fw_polarity_step(&c->pol, c, data_ok ? adc : 0, &pol_out);
@@ -893,13 +907,13 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
             } else {
                 fw_outer_select_parameters(c);
             }
-            output_voltage(c, current_loop(c, data_ok, &apply), k + 1u, pwm);
+            output_voltage(c, current_loop(c, data_ok, apply), k + 1u, pwm);
             break;
         }
         fw_outer_select_parameters(c);
         c->id_ref = pol_out.id;
         c->iq_ref = pol_out.iq;
-        output_voltage(c, fw_cadd(current_loop(c, data_ok, &apply), pol_out.v_ff), k + 1u, pwm);
+        output_voltage(c, fw_cadd(current_loop(c, data_ok, apply), pol_out.v_ff), k + 1u, pwm);
         break;
     }
     case FW_STATE_RUN:
@@ -915,13 +929,20 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         if (slow) {
             fw_outer_step(c);
         }
-        output_voltage(c, current_loop(c, data_ok, &apply), k + 1u, pwm);
+        output_voltage(c, current_loop(c, data_ok, apply), k + 1u, pwm);
         break;
     default:
         reset_control(c);
         output_off(c, k + 1u, pwm);
         break;
     }
+}
+
+/* The torque the tracker predicts the rotor with until the next update: the current loop's,
+ * the ripple's reluctance torque, less the known viscous friction. */
+static void torque_model(fw_core_t *c, fw_angle_t *apply)
+{
+    const real_t *p = c->p;
     if (c->state == FW_STATE_RUN || c->state == FW_STATE_POLARITY) {
         c->te_hat = fw_refs_torque(c->id, c->iq, c->ld_use, c->lq_use, c->lambda_use,
                                    p[FW_IDX_POLE_PAIRS]);
@@ -934,7 +955,7 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         /* plus the reluctance torque of the next pattern's current ripple (its mean over the
          * period, with the incremental inductances the ripple sees) */
         c->te_ripple = FW_REAL(1.5) * p[FW_IDX_POLE_PAIRS] * (c->pe.ld_inc - c->pe.lq_inc) *
-                       (apply.valid ? fw_recon_ripple_dq_product_at(c, &c->plan_next, &apply)
+                       (apply->valid ? fw_recon_ripple_dq_product_at(c, &c->plan_next, apply)
                                     : fw_recon_ripple_dq_product(c, &c->plan_next));
     } else {
         c->te_hat = FW_REAL(0.0);
@@ -948,6 +969,11 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         fw_tracker_set_accel(&c->trk, (c->te_model + c->te_ripple - te_friction) *
                                           p[FW_IDX_POLE_PAIRS] / p[FW_IDX_INERTIA_KGM2]);
     }
+}
+
+/* The d-q voltage averaged over the slow task's FW_SPEED_DIVIDER periods (vd_mean, vq_mean). */
+static void voltage_mean(fw_core_t *c)
+{
     c->vdq_sum = fw_cadd(c->vdq_sum, fw_c(c->vd, c->vq));
     c->vdq_sum_n++;
     if (c->vdq_sum_n >= FW_SPEED_DIVIDER) {
@@ -955,6 +981,39 @@ void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
         c->vdq_sum = fw_c(FW_REAL(0.0), FW_REAL(0.0));
         c->vdq_sum_n = 0;
     }
+}
+
+/* One PWM period (docs/one-period.md): the ADC data of period k in, the PWM of period k+1
+ * out, in the steps above. */
+void fw_core_isr(fw_core_t *c, const fw_adc_t *adc, fw_pwm_t *pwm)
+{
+    uint32_t k;
+    int16_t data_ok;
+    int16_t bad_est;
+    int16_t slow;
+    fw_angle_t apply = {0, FW_REAL(0.0), {FW_REAL(0.0), FW_REAL(0.0)}};
+
+    if (c == 0 || pwm == 0) {
+        return;
+    }
+    /* a repeated ADC(k) gets the same PWM(k+1) (docs/interfaces.md, lockstep re-send) */
+    if (adc != 0 && c->have_period && c->pwm_valid && adc->period == c->period) {
+        *pwm = c->pwm_last;
+        return;
+    }
+    c->isr_count++;
+    slow = (int16_t)((c->isr_count % (uint32_t)FW_SPEED_DIVIDER) == 0u);
+    if (c->ticks_since_cmd < 0xFFFFFFF0u) {
+        c->ticks_since_cmd++;
+    }
+    data_ok = take_period(c, adc, &k);
+    protect(c, adc, data_ok);
+    bad_est = estimate(c, adc, data_ok);
+    supervise_estimate(c, data_ok, bad_est);
+    next_state(c, data_ok);
+    outputs(c, adc, data_ok, slow, k, pwm, &apply);
+    torque_model(c, &apply);
+    voltage_mean(c);
     c->pwm_last = *pwm;
     c->pwm_valid = 1;
 }
