@@ -45,3 +45,20 @@ target_include_directories(hil_protocols PUBLIC ${HIL_GEN_DIR})
 if(HIL_LIBM)
   target_link_libraries(hil_protocols PUBLIC ${HIL_LIBM}) # round() of the encoders
 endif()
+
+# hil_unixcan.h: the wire of the unixcan fallback bus (datagram layout, flag bits, FD lengths,
+# channel-name rule, folder and socket naming, the timing nodes promise each other) for hilbus,
+# from protocols/unixcan.toml, at configure time like the above; rig/bus/unixcan_wire.py reads
+# the same file.
+set(HIL_UNIXCAN_GEN ${CMAKE_SOURCE_DIR}/firmware_c2000/tools/gen_unixcan.py)
+execute_process(
+  COMMAND ${Python3_EXECUTABLE} ${HIL_UNIXCAN_GEN} ${CMAKE_SOURCE_DIR}/protocols/unixcan.toml
+          ${HIL_GEN_DIR}
+  RESULT_VARIABLE HIL_UNIXCAN_RESULT
+  ERROR_VARIABLE HIL_UNIXCAN_ERROR)
+if(NOT HIL_UNIXCAN_RESULT EQUAL 0)
+  message(FATAL_ERROR "gen_unixcan.py failed: ${HIL_UNIXCAN_ERROR}")
+endif()
+set_property(DIRECTORY APPEND PROPERTY CMAKE_CONFIGURE_DEPENDS ${HIL_UNIXCAN_GEN}
+             ${CMAKE_SOURCE_DIR}/firmware_c2000/tools/c_codegen.py
+             ${CMAKE_SOURCE_DIR}/protocols/unixcan.toml)

@@ -16,6 +16,8 @@
 #include <stdint.h>
 #include <linux/can.h>
 
+#include "hil_unixcan.h" /* generated from protocols/unixcan.toml */
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -75,16 +77,18 @@ void hilbus_get_stats(const hilbus_t *bus, hilbus_stats_t *stats);
 uint64_t hilbus_id_sent(const hilbus_t *bus, uint32_t id);
 uint64_t hilbus_id_received(const hilbus_t *bus, uint32_t id);
 
-/* Channel names are plain names: 1..HILBUS_MAX_CHANNEL of [A-Za-z0-9_.-], not starting
- * with '.' or '-' (no path, no "..", no option). */
-#define HILBUS_MAX_CHANNEL 63
+/* Channel names are plain names (no path, no "..", no option): the rule of
+ * protocols/unixcan.toml [channel], for both transports. */
+#define HILBUS_MAX_CHANNEL HIL_UNIXCAN_CHANNEL_MAX_LEN
+/* 1 when `channel` is such a name (hilbus_open refuses the others). */
+int hilbus_channel_name_ok(const char *channel);
 #define HILBUS_MAX_PEERS 64 /* unixcan: nodes a node sends to; more are counted, not reached */
 
 /* unixcan: the folder holding one sub-folder per channel ($UNIXCAN_DIR, else
  * $XDG_RUNTIME_DIR/unixcan, else /tmp/unixcan-<uid>). 0, or -1 (path too long). */
 int hilbus_unixcan_base(char *out, size_t outlen);
 
-/* Rounds a payload length up to the next valid CAN FD length (0..8, 12, 16, 20, 24, 32, 48, 64). */
+/* Rounds a payload length up to the next valid CAN FD length (HIL_UNIXCAN_FD_LENGTHS). */
 uint8_t hilbus_fd_len(size_t len);
 
 #ifdef __cplusplus

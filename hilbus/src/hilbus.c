@@ -10,14 +10,14 @@
 
 #include "hilbus_internal.h"
 
-static const uint8_t fd_lengths[] = {0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64};
+static const uint8_t fd_lengths[HIL_UNIXCAN_FD_LENGTH_COUNT] = HIL_UNIXCAN_FD_LENGTHS;
 
 uint8_t hilbus_fd_len(size_t len)
 {
     for (size_t i = 0; i < sizeof fd_lengths; i++) {
         if (len <= fd_lengths[i]) return fd_lengths[i];
     }
-    return 64;
+    return HIL_UNIXCAN_FD_MAX_LEN;
 }
 
 static int valid_frame(const struct canfd_frame *frame, int fd)
@@ -29,8 +29,8 @@ static int valid_frame(const struct canfd_frame *frame, int fd)
 hilbus_t *hilbus_open(const char *transport, const char *channel, char *err, size_t errlen)
 {
     if (!hilbus_channel_name_ok(channel)) {
-        snprintf(err, errlen, "invalid channel name '%.80s': a plain name of 1 to %d letters, digits, "
-                 "'_', '-' or '.', not starting with '.' or '-'", channel ? channel : "", HILBUS_MAX_CHANNEL);
+        snprintf(err, errlen, "invalid channel name '%.80s': %s", channel ? channel : "",
+                 HIL_UNIXCAN_CHANNEL_RULE);
         return NULL;
     }
     struct hilbus *bus = calloc(1, sizeof *bus);

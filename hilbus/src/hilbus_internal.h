@@ -45,7 +45,6 @@ int hilbus_socketcan_recv(struct hilbus *bus, struct canfd_frame *frame, int *fd
 void hilbus_socketcan_drops(const struct hilbus *bus, hilbus_stats_t *stats);
 int hilbus_socketcan_set_filters(struct hilbus *bus, const struct can_filter *filters, int n);
 
-int hilbus_channel_name_ok(const char *channel);
 int hilbus_unixcan_open(struct hilbus *bus, const char *channel, char *err, size_t errlen);
 void hilbus_unixcan_close(struct hilbus *bus);
 int hilbus_unixcan_send(struct hilbus *bus, const struct canfd_frame *frame, int fd);

@@ -2,7 +2,10 @@
  *
  * Every node of a channel binds a Unix datagram socket in the channel's directory and
  * sends each frame to every other socket there. Sends never block: a receiver whose queue
- * is full costs a counted drop, a socket nobody reads any more (a killed node) is removed. */
+ * is full costs a counted drop, a socket nobody reads any more (a killed node) is removed.
+ * The wire (datagram layout, channel names, folder and socket naming and modes, the timing
+ * nodes promise each other) is protocols/unixcan.toml, generated into hil_unixcan.h; the
+ * rest of this file is hilbus's own way of being a node. */
 #define _GNU_SOURCE
 #include <dirent.h>
 #include <sched.h>
@@ -18,21 +21,19 @@
 
 #include "hilbus_internal.h"
 
-#define RESCAN_INTERVAL_NS 1000000000LL /* re-read membership at least once a second */
-#define RECENT_CHANGE_NS 100000000LL    /* and on every send while the directory changed lately */
-/* A receiving socket queues only net.unix.max_dgram_qlen datagrams (often 10), far fewer
- * than a SocketCAN socket buffer. A sender that finds a peer full waits this long for it
- * to drain before counting a drop; a peer still full after that is marked congested and
- * costs no further waiting until it accepts a frame again (a stopped node never slows
- * the bus down). */
-#define FULL_PEER_GRACE_NS 2000000LL
-#define CHECK_INTERVAL_NS 2000000LL /* look for joined or left nodes every 2 ms */
+/* hilbus's own: how it keeps the promise HIL_UNIXCAN_RESCAN_INTERVAL_NS (every node re-reads
+ * the folder at least that often). Folder timestamps are coarse, so while the folder changed
+ * less than RECENT_CHANGE_NS ago it is re-read on every send (a node that joined within the
+ * timestamp tick of the last read is not missed); otherwise its timestamp is looked at no
+ * more than every CHECK_INTERVAL_NS (stat() is a system call with a path lookup). */
+#define RECENT_CHANGE_NS 100000000LL
+#define CHECK_INTERVAL_NS 2000000LL
 
 static int serial_counter;
 
 static int64_t ts_ns(struct timespec t) { return (int64_t)t.tv_sec * 1000000000LL + t.tv_nsec; }
 
-/* The directory rule (docs/interfaces.md, the same in rig/bus/unixcan.py):
+/* The directory rule (docs/interfaces.md; the names and modes are protocols/unixcan.toml):
  *  - base: $UNIXCAN_DIR, else $XDG_RUNTIME_DIR/unixcan (an absolute XDG_RUNTIME_DIR), else
  *    /tmp/unixcan-<uid>; the channel folder is base/<channel>, <channel> a plain name;
  *  - the folders above the base that exist must be trusted: each a directory of root or of
@@ -40,35 +41,33 @@ static int64_t ts_ns(struct timespec t) { return (int64_t)t.tv_sec * 1000000000L
  *    with UNIXCAN_GROUP), and a symbolic link among them one of root or of this user (so
  *    /var/run -> /run is fine, another user's link in /tmp is refused): nobody else can
  *    move the bus folder away or put another in its place;
- *  - what is missing is created mode 0700 (0770 and group G with UNIXCAN_GROUP=G);
+ *  - what is missing is created with the folder mode (the group's, and group G, with
+ *    UNIXCAN_GROUP=G);
  *  - the base and the channel folder must be real directories (a symlink is refused),
  *    owned by this user and writable by nobody else (the group only with UNIXCAN_GROUP);
- *    the channel folder's mode is then set to 0700 (0770): it holds only the bus's sockets;
- *  - sockets are 0600 (0660 with the group); only sockets owned by this user (or, with
+ *    the channel folder's mode is then set to the folder mode: it holds only the bus's
+ *    sockets;
+ *  - sockets get the socket mode (the group's); only sockets owned by this user (or, with
  *    UNIXCAN_GROUP, of that group) are peers, and nothing else is ever removed. */
 int hilbus_channel_name_ok(const char *channel)
 {
     size_t n = channel ? strlen(channel) : 0;
-    if (n == 0 || n > HILBUS_MAX_CHANNEL || channel[0] == '.' || channel[0] == '-') return 0;
-    for (size_t i = 0; i < n; i++) {
-        char c = channel[i];
-        if (!((c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
-              c == '_' || c == '-' || c == '.'))
-            return 0;
-    }
-    return 1;
+    if (n == 0 || n > HIL_UNIXCAN_CHANNEL_MAX_LEN ||
+        strchr(HIL_UNIXCAN_CHANNEL_NOT_FIRST, channel[0]) != NULL)
+        return 0;
+    return strspn(channel, HIL_UNIXCAN_CHANNEL_CHARS) == n;
 }
 
 static int lookup_group(gid_t *gid, char *err, size_t errlen)
 {
-    const char *name = getenv("UNIXCAN_GROUP");
+    const char *name = getenv(HIL_UNIXCAN_GROUP_ENV);
     if (name == NULL || name[0] == '\0') return 0;
     struct group *g = getgrnam(name);
     if (g == NULL) {
         char *end = NULL;
         unsigned long v = strtoul(name, &end, 10);
         if (end == name || *end != '\0') {
-            snprintf(err, errlen, "unixcan: UNIXCAN_GROUP=%s: no such group", name);
+            snprintf(err, errlen, "unixcan: %s=%s: no such group", HIL_UNIXCAN_GROUP_ENV, name);
             return -1;
         }
         *gid = (gid_t)v;
@@ -80,17 +79,17 @@ static int lookup_group(gid_t *gid, char *err, size_t errlen)
 
 int hilbus_unixcan_base(char *out, size_t outlen)
 {
-    const char *base = getenv("UNIXCAN_DIR");
+    const char *base = getenv(HIL_UNIXCAN_BASE_ENV);
     int w;
     if (base != NULL && base[0] != '\0') {
         w = snprintf(out, outlen, "%s", base);
     } else {
-        const char *xdg = getenv("XDG_RUNTIME_DIR");
+        const char *xdg = getenv(HIL_UNIXCAN_RUNTIME_ENV);
         struct stat st;
         if (xdg != NULL && xdg[0] == '/' && stat(xdg, &st) == 0 && S_ISDIR(st.st_mode))
-            w = snprintf(out, outlen, "%s/unixcan", xdg);
+            w = snprintf(out, outlen, "%s/%s", xdg, HIL_UNIXCAN_RUNTIME_SUBDIR);
         else
-            w = snprintf(out, outlen, "/tmp/unixcan-%lu", (unsigned long)geteuid());
+            w = snprintf(out, outlen, HIL_UNIXCAN_FALLBACK_BASE_FMT, (unsigned long)geteuid());
     }
     if (w < 0 || (size_t)w >= outlen) {
         errno = ENAMETOOLONG;
@@ -203,14 +202,14 @@ static int trusted_parent(const char *path, int have_group, gid_t gid, char *err
     return 0;
 }
 
-/* The trusted parents checked, mkdir -p for the missing ones (mode 0700), then the base and
+/* The trusted parents checked, mkdir -p for the missing ones (the folder mode), then the base and
  * channel checks. */
 static int make_bus_dir(struct hilbus *bus, const char *base, char *err, size_t errlen)
 {
     gid_t gid = 0;
     int have_group = lookup_group(&gid, err, errlen);
     if (have_group < 0) return -1;
-    const mode_t mode = have_group ? 0770 : 0700;
+    const mode_t mode = have_group ? HIL_UNIXCAN_GROUP_FOLDER_MODE : HIL_UNIXCAN_FOLDER_MODE;
     char tmp[sizeof bus->dir];
     size_t len = strlen(base);
     if (len >= sizeof tmp) {
@@ -218,7 +217,7 @@ static int make_bus_dir(struct hilbus *bus, const char *base, char *err, size_t 
         return -1;
     }
     memcpy(tmp, base, len + 1);
-    int missing = 0; /* a folder above is missing: what is below it is made here, 0700 */
+    int missing = 0; /* a folder above is missing: what is below it is made here */
     for (char *p = tmp + 1; *p; p++) {
         if (*p == '/') {
             *p = '\0';
@@ -227,7 +226,7 @@ static int make_bus_dir(struct hilbus *bus, const char *base, char *err, size_t 
                 if (t < 0) return -1;
                 missing = t;
             }
-            if (mkdir(tmp, 0700) != 0 && errno != EEXIST) {
+            if (mkdir(tmp, HIL_UNIXCAN_FOLDER_MODE) != 0 && errno != EEXIST) {
                 snprintf(err, errlen, "unixcan: cannot create %s: %s", tmp, strerror(errno));
                 return -1;
             }
@@ -275,8 +274,8 @@ static void scan_peers(struct hilbus *bus)
     struct dirent *e;
     int beyond = 0;
     while ((e = readdir(d)) != NULL) {
-        size_t len = strlen(e->d_name);
-        if (len < 6 || strcmp(e->d_name + len - 5, ".sock") != 0) continue;
+        const size_t len = strlen(e->d_name), suffix = sizeof HIL_UNIXCAN_SOCKET_SUFFIX - 1;
+        if (len <= suffix || strcmp(e->d_name + len - suffix, HIL_UNIXCAN_SOCKET_SUFFIX) != 0) continue;
         struct sockaddr_un cand;
         memset(&cand, 0, sizeof cand);
         cand.sun_family = AF_UNIX;
@@ -349,7 +348,8 @@ static void refresh_peers(struct hilbus *bus)
     int64_t since_scan = ts_ns(now) - ts_ns(bus->last_scan);
     /* Directory timestamps are coarse: keep re-reading while a change is recent, so a node
      * that joined within the same timestamp tick as our last scan is not missed. */
-    if (since_scan > RESCAN_INTERVAL_NS || ts_ns(now) - ts_ns(bus->dir_mtime) < RECENT_CHANGE_NS) {
+    if (since_scan > HIL_UNIXCAN_RESCAN_INTERVAL_NS ||
+        ts_ns(now) - ts_ns(bus->dir_mtime) < RECENT_CHANGE_NS) {
         scan_peers(bus);
         bus->last_check_ns = mono;
         return;
@@ -384,7 +384,8 @@ int hilbus_unixcan_open(struct hilbus *bus, const char *channel, char *err, size
     memset(&bus->self, 0, sizeof bus->self);
     bus->self.sun_family = AF_UNIX;
     char name[40];
-    snprintf(name, sizeof name, "/%ld-%d.sock", (long)getpid(), serial_counter++);
+    snprintf(name, sizeof name, "/%ld-" HIL_UNIXCAN_C_TAG "%d" HIL_UNIXCAN_SOCKET_SUFFIX, (long)getpid(),
+             serial_counter++);
     /* bus->dir leaves at least 24 bytes of sun_path (checked above); name is at most 30. */
     size_t dlen = strlen(bus->dir), nlen = strlen(name);
     if (dlen + nlen + 1 > sizeof bus->self.sun_path) {
@@ -400,8 +401,9 @@ int hilbus_unixcan_open(struct hilbus *bus, const char *channel, char *err, size
         close(s);
         return -1;
     }
-    /* The folder is 0700 already; the socket's own mode says the same to whoever looks. */
-    if (chmod(bus->self.sun_path, bus->have_group ? 0660 : 0600) != 0 ||
+    /* The folder is closed already; the socket's own mode says the same to whoever looks. */
+    if (chmod(bus->self.sun_path,
+              bus->have_group ? HIL_UNIXCAN_GROUP_SOCKET_MODE : HIL_UNIXCAN_SOCKET_MODE) != 0 ||
         (bus->have_group && chown(bus->self.sun_path, (uid_t)-1, bus->group) != 0)) {
         snprintf(err, errlen, "unixcan: cannot set the mode of %s: %s", bus->self.sun_path,
                  strerror(errno));
@@ -439,7 +441,7 @@ static ssize_t send_to_peer(struct hilbus *bus, int i, const struct canfd_frame 
 {
     ssize_t n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
     if (n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK) || bus->congested[i]) return n;
-    const int64_t give_up = mono_ns() + FULL_PEER_GRACE_NS;
+    const int64_t give_up = mono_ns() + HIL_UNIXCAN_FULL_PEER_GRACE_NS;
     do {
         sched_yield();
         n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
@@ -450,8 +452,8 @@ static ssize_t send_to_peer(struct hilbus *bus, int i, const struct canfd_frame 
 int hilbus_unixcan_send(struct hilbus *bus, const struct canfd_frame *frame, int fd)
 {
     struct canfd_frame out = *frame;
-    if (!fd) out.flags = 0;
-    size_t size = fd ? CANFD_MTU : CAN_MTU;
+    out.flags = fd ? (uint8_t)(out.flags | HIL_UNIXCAN_FDF) : 0; /* the wire's flags byte */
+    size_t size = fd ? HIL_UNIXCAN_FD_SIZE : HIL_UNIXCAN_CLASSIC_SIZE;
     refresh_peers(bus);
     for (int i = 0; i < bus->n_peers;) {
         ssize_t n = send_to_peer(bus, i, &out, size);
@@ -487,16 +489,16 @@ int hilbus_unixcan_recv(struct hilbus *bus, struct canfd_frame *frame, int *fd)
     /* MSG_TRUNC: the datagram's real size, so a longer one is not taken for a frame */
     ssize_t n = recv(bus->sock, frame, sizeof *frame, MSG_DONTWAIT | MSG_TRUNC);
     if (n < 0) return (errno == EAGAIN || errno == EINTR) ? 0 : -1;
-    if (n == CANFD_MTU) {
+    if (n == HIL_UNIXCAN_FD_SIZE) {
         *fd = 1;
-    } else if (n == CAN_MTU) {
+    } else if (n == HIL_UNIXCAN_CLASSIC_SIZE) {
         *fd = 0;
         frame->flags = 0;
     } else {
         bus->stats.rx_malformed++; /* neither a struct can_frame nor a struct canfd_frame */
         return 0;
     }
-    if (frame->len > (*fd ? CANFD_MAX_DLEN : CAN_MAX_DLEN) ||
+    if (frame->len > (*fd ? HIL_UNIXCAN_FD_MAX_LEN : HIL_UNIXCAN_CLASSIC_MAX_LEN) ||
         (*fd && hilbus_fd_len(frame->len) != frame->len)) {
         bus->stats.rx_malformed++; /* a length no CAN controller sends: never handed on */
         return 0;

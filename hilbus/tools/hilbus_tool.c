@@ -27,6 +27,8 @@ static void usage(FILE *out)
             "  echo   answer pings:      frames with id 0x7A0 are sent back as 0x7A1\n"
             "  ping   round-trip timing: [--count N] [--fd] [--window W] [--timeout-ms T]\n"
             "  dir    open the bus and print its unixcan folder: {\"dir\": PATH, \"max_peers\": N}\n"
+            "  wire   print the unixcan wire facts hilbus was built with, the FD length of 0..64\n"
+            "         bytes, and its verdict on each channel name read from stdin (hex, one a line)\n"
             "common:  --bus socketcan|unixcan|auto (default auto)  --channel NAME (default vcan0)\n"
             "         --ready-file PATH (written once the bus is open)\n"
             "Output: one JSON object per line on stdout; errors on stderr, exit 1.\n");
@@ -145,6 +147,50 @@ static int run_ping(hilbus_t *bus, long count, int fd, int window, int64_t timeo
     return lost == 0 ? 0 : 3;
 }
 
+/* `wire`: what hilbus holds of protocols/unixcan.toml, for tests/python/bus/test_unixcan_wire.py
+ * to hold against the description and the Python side. No bus is opened. */
+static int wire_mode(void)
+{
+    static const unsigned char fd_lengths[] = HIL_UNIXCAN_FD_LENGTHS;
+    printf("{\"classic_size\": %d, \"fd_size\": %d, \"id_offset\": %d, \"len_offset\": %d, "
+           "\"flags_offset\": %d, \"data_offset\": %d, \"classic_max_len\": %d, \"fd_max_len\": %d, ",
+           HIL_UNIXCAN_CLASSIC_SIZE, HIL_UNIXCAN_FD_SIZE, HIL_UNIXCAN_ID_OFFSET, HIL_UNIXCAN_LEN_OFFSET,
+           HIL_UNIXCAN_FLAGS_OFFSET, HIL_UNIXCAN_DATA_OFFSET, HIL_UNIXCAN_CLASSIC_MAX_LEN,
+           HIL_UNIXCAN_FD_MAX_LEN);
+    printf("\"fd_lengths\": [");
+    for (size_t i = 0; i < sizeof fd_lengths; i++) printf("%s%u", i ? ", " : "", fd_lengths[i]);
+    printf("], \"fd_len\": [");
+    for (size_t n = 0; n <= HIL_UNIXCAN_FD_MAX_LEN; n++) printf("%s%u", n ? ", " : "", hilbus_fd_len(n));
+    printf("], \"eff_flag\": %lu, \"rtr_flag\": %lu, \"err_flag\": %lu, \"sff_mask\": %lu, "
+           "\"eff_mask\": %lu, \"brs\": %u, \"esi\": %u, \"fdf\": %u, ",
+           (unsigned long)HIL_UNIXCAN_EFF_FLAG, (unsigned long)HIL_UNIXCAN_RTR_FLAG,
+           (unsigned long)HIL_UNIXCAN_ERR_FLAG, (unsigned long)HIL_UNIXCAN_SFF_MASK,
+           (unsigned long)HIL_UNIXCAN_EFF_MASK, HIL_UNIXCAN_BRS, HIL_UNIXCAN_ESI, HIL_UNIXCAN_FDF);
+    printf("\"channel_rule\": \"%s\", \"socket_suffix\": \"%s\", \"c_tag\": \"%s\", "
+           "\"folder_mode\": %d, \"group_folder_mode\": %d, \"socket_mode\": %d, "
+           "\"group_socket_mode\": %d, \"rescan_interval_ns\": %lld, \"full_peer_grace_ns\": %lld, ",
+           HIL_UNIXCAN_CHANNEL_RULE, HIL_UNIXCAN_SOCKET_SUFFIX, HIL_UNIXCAN_C_TAG, HIL_UNIXCAN_FOLDER_MODE,
+           HIL_UNIXCAN_GROUP_FOLDER_MODE, HIL_UNIXCAN_SOCKET_MODE, HIL_UNIXCAN_GROUP_SOCKET_MODE,
+           HIL_UNIXCAN_RESCAN_INTERVAL_NS, HIL_UNIXCAN_FULL_PEER_GRACE_NS);
+    printf("\"names_ok\": [");
+    char line[1024];
+    int first = 1;
+    while (fgets(line, sizeof line, stdin) != NULL) {
+        char name[sizeof line / 2 + 1];
+        line[strcspn(line, "\r\n")] = '\0';
+        int n = parse_hex(line, (unsigned char *)name, sizeof name - 1);
+        if (n < 0) {
+            fprintf(stderr, "hilbus_tool: wire: a name is hex, at most %zu bytes\n", sizeof name - 1);
+            return 2;
+        }
+        name[n] = '\0';
+        printf("%s%d", first ? "" : ", ", hilbus_channel_name_ok(name));
+        first = 0;
+    }
+    printf("]}\n");
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
@@ -152,6 +198,7 @@ int main(int argc, char **argv)
         return argc < 2 ? 2 : 0;
     }
     const char *mode = argv[1];
+    if (strcmp(mode, "wire") == 0) return wire_mode();
     const char *transport = "auto", *channel = "vcan0", *data_hex = "", *ready_file = NULL;
     long count = 1, interval_us = 0, timeout_ms = 1000;
     unsigned long id = 0;

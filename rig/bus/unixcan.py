@@ -25,7 +25,6 @@ import grp
 import itertools
 import logging
 import os
-import re
 import select
 import socket
 import stat
@@ -40,29 +39,18 @@ import can
 from can.bus import CanProtocol
 from can.typechecking import AutoDetectedConfig, CanFilters
 
-CAN_EFF_FLAG = 0x80000000
-CAN_RTR_FLAG = 0x40000000
-CAN_ERR_FLAG = 0x20000000
-CAN_EFF_MASK = 0x1FFFFFFF
-CANFD_BRS = 0x01
-CANFD_ESI = 0x02
-CANFD_FDF = 0x04
-CAN_MTU = 16
-CANFD_MTU = 72
-_FRAME = struct.Struct("<IBBBB64s")
-_ID = struct.Struct("<I")
-_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
-_RESCAN_INTERVAL_S = 1.0
+from rig.bus.unixcan_wire import WIRE
+
+# The wire (datagram layout, flag bits, FD lengths, channel names, folder and socket naming
+# and modes, the timing nodes promise each other) is protocols/unixcan.toml: WIRE.
+_FRAME = WIRE.frame_struct()
+_ID = struct.Struct("<I")  # the id word alone: the filter looks at nothing else
+# This node's own: folder timestamps are coarse, so while the folder changed less than this
+# long ago it is re-read on every send (a node that joined within the timestamp tick of the
+# last read is not missed); otherwise its timestamp is looked at on every send.
 _RECENT_CHANGE_S = 0.1
-# A receiving socket queues only net.unix.max_dgram_qlen datagrams (often 10). A sender that
-# finds a peer full waits this long for it to drain before counting a drop; a peer still
-# full after that is marked congested and costs no more waiting until it accepts a frame.
-_FULL_PEER_GRACE_S = 0.002
 _serial = itertools.count()
 log = logging.getLogger("can.unixcan")
-
-
-_CHANNEL_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,62}")
 
 
 class UnixCanDirError(OSError):
@@ -72,27 +60,27 @@ class UnixCanDirError(OSError):
 def base_dir() -> Path:
     """Folder holding one sub-folder per channel: ``$UNIXCAN_DIR``, else
     ``$XDG_RUNTIME_DIR/unixcan`` (an absolute, existing XDG_RUNTIME_DIR), else
-    ``/tmp/unixcan-<uid>`` (the same rule as hilbus/src/unixcan.c)."""
-    explicit = os.environ.get("UNIXCAN_DIR")
+    ``/tmp/unixcan-<uid>`` (protocols/unixcan.toml [directory])."""
+    explicit = os.environ.get(WIRE.base_env)
     if explicit:
         path = explicit
     else:
-        xdg = os.environ.get("XDG_RUNTIME_DIR", "")
+        xdg = os.environ.get(WIRE.runtime_env, "")
         if xdg.startswith("/") and os.path.isdir(xdg):
-            path = os.path.join(xdg, "unixcan")
+            path = os.path.join(xdg, WIRE.runtime_subdir)
         else:
-            path = f"/tmp/unixcan-{os.geteuid()}"
+            path = WIRE.fallback_base_path()
     return Path(path.rstrip("/") or "/")
 
 
 def channel_name_ok(channel: str) -> bool:
-    """A plain name: 1..63 of ``[A-Za-z0-9_.-]``, not starting with '.' or '-'."""
-    return _CHANNEL_RE.fullmatch(channel) is not None
+    """A plain name (protocols/unixcan.toml [channel]): no path, no "..", no option."""
+    return WIRE.channel_name_ok(channel)
 
 
 def bus_group() -> int | None:
     """The group of ``UNIXCAN_GROUP`` (a name or a number), or None."""
-    name = os.environ.get("UNIXCAN_GROUP")
+    name = os.environ.get(WIRE.group_env)
     if not name:
         return None
     try:
@@ -100,7 +88,7 @@ def bus_group() -> int | None:
     except KeyError:
         if name.isdigit():
             return int(name)
-        raise UnixCanDirError(f"unixcan: UNIXCAN_GROUP={name}: no such group") from None
+        raise UnixCanDirError(f"unixcan: {WIRE.group_env}={name}: no such group") from None
 
 
 def _own_directory(path: Path, mode: int, group: int | None, tighten: bool) -> None:
@@ -137,7 +125,7 @@ def _own_directory(path: Path, mode: int, group: int | None, tighten: bool) -> N
 
 
 def _trusted_parent(path: Path, group: int | None) -> bool:
-    """One existing folder above the base (the rule in hilbus/src/unixcan.c): a directory of
+    """One existing folder above the base (the rule of docs/interfaces.md): a directory of
     root or of this user that nobody else can write (a sticky one such as /tmp excepted, the
     bus's group with UNIXCAN_GROUP); a symbolic link among them must be root's or this
     user's. True when it exists and is trusted, False when it does not exist; refused with
@@ -180,13 +168,11 @@ def channel_dir(channel: str) -> Path:
     the folders above the base that exist must be trusted (``_trusted_parent``); missing
     folders are made 0700 (0770 of ``UNIXCAN_GROUP``); the base and the channel
     folder must be real directories of this user that nobody else can write; the channel
-    folder's mode is set to 0700 (0770)."""
+    folder's mode is set to 0700 (0770): the modes of protocols/unixcan.toml."""
     if not channel_name_ok(channel):
-        raise UnixCanDirError(
-            f"invalid channel name {channel!r}: a plain name of 1 to 63 letters, digits, '_', "
-            "'-' or '.', not starting with '.' or '-'")
+        raise UnixCanDirError(f"invalid channel name {channel!r}: {WIRE.channel_rule()}")
     group = bus_group()
-    mode = 0o770 if group is not None else 0o700
+    mode = WIRE.group_folder_mode if group is not None else WIRE.folder_mode
     base = base_dir()
     missing = False  # a folder above is missing: what is below it is made here, 0700
     for parent in reversed(base.parents):
@@ -196,7 +182,7 @@ def channel_dir(channel: str) -> Path:
             missing = not _trusted_parent(parent, group)
         if missing:
             try:
-                parent.mkdir(mode=0o700)
+                parent.mkdir(mode=WIRE.folder_mode)
             except FileExistsError:
                 pass
             except OSError as exc:
@@ -220,57 +206,59 @@ def peer_socket_ok(path: str, group: int | None) -> bool:
 
 def fd_length(n: int) -> int:
     """The smallest valid CAN FD payload length that holds n bytes."""
-    for length in _FD_LENGTHS:
+    for length in WIRE.fd_lengths:
         if n <= length:
             return length
-    raise ValueError(f"CAN FD payload of {n} bytes exceeds 64")
+    raise ValueError(f"CAN FD payload of {n} bytes exceeds {WIRE.fd_max_len}")
 
 
 def pack_frame(msg: can.Message) -> bytes:
     """The datagram for a message: 16 bytes (classic) or 72 bytes (CAN FD)."""
-    can_id = msg.arbitration_id & CAN_EFF_MASK
+    can_id = msg.arbitration_id & WIRE.eff_mask
     if msg.is_extended_id:
-        can_id |= CAN_EFF_FLAG
+        can_id |= WIRE.eff_flag
     if msg.is_remote_frame:
-        can_id |= CAN_RTR_FLAG
+        can_id |= WIRE.rtr_flag
     if msg.is_error_frame:
-        can_id |= CAN_ERR_FLAG
+        can_id |= WIRE.err_flag
     data = bytes(msg.data)
     if msg.is_fd:
         length = fd_length(len(data))
-        flags = CANFD_FDF | (CANFD_BRS if msg.bitrate_switch else 0) | (
-            CANFD_ESI if msg.error_state_indicator else 0
+        flags = WIRE.fdf | (WIRE.brs if msg.bitrate_switch else 0) | (
+            WIRE.esi if msg.error_state_indicator else 0
         )
-        return _FRAME.pack(can_id, length, flags, 0, 0, data.ljust(64, b"\0"))
-    if len(data) > 8:
+        return _FRAME.pack(can_id, length, flags, 0, 0, data.ljust(WIRE.fd_max_len, b"\0"))
+    if len(data) > WIRE.classic_max_len:
         raise ValueError(f"classic CAN frame with {len(data)} data bytes; set is_fd=True")
     length = msg.dlc if msg.is_remote_frame else len(data)
-    return _FRAME.pack(can_id, length, 0, 0, 0, data.ljust(64, b"\0"))[:CAN_MTU]
+    datagram = _FRAME.pack(can_id, length, 0, 0, 0, data.ljust(WIRE.fd_max_len, b"\0"))
+    return datagram[:WIRE.classic_size]
 
 
 def unpack_frame(datagram: bytes, timestamp: float, channel: str) -> can.Message | None:
     """The message in a datagram, or None for a datagram that is not a frame: a size other
     than 16 or 72 bytes, or a length no controller sends (> 8 classic, not an FD length)."""
-    if len(datagram) == CANFD_MTU:
+    if len(datagram) == WIRE.fd_size:
         is_fd = True
-    elif len(datagram) == CAN_MTU:
+    elif len(datagram) == WIRE.classic_size:
         is_fd = False
-        datagram = datagram.ljust(CANFD_MTU, b"\0")
+        datagram = datagram.ljust(WIRE.fd_size, b"\0")
     else:
         return None
     can_id, length, flags, _, _, data = _FRAME.unpack(datagram)
-    if length > (64 if is_fd else 8) or (is_fd and length not in _FD_LENGTHS):
+    if length > (WIRE.fd_max_len if is_fd else WIRE.classic_max_len) or (
+            is_fd and length not in WIRE.fd_lengths):
         return None
-    is_remote = bool(can_id & CAN_RTR_FLAG)
+    is_remote = bool(can_id & WIRE.rtr_flag)
     return can.Message(
         timestamp=timestamp,
-        arbitration_id=can_id & CAN_EFF_MASK,
-        is_extended_id=bool(can_id & CAN_EFF_FLAG),
+        arbitration_id=can_id & WIRE.eff_mask,
+        is_extended_id=bool(can_id & WIRE.eff_flag),
         is_remote_frame=is_remote,
-        is_error_frame=bool(can_id & CAN_ERR_FLAG),
+        is_error_frame=bool(can_id & WIRE.err_flag),
         is_fd=is_fd,
-        bitrate_switch=bool(flags & CANFD_BRS),
-        error_state_indicator=bool(flags & CANFD_ESI),
+        bitrate_switch=bool(flags & WIRE.brs),
+        error_state_indicator=bool(flags & WIRE.esi),
         dlc=length,
         data=b"" if is_remote else data[:length],
         channel=channel,
@@ -289,7 +277,7 @@ def live_nodes(channel: str, exclude: set[str] | frozenset[str] = frozenset()) -
     alive = []
     for n in names:
         path = str(folder / n)
-        if not n.endswith(".sock") or path in exclude:
+        if not n.endswith(WIRE.socket_suffix) or path in exclude:
             continue
         probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
@@ -320,7 +308,8 @@ class UnixCanBus(can.BusABC):
             self._dir = channel_dir(self.channel)
         except OSError as exc:
             raise can.CanInitializationError(str(exc)) from exc
-        self._path = self._dir / f"{os.getpid()}-py{next(_serial)}.sock"
+        name = f"{os.getpid()}-{WIRE.python_tag}{next(_serial)}{WIRE.socket_suffix}"
+        self._path = self._dir / name
         if len(os.fsencode(self._path)) >= 108:
             raise can.CanInitializationError(f"unixcan: socket path {self._path} is too long")
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
@@ -328,8 +317,9 @@ class UnixCanBus(can.BusABC):
             self._sock.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
         self._path.unlink(missing_ok=True)
         self._sock.bind(str(self._path))
-        # The folder is 0700 already; the socket's own mode says the same to whoever looks.
-        os.chmod(self._path, 0o660 if self._group is not None else 0o600)
+        # The folder is closed already; the socket's own mode says the same to whoever looks.
+        os.chmod(self._path, WIRE.group_socket_mode if self._group is not None
+                 else WIRE.socket_mode)
         if self._group is not None:
             os.chown(self._path, -1, self._group)
         self._sock.setblocking(False)
@@ -367,7 +357,7 @@ class UnixCanBus(can.BusABC):
         own = self._path.name
         peers = []
         for n in names:
-            if not n.endswith(".sock") or n == own:
+            if not n.endswith(WIRE.socket_suffix) or n == own:
                 continue
             path = str(self._dir / n)
             if peer_socket_ok(path, self._group):
@@ -380,7 +370,8 @@ class UnixCanBus(can.BusABC):
     def _refresh_peers(self) -> None:
         now = time.time()
         # Directory timestamps are coarse: keep re-reading while a change is recent.
-        if now - self._last_scan > _RESCAN_INTERVAL_S or now - self._dir_mtime < _RECENT_CHANGE_S:
+        if (now - self._last_scan > WIRE.rescan_interval_s
+                or now - self._dir_mtime < _RECENT_CHANGE_S):
             self._scan_peers()
             return
         try:
@@ -427,7 +418,7 @@ class UnixCanBus(can.BusABC):
         except BlockingIOError:
             if peer in self._congested:
                 raise
-        give_up = time.monotonic() + _FULL_PEER_GRACE_S
+        give_up = time.monotonic() + WIRE.full_peer_grace_s
         while True:
             time.sleep(0)  # lets this process's own reader thread drain, if it is the peer
             try:
@@ -454,12 +445,12 @@ class UnixCanBus(can.BusABC):
             while True:
                 try:
                     # one byte more than a frame: a longer datagram shows as malformed
-                    datagram = self._sock.recv(CANFD_MTU + 1)
+                    datagram = self._sock.recv(WIRE.fd_size + 1)
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError:
                     return
-                if len(datagram) not in (CAN_MTU, CANFD_MTU):
+                if len(datagram) not in (WIRE.classic_size, WIRE.fd_size):
                     self.stats["rx_malformed"] += 1  # no struct can_frame / canfd_frame
                     continue
                 # Filter on the raw id before building a Message: a node that listens to a
@@ -498,8 +489,8 @@ class UnixCanBus(can.BusABC):
             rules.append((can_id & mask, mask, ext))
 
         def accept(raw_id: int) -> bool:
-            ident = raw_id & CAN_EFF_MASK
-            is_ext = bool(raw_id & CAN_EFF_FLAG)
+            ident = raw_id & WIRE.eff_mask
+            is_ext = bool(raw_id & WIRE.eff_flag)
             return any((ident & mask) == want and (ext is None or ext == is_ext)
                        for want, mask, ext in rules)
 
@@ -542,7 +533,7 @@ class UnixCanBus(can.BusABC):
             log.warning("unixcan channel %s: %d deliveries of the %d frames sent were "
                         "dropped (a receiver's queue stayed full for %g ms), %d received "
                         "frames overflowed this node's buffer", self.channel, st["tx_drops"],
-                        st["tx_frames"], _FULL_PEER_GRACE_S * 1e3, st["rx_overflows"])
+                        st["tx_frames"], WIRE.full_peer_grace_s * 1e3, st["rx_overflows"])
         super().shutdown()
 
     @staticmethod

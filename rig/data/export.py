@@ -42,10 +42,11 @@ import numpy as np
 from cantools.database.can import Message
 
 from rig import protocols
+from rig.bus.unixcan_wire import WIRE
 from rig.data import capture
 from rig.data.trace import CAN_EFF_FLAG, CANFD_FDF, MessageDecoder, TraceError, TraceFile, frame_ids
 
-CANFD_BRS = 0x01  # struct canfd_frame flags (linux/can.h)
+CANFD_BRS = WIRE.brs  # struct canfd_frame flags: protocols/unixcan.toml
 LOG_SUFFIXES = (".blf", ".asc", ".log")
 MF4_SUFFIXES = (".mf4",)
 # file, channel in the log, order within a period, whether a run must have it (rig.trace

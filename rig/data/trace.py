@@ -22,16 +22,20 @@ import numpy as np
 import numpy.typing as npt
 from cantools.database.can import Message, Signal
 
+from rig.bus.unixcan_wire import WIRE
+
 MAGIC = b"HILTRACE"
 VERSION = 1
-RECORD_SIZE = 72
 HEADER = struct.Struct("<8sII")
 HEADER_SIZE = HEADER.size  # 16
 
-CAN_EFF_FLAG = 0x80000000
-CAN_EFF_MASK = 0x1FFFFFFF
-CAN_SFF_MASK = 0x7FF
-CANFD_FDF = 0x04
+# A record is a struct canfd_frame as the programs received it: the very datagram of the
+# unixcan wire, whose layout and flag bits are protocols/unixcan.toml.
+RECORD_SIZE = WIRE.fd_size
+CAN_EFF_FLAG = WIRE.eff_flag
+CAN_EFF_MASK = WIRE.eff_mask
+CAN_SFF_MASK = WIRE.sff_mask
+CANFD_FDF = WIRE.fdf
 
 # struct canfd_frame, little-endian (x86-64 and every host this rig runs on).
 RECORD_DTYPE = np.dtype(
@@ -41,7 +45,7 @@ RECORD_DTYPE = np.dtype(
         ("flags", "u1"),
         ("res0", "u1"),
         ("res1", "u1"),
-        ("data", "u1", (64,)),
+        ("data", "u1", (WIRE.fd_max_len,)),
     ]
 )
 assert RECORD_DTYPE.itemsize == RECORD_SIZE

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import struct
+import tomllib
 from pathlib import Path
 
 import cantools
@@ -18,13 +19,15 @@ import cantools
 ROOT = Path(__file__).resolve().parents[2]
 PROTOCOLS = ROOT / "protocols"
 OUT = Path(__file__).resolve().parent / "corpus"
-CANFD_FDF = 0x04
+UNIXCAN = tomllib.loads((PROTOCOLS / "unixcan.toml").read_text(encoding="utf-8"))
+CANFD_FDF = UNIXCAN["fd_flags"]["fdf"]
+FD_MAX_LEN = UNIXCAN["frame"]["fd_max_len"]
 
 
 def record(frame_id: int, data: bytes, fd: bool) -> bytes:
     """One struct canfd_frame (72 bytes) as the programs receive it."""
     return struct.pack("<IBBBB", frame_id, len(data), CANFD_FDF if fd else 0, 0, 0) + \
-        data.ljust(64, b"\0")
+        data.ljust(FD_MAX_LEN, b"\0")
 
 
 def encode(db: cantools.database.can.Database, name: str, **values: float) -> bytes:
