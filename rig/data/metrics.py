@@ -286,12 +286,14 @@ def _column_metric(name: str, unit: str, description: str, column: str, stat: st
     _register(name, unit, description)(metric)
 
 
-def _error_metric(name: str, unit: str, description: str, column: str, statistic: str) -> None:
+def _error_metric(name: str, unit: str, description: str, column: str, statistic: str,
+                  minus: str | None = None) -> None:
     """Registers a metric that is one of the error statistics (``ErrorStats``) of one capture
-    column over the window."""
+    column over the window, or of its difference from another (``minus``)."""
 
     def metric(w: Window, p: Mapping[str, float]) -> float:
-        return float(getattr(error_stats(w.get(column)), statistic))
+        err = w.get(column) if minus is None else w.get(column) - w.get(minus)
+        return float(getattr(error_stats(err), statistic))
 
     _register(name, unit, description)(metric)
 
@@ -350,14 +352,10 @@ _error_metric("speed_err_rms_rpm", "r/min", "RMS estimated - true speed", "speed
 _error_metric("speed_err_mean_rpm", "r/min", "mean estimated - true speed", "speed_err_rpm", "mean")
 
 
-@_register("speed_track_err_max_rpm", "r/min", "max |true speed - scenario speed reference|")
-def _trk_max(w: Window, p: Mapping[str, float]) -> float:
-    return error_stats(w.get("speed_true_rpm") - w.get("speed_ref_rpm")).max_abs
-
-
-@_register("speed_track_err_rms_rpm", "r/min", "RMS true speed - scenario speed reference")
-def _trk_rms(w: Window, p: Mapping[str, float]) -> float:
-    return error_stats(w.get("speed_true_rpm") - w.get("speed_ref_rpm")).rms
+_error_metric("speed_track_err_max_rpm", "r/min", "max |true speed - scenario speed reference|",
+              "speed_true_rpm", "max_abs", minus="speed_ref_rpm")
+_error_metric("speed_track_err_rms_rpm", "r/min", "RMS true speed - scenario speed reference",
+              "speed_true_rpm", "rms", minus="speed_ref_rpm")
 
 
 @_register(
@@ -521,14 +519,10 @@ _column_metric("id_mean_a", "A", "mean true d-axis current", "truth.id", "mean")
 _column_metric("iq_mean_a", "A", "mean true q-axis current", "truth.iq", "mean")
 
 
-@_register("te_err_max_nm", "N*m", "max |estimated - true electromagnetic torque|")
-def _te_max(w: Window, p: Mapping[str, float]) -> float:
-    return error_stats(w.get("fw.te_hat") - w.get("truth.te")).max_abs
-
-
-@_register("te_err_mean_nm", "N*m", "mean estimated - true electromagnetic torque")
-def _te_mean(w: Window, p: Mapping[str, float]) -> float:
-    return error_stats(w.get("fw.te_hat") - w.get("truth.te")).mean
+_error_metric("te_err_max_nm", "N*m", "max |estimated - true electromagnetic torque|",
+              "fw.te_hat", "max_abs", minus="truth.te")
+_error_metric("te_err_mean_nm", "N*m", "mean estimated - true electromagnetic torque",
+              "fw.te_hat", "mean", minus="truth.te")
 
 
 _column_metric("fw_active_fraction", "", "fraction of periods with flux weakening active",
