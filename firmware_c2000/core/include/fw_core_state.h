@@ -149,6 +149,41 @@ typedef struct {
     int32_t n_valid;     /* plausible lambda updates since the reset */
 } fw_flux_t;
 
+/* The back-EMF test's window (polarity_detect.c): the angle the back-EMF says the rotor
+ * turned against the raw slope angle. The start-up test runs one; the polarity watch in RUN
+ * two, staggered. */
+typedef struct {
+    int16_t on;                 /* 1 once the window has started */
+    fw_cplx_t psi_i;            /* the current's own flux L(theta_hat) i at the last period end, V*s */
+    real_t phi;                 /* sum of e_q Ts / lambda_m: +-(theta - theta0), rad */
+    real_t phi_min, phi_max;
+    real_t raw;                 /* raw slope angle continued across periods (modulo pi), rad */
+    real_t raw0;
+    real_t raw_prev;            /* the last raw slope angle on the tracker's branch (the watch) */
+    int32_t m;                  /* periods with a raw estimate: sums of phi, phi^2, raw, phi raw, raw^2 */
+    real_t sp, spp, sr, spr, srr;
+    real_t slope, slope_se;     /* raw against phi: +1 north pole, -1 south pole */
+    /* the q back-EMF of each period in the tracked frame, +-lambda_m omega: its straight line
+     * over the window's periods n = 1, 2, ... (sums of 1, n, n^2, e, n e) */
+    real_t s0, s1, s2, sy, sny;
+} fw_emf_window_t;
+
+/* The polarity watch in RUN (polarity_detect.c): the back-EMF test over two windows of
+ * pol_watch_window_ms, started half a window apart, while the speed is below
+ * pol_loss_min_rpm. */
+typedef struct {
+    fw_emf_window_t win[2];
+    int32_t age[2];             /* periods since each window started */
+    int16_t started;            /* 0 until both windows run (the second starts half a window later) */
+    int16_t q_on;               /* 1 once psi_i holds the last period's */
+    fw_cplx_t psi_i;            /* the current's own flux L(theta_hat) i at the last period end, V*s */
+    /* the q back-EMF's exponentially weighted straight line against time (this period 0, the
+     * one before -1, ...): sums of w, w t, w t^2, w e, w t e */
+    real_t ew_s0, ew_s1, ew_s2, ew_sy, ew_sty;
+    uint16_t flips_seen;        /* the core's polarity_flips when the windows last started */
+    uint16_t decided_north, decided_south;
+} fw_polarity_watch_t;
+
 typedef struct {
     int16_t phase;       /* polarity sub-state */
     int32_t count;       /* periods in the sub-state */
@@ -162,21 +197,9 @@ typedef struct {
     real_t si[2];               /* [+d, -d]: sums of the measured d current, A */
     int32_t n[2];               /* [+d, -d]: periods summed */
     int16_t pairs;              /* +d/-d pairs of holds done */
-    /* back-EMF test (polarity_detect.c): the angle the back-EMF says the rotor turned
-     * against the raw slope angle */
-    int16_t emf_on;             /* 1 once the window has started */
+    /* back-EMF test (polarity_detect.c) */
     int16_t emf_wait;           /* periods tracked before the window starts */
-    fw_cplx_t emf_psi_i;        /* the current's own flux L(theta_hat) i at the last period end, V*s */
-    real_t emf_phi;             /* sum of e_q Ts / lambda_m: +-(theta - theta0), rad */
-    real_t emf_phi_min, emf_phi_max;
-    real_t emf_raw;             /* raw slope angle continued across periods (modulo pi), rad */
-    real_t emf_raw0;
-    int32_t emf_m;              /* periods with a raw estimate: sums of phi, phi^2, raw, phi raw, raw^2 */
-    real_t emf_sp, emf_spp, emf_sr, emf_spr, emf_srr;
-    real_t emf_slope, emf_slope_se; /* raw against phi: +1 north pole, -1 south pole */
-    /* the q back-EMF of each period in the tracked frame, +-lambda_m omega: its straight line
-     * over the window's periods n = 1, 2, ... (sums of 1, n, n^2, e, n e) */
-    real_t emf_s0, emf_s1, emf_s2, emf_sy, emf_sny;
+    fw_emf_window_t emf;
     /* the catch (polarity_detect.c): a shaft turning fast at the enable */
     int16_t catch_on;           /* 1 while the catch measures */
     int16_t catch_n;            /* back-EMF vectors measured */
@@ -283,6 +306,7 @@ struct fw_core {
     int16_t flips_in_window;
     int16_t polarity_ok;
     fw_polarity_t pol;
+    fw_polarity_watch_t watch;
 
     /* control */
     real_t id, iq;               /* measured, estimated frame */

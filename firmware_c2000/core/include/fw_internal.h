@@ -267,6 +267,14 @@ int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *om
 /* One period; returns pol->result (0 running, 1 done, -1 failed). */
 int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                     fw_polarity_out_t *out);
+/* The polarity watch in RUN, once per period with data: -1 when the tracked frame points to
+ * the south pole (the caller turns it round), else 0. */
+void fw_polarity_watch_reset(fw_polarity_watch_t *wt, uint16_t flips);
+int16_t fw_polarity_watch_step(fw_polarity_watch_t *wt, const fw_core_t *c);
+/* After a -1: the shaft's electrical speed now, from the weighted straight line through the
+ * last ~2 ms of q back-EMF (measured in the frame before it was turned round); 0 when too
+ * short. */
+int16_t fw_polarity_watch_motion(const fw_polarity_watch_t *wt, real_t lambda_m, real_t *omega_now);
 
 /* ---- params.c ----------------------------------------------------------------------------- */
 extern const fw_param_info_t fw_param_table[FW_PARAM_COUNT];

@@ -61,6 +61,9 @@ static void reset_estimation(fw_core_t *c)
     c->polarity_ok = 0;
     c->flips_in_window = 0;
     c->flip_window_ticks = 0;
+    fw_polarity_watch_reset(&c->watch, c->polarity_flips);
+    c->watch.decided_north = 0;
+    c->watch.decided_south = 0;
 }
 
 static void reset_control(fw_core_t *c)
@@ -439,23 +442,49 @@ static void update_full_mod(fw_core_t *c)
     }
 }
 
-/* RUN after a start that the back-EMF decided: the shaft was turning (a load already on it
- * at the enable, a hoist or a conveyor on a slope, has turned it back meanwhile; or it was
- * still turning). The back-EMF's straight line over the start (fw_polarity_motion) gives the
- * speed the shaft had at the enable, its speed now and its acceleration, which with no torque
- * from the start-up's currents is the load's: J a / p.
- *  - The tracker takes that speed and acceleration: from the bandwidth a reset leaves it,
- *    meant for the noise at standstill, it lagged by half the speed after 6 ms at 2 N*m.
- *  - The speed PI starts with the current that holds the load (from zero its integral took
- *    ~20 ms while the shaft ran on backwards: 2 N*m on paper to -415 r/min) and the ramp
- *    from the speed the shaft has now back to the one it had at the enable, at least as fast
- *    as start_recover_rpm_s, then on to the command (outer_loop.c). Braking at i_max instead
- *    ran the slopes where q saturation takes their saliency (2 N*m on paper: single periods
- *    40-75 deg off at 4.2 A, the position lost in 1 of 10 starts).
+/* RUN after the back-EMF decided the polarity while the shaft turned: a start (a load already
+ * on it at the enable, a hoist or a conveyor on a slope, has turned it back meanwhile; or it
+ * was still turning), or the polarity watch in RUN (a frame turned round near standstill: the
+ * shaft ran away backwards under its load and the reversed torque). The back-EMF's straight
+ * line (fw_polarity_motion, fw_polarity_watch_motion) gives the shaft's speed now.
+ *  - The tracker takes that speed: from the bandwidth a reset leaves it, meant for the noise
+ *    at standstill, it lagged by half the speed after 6 ms at 2 N*m.
+ *  - The speed reference ramps from the speed the shaft has now back to back_to_rpm (the
+ *    speed it had at the enable; the reference when the watch turned the frame), at least as
+ *    fast as start_recover_rpm_s, then on to the command (outer_loop.c). Braking at i_max
+ *    instead ran the slopes where q saturation takes their saliency (2 N*m on paper: single
+ *    periods 40-75 deg off at 4.2 A, the position lost in 1 of 10 starts).
  *  - The flux estimator starts from the flux the test measured, settled for the
  *    polarity-loss check (pol_loss_settle_tc), not for the hand-over (flux_settle_tc): at
- *    2 N*m its angle needs Lq_app at 4 A, which is not learnt yet (17 deg off on paper).
- *  - For start_gov_ms the q current follows the saliency the slopes measure, where the
+ *    2 N*m its angle needs Lq_app at 4 A, which is not learnt yet (17 deg off on paper). */
+static void resume_from_motion(fw_core_t *c, real_t w_now, real_t back_to_rpm)
+{
+    const real_t *p = c->p;
+    real_t pp = p[FW_IDX_POLE_PAIRS];
+    c->trk.omega = w_now;
+    {
+        real_t rpm_to_we = pp / FW_RPM_PER_RADS;
+        fw_cplx_t u = fw_cexpj(fw_tracker_predict(&c->trk, FW_P_TICKS));
+        fw_cplx_t idq = fw_cmul(c->i_end, fw_cconj(u));
+        fw_cplx_t psi = fw_cmul(u, fw_c(p[FW_IDX_LAMBDA_M_WB] + c->pe.ld_app * idq.re,
+                                        c->pe.lq_app * idq.im));
+        fw_flux_seed(&c->flux, psi, w_now, p[FW_IDX_FLUX_LPF_RATIO],
+                     fw_min(p[FW_IDX_FLUX_MIN_RPM], p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM]) * rpm_to_we,
+                     p[FW_IDX_POL_LOSS_SETTLE_TC]);
+    }
+    c->speed_f_rpm = FW_RPM(w_now, pp);
+    c->speed_ref_ramped = c->speed_f_rpm;
+    c->start_speed_rpm = back_to_rpm;
+    c->start_recover = 1;
+}
+
+/* RUN after a start the back-EMF decided (resume_from_motion), and what only a start needs,
+ * where the start-up's currents gave the shaft no torque, so that its acceleration is the
+ * load's, J a / p:
+ *  - the tracker's disturbance acceleration is the load's;
+ *  - the speed PI starts with the current that holds the load (from zero its integral took
+ *    ~20 ms while the shaft ran on backwards: 2 N*m on paper to -415 r/min);
+ *  - for start_gov_ms the q current follows the saliency the slopes measure, where the
  *    learnt Lq curve (the saliency cap, outer_loop.c) has no data yet: it stops rising while
  *    Gamma1 along d_hat (~1 ms filter) is below saliency_min of the nominal. */
 static void start_after_motion(fw_core_t *c)
@@ -468,24 +497,10 @@ static void start_after_motion(fw_core_t *c)
     if (!fw_polarity_motion(&c->pol, p[FW_IDX_LAMBDA_M_WB], &w_start, &w_now, &accel)) {
         return;
     }
-    c->trk.omega = w_now;
     c->trk.a_d = accel - c->trk.a_ff;
     c->trk.a_d_lo = FW_REAL(0.0);
-    {
-        real_t rpm_to_we = pp / FW_RPM_PER_RADS;
-        fw_cplx_t u = fw_cexpj(fw_tracker_predict(&c->trk, FW_P_TICKS));
-        fw_cplx_t idq = fw_cmul(c->i_end, fw_cconj(u));
-        fw_cplx_t psi = fw_cmul(u, fw_c(p[FW_IDX_LAMBDA_M_WB] + c->pe.ld_app * idq.re,
-                                        c->pe.lq_app * idq.im));
-        fw_flux_seed(&c->flux, psi, w_now, p[FW_IDX_FLUX_LPF_RATIO],
-                     fw_min(p[FW_IDX_FLUX_MIN_RPM], p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM]) * rpm_to_we,
-                     p[FW_IDX_POL_LOSS_SETTLE_TC]);
-    }
+    resume_from_motion(c, w_now, FW_RPM(w_start, pp));
     te_hold = c->te_model - p[FW_IDX_INERTIA_KGM2] * accel / pp;
-    c->speed_f_rpm = FW_RPM(w_now, pp);
-    c->speed_ref_ramped = c->speed_f_rpm;
-    c->start_speed_rpm = FW_RPM(w_start, pp);
-    c->start_recover = 1;
     if (c->cmd.ctrl_mode == FW_CTRL_SPEED) {
         c->pi_spd.x = fw_clamp(te_hold / kt, -i_max, i_max);
     }
@@ -547,7 +562,27 @@ static void start_governor(fw_core_t *c, int16_t data_ok)
     }
 }
 
-static void polarity_lost_check(fw_core_t *c)
+/* The tracked frame points to the south pole: turn it round; the PI integrators hold dq
+ * voltages of the old frame, which are the negatives in the new one. Too many corrections
+ * within pol_loss_window_ms make the loss a fault. */
+static void turn_frame_round(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    fw_tracker_flip(&c->trk);
+    c->theta_hat = fw_wrap_2pi(c->theta_hat + FW_M_PI);
+    c->pi_d.x = -c->pi_d.x;
+    c->pi_q.x = -c->pi_q.x;
+    c->flux.neg_count = 0;
+    if (c->polarity_flips < 65535u) {
+        c->polarity_flips++;
+    }
+    c->flips_in_window++;
+    if ((real_t)c->flips_in_window > p[FW_IDX_POL_LOSS_FLIPS_MAX]) {
+        enter_fault(c, FW_FAULT_POLARITY_LOST);
+    }
+}
+
+static void polarity_lost_check(fw_core_t *c, int16_t data_ok)
 {
     const real_t *p = c->p;
     real_t spd = fw_fabs(c->speed_f_rpm);
@@ -566,19 +601,27 @@ static void polarity_lost_check(fw_core_t *c)
                          fw_flux_settled(&c->flux, p[FW_IDX_POL_LOSS_SETTLE_TC])) ||
                         (spd > p[FW_IDX_POL_LOSS_MIN_RPM] && c->flux.active));
     if (trusted && c->flux.neg_count >= FW_FLUX_NEG_PERIODS) {
-        /* the tracked frame points to the south pole: turn it round; the PI integrators hold
-         * dq voltages of the old frame, which are the negatives in the new one */
-        fw_tracker_flip(&c->trk);
-        c->theta_hat = fw_wrap_2pi(c->theta_hat + FW_M_PI);
-        c->pi_d.x = -c->pi_d.x;
-        c->pi_q.x = -c->pi_q.x;
-        c->flux.neg_count = 0;
-        if (c->polarity_flips < 65535u) {
-            c->polarity_flips++;
-        }
-        c->flips_in_window++;
-        if ((real_t)c->flips_in_window > p[FW_IDX_POL_LOSS_FLIPS_MAX]) {
-            enter_fault(c, FW_FAULT_POLARITY_LOST);
+        turn_frame_round(c);
+        return;
+    }
+    /* below pol_loss_min_rpm, the back-EMF of the motion against the raw angle's; the shaft
+     * has run away meanwhile, and the tracker, the speed loop and the flux estimator resume
+     * from the motion that window's back-EMF measured, as after a start against a load, back
+     * to the speed the reference had */
+    if (data_ok && fw_polarity_watch_step(&c->watch, c) < 0) {
+        real_t back_to = c->speed_ref_ramped, w_now;
+        int16_t moved = fw_polarity_watch_motion(&c->watch, p[FW_IDX_LAMBDA_M_WB], &w_now);
+        turn_frame_round(c);
+        if (moved && c->state == FW_STATE_RUN) {
+            /* the speed PI's integral and the tracker's disturbance stay: they held the load
+             * until the frame turned, and the watch decides within ms, before the lagging
+             * speed estimate has moved them (a preload from the back-EMF's acceleration came
+             * out 40 % short, the first ms of it carrying the currents' reversal); the
+             * tracker, narrowed to its standstill bandwidth, lags the runaway (20-25 deg on
+             * harsh when the watch decides): it converges afresh, as after a reset (kept, the
+             * lag ended in a flux-check flip of a correct frame) */
+            resume_from_motion(c, w_now, back_to);
+            c->trk.conv_ticks = 0;
         }
     }
 }
@@ -921,7 +964,7 @@ static void outputs(fw_core_t *c, const fw_adc_t *adc, int16_t data_ok, int16_t 
         if (c->start_fw_hold > 0) {
             c->start_fw_hold--;
         }
-        polarity_lost_check(c);
+        polarity_lost_check(c, data_ok);
         if (c->state != FW_STATE_RUN) {
             output_off(c, k + 1u, pwm);
             break;

@@ -117,6 +117,29 @@ enum {
 /* periods of tracking before the window starts (the tracker's convergence, 60 Hz: a reset
  * takes one raw estimate, 10-20 deg off on harsh at standstill) */
 #define POL_EMF_WAIT 20
+/* the polarity watch's straight line through the q back-EMF: weights decaying by this per
+ * period (an effective memory of ~20 periods, 2 ms: at 2 N*m the runaway gains 150 r/min per
+ * ms, and the line must give its speed when the watch decides) */
+#define POL_WATCH_EW_BETA FW_REAL(0.95)
+/* ... and the current magnitude a south verdict needs, A: near zero current the phase
+ * currents cross zero within the period and the dead time's voltage is unknown by volts,
+ * against a slow shaft's back-EMF of about one (a window at 0.13 A, 27 r/min on paper turned a
+ * correct frame round; the runaway of a frame turned without load is first seen at 0.3-0.5 A:
+ * with 0.5 it was decided 7 ms and 58 r/min later) */
+#define POL_WATCH_I_MIN FW_REAL(0.3)
+
+static void emf_window_clear(fw_emf_window_t *w)
+{
+    w->on = 0;
+    w->psi_i = fw_c(FW_REAL(0.0), FW_REAL(0.0));
+    w->phi = w->phi_min = w->phi_max = FW_REAL(0.0);
+    w->raw = w->raw0 = w->raw_prev = FW_REAL(0.0);
+    w->m = 0;
+    w->sp = w->spp = w->sr = w->spr = w->srr = FW_REAL(0.0);
+    w->s0 = w->s1 = w->s2 = w->sy = w->sny = FW_REAL(0.0);
+    w->slope = FW_REAL(0.0);
+    w->slope_se = FW_REAL(0.0);
+}
 
 void fw_polarity_start(fw_polarity_t *pol)
 {
@@ -136,16 +159,8 @@ void fw_polarity_start(fw_polarity_t *pol)
     pol->si[0] = pol->si[1] = FW_REAL(0.0);
     pol->n[0] = pol->n[1] = 0;
     pol->pairs = 0;
-    pol->emf_on = 0;
     pol->emf_wait = 0;
-    pol->emf_psi_i = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    pol->emf_phi = pol->emf_phi_min = pol->emf_phi_max = FW_REAL(0.0);
-    pol->emf_raw = pol->emf_raw0 = FW_REAL(0.0);
-    pol->emf_m = 0;
-    pol->emf_sp = pol->emf_spp = pol->emf_sr = pol->emf_spr = pol->emf_srr = FW_REAL(0.0);
-    pol->emf_s0 = pol->emf_s1 = pol->emf_s2 = pol->emf_sy = pol->emf_sny = FW_REAL(0.0);
-    pol->emf_slope = FW_REAL(0.0);
-    pol->emf_slope_se = FW_REAL(0.0);
+    emf_window_clear(&pol->emf);
     pol->catch_on = 1;
     /* the period the enable sees has the gates off, and the first one with them on starts
      * from a current measured in the off period (pulses through the diodes at high speed):
@@ -268,51 +283,54 @@ static fw_cplx_t current_flux(fw_cplx_t u, fw_cplx_t i, real_t ld, real_t lq)
     return fw_cmul(u, fw_c(ld * idq.re, lq * idq.im));
 }
 
-/* back-EMF test, once per period with data (test 3 above): 1 the frame points to the north
- * pole, -1 to the south pole, 0 not decided yet */
-static int16_t emf_step(fw_polarity_t *pol, const fw_core_t *c)
+/* a window from this period on (its sums empty; the caller keeps the current's flux) */
+static void emf_window_open(fw_emf_window_t *w)
+{
+    w->on = 1;
+    w->phi = w->phi_min = w->phi_max = FW_REAL(0.0);
+    w->raw = FW_REAL(0.0);
+    w->m = 0;
+    w->sp = w->spp = w->sr = w->spr = w->srr = FW_REAL(0.0);
+    w->s0 = w->s1 = w->s2 = w->sy = w->sny = FW_REAL(0.0);
+}
+
+/* this period's magnet flux change across the tracked d axis at mid-period: the q back-EMF,
+ * lambda_m omega in a frame on the north pole, its negative on the south pole. psi_i: the
+ * current's own flux at the end of the last period, replaced by psi_i1, this period's. */
+static real_t emf_q(fw_cplx_t *psi_i, fw_cplx_t psi_i1, const fw_core_t *c)
+{
+    fw_cplx_t du = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, c->p[FW_IDX_RS_OHM])), FW_TS);
+    du = fw_csub(du, fw_csub(psi_i1, *psi_i));
+    *psi_i = psi_i1;
+    return fw_cmul(du, fw_cexpj(-fw_tracker_predict(&c->trk, FW_H_TICKS))).im / FW_TS;
+}
+
+/* the current's own flux at the end of this period, in the tracked frame */
+static fw_cplx_t emf_current_flux(const fw_core_t *c, real_t ld, real_t lq)
+{
+    fw_cplx_t u1 = fw_cexpj(fw_tracker_predict(&c->trk, FW_P_TICKS));
+    return current_flux(u1, c->i_end, ld, lq);
+}
+
+/* one period's q back-EMF into a window (test 3 above): 1 the frame points to the north
+ * pole, -1 to the south pole, 0 not decided yet. steps_mod_pi: the raw angle continued by its
+ * steps modulo pi rather than on the tracker's branch. */
+static int16_t emf_add(fw_emf_window_t *w, const fw_core_t *c, real_t e_q, real_t span_min,
+                       int16_t steps_mod_pi)
 {
     const real_t *p = c->p;
-    real_t span_min = p[FW_IDX_POL_EMF_MIN_DEG] * (FW_M_PI / FW_REAL(180.0));
-    fw_cplx_t u1, psi_i1, du;
-    real_t n, e_q, s_pp, s_pr, s_rr, slope, rss, se;
-    if (!(p[FW_IDX_POL_EMF_MIN_DEG] > FW_REAL(0.0)) || !c->trk.init) {
-        return 0;
-    }
-    if (pol->emf_wait < POL_EMF_WAIT) {
-        pol->emf_wait++; /* the tracked frame first converges (its q axis projects the EMF) */
-        return 0;
-    }
-    /* the current's own flux at the end of this period, in the tracked frame */
-    u1 = fw_cexpj(fw_tracker_predict(&c->trk, FW_P_TICKS));
-    psi_i1 = current_flux(u1, c->i_end, p[FW_IDX_LD_H], p[FW_IDX_LQ_H]);
-    if (!pol->emf_on) {
-        pol->emf_on = 1;
-        pol->emf_psi_i = psi_i1;
-        pol->emf_phi = pol->emf_phi_min = pol->emf_phi_max = FW_REAL(0.0);
-        pol->emf_raw = FW_REAL(0.0);
-        pol->emf_m = 0;
-        pol->emf_sp = pol->emf_spp = pol->emf_sr = pol->emf_spr = pol->emf_srr = FW_REAL(0.0);
-        pol->emf_s0 = pol->emf_s1 = pol->emf_s2 = pol->emf_sy = pol->emf_sny = FW_REAL(0.0);
-        return 0;
-    }
-    /* this period's magnet flux change across the tracked d axis at mid-period: the q
-     * back-EMF, lambda_m omega in a frame on the north pole, its negative on the south pole */
-    du = fw_cscale(fw_csub(c->v_meas, fw_cscale(c->i_avg, p[FW_IDX_RS_OHM])), FW_TS);
-    du = fw_csub(du, fw_csub(psi_i1, pol->emf_psi_i));
-    pol->emf_psi_i = psi_i1;
-    e_q = fw_cmul(du, fw_cexpj(-fw_tracker_predict(&c->trk, FW_H_TICKS))).im / FW_TS;
+    real_t n, s_pp, s_pr, s_rr, slope, rss, se;
     /* its straight line over the window's periods (the shaft's speed and acceleration) */
-    pol->emf_s0 += FW_REAL(1.0);
-    n = pol->emf_s0;
-    pol->emf_s1 += n;
-    pol->emf_s2 += n * n;
-    pol->emf_sy += e_q;
-    pol->emf_sny += n * e_q;
+    w->s0 += FW_REAL(1.0);
+    n = w->s0;
+    w->s1 += n;
+    w->s2 += n * n;
+    w->sy += e_q;
+    w->sny += n * e_q;
     /* the angle it says the rotor has turned, with the frame's sign: +-(theta - theta0) */
-    pol->emf_phi += e_q * FW_TS / p[FW_IDX_LAMBDA_M_WB];
-    pol->emf_phi_min = fw_min(pol->emf_phi_min, pol->emf_phi);
-    pol->emf_phi_max = fw_max(pol->emf_phi_max, pol->emf_phi);
+    w->phi += e_q * FW_TS / p[FW_IDX_LAMBDA_M_WB];
+    w->phi_min = fw_min(w->phi_min, w->phi);
+    w->phi_max = fw_max(w->phi_max, w->phi);
     if (!c->est.ok) {
         return 0;
     }
@@ -321,32 +339,41 @@ static int16_t emf_step(fw_polarity_t *pol, const fw_core_t *c)
      * where one scatters by up to 35 deg at zero current), relative to the window start */
     {
         real_t raw_u = c->trk.theta_unwrapped + (FW_REAL(1.0) - c->trk.l1) * c->trk.last_err;
-        if (pol->emf_m == 0) {
-            pol->emf_raw0 = raw_u;
+        if (w->m == 0) {
+            w->raw0 = raw_u;
+            w->raw_prev = raw_u;
         }
-        pol->emf_raw = raw_u - pol->emf_raw0;
+        if (steps_mod_pi) {
+            /* continued by its steps modulo pi: the branch may change within the window (a
+             * frame turned round, or the tracker's branch slipping), the rotor cannot turn by
+             * 90 electrical degrees within a period below pol_loss_min_rpm */
+            w->raw += FW_REAL(0.5) * fw_wrap_pi(FW_REAL(2.0) * (raw_u - w->raw_prev));
+            w->raw_prev = raw_u;
+        } else {
+            w->raw = raw_u - w->raw0;
+        }
     }
-    pol->emf_m++;
-    pol->emf_sp += pol->emf_phi;
-    pol->emf_spp += pol->emf_phi * pol->emf_phi;
-    pol->emf_sr += pol->emf_raw;
-    pol->emf_spr += pol->emf_phi * pol->emf_raw;
-    pol->emf_srr += pol->emf_raw * pol->emf_raw;
-    if (pol->emf_m < POL_EMF_MIN_N || pol->emf_phi_max - pol->emf_phi_min < span_min) {
+    w->m++;
+    w->sp += w->phi;
+    w->spp += w->phi * w->phi;
+    w->sr += w->raw;
+    w->spr += w->phi * w->raw;
+    w->srr += w->raw * w->raw;
+    if (w->m < POL_EMF_MIN_N || w->phi_max - w->phi_min < span_min) {
         return 0;
     }
-    n = (real_t)pol->emf_m;
-    s_pp = pol->emf_spp - pol->emf_sp * pol->emf_sp / n;
-    s_pr = pol->emf_spr - pol->emf_sp * pol->emf_sr / n;
-    s_rr = pol->emf_srr - pol->emf_sr * pol->emf_sr / n;
+    n = (real_t)w->m;
+    s_pp = w->spp - w->sp * w->sp / n;
+    s_pr = w->spr - w->sp * w->sr / n;
+    s_rr = w->srr - w->sr * w->sr / n;
     if (!(s_pp > FW_REAL(0.0))) {
         return 0;
     }
     slope = s_pr / s_pp;
     rss = fw_max(s_rr - slope * s_pr, FW_REAL(0.0));
     se = fw_sqrt(rss / ((n - FW_REAL(2.0)) * s_pp));
-    pol->emf_slope = slope;
-    pol->emf_slope_se = se;
+    w->slope = slope;
+    w->slope_se = se;
     if (se > POL_EMF_SE_MAX) {
         return 0;
     }
@@ -357,6 +384,137 @@ static int16_t emf_step(fw_polarity_t *pol, const fw_core_t *c)
         return -1;
     }
     return 0;
+}
+
+/* the back-EMF test of the start-up: one window from the first period on */
+static int16_t emf_step(fw_emf_window_t *w, const fw_core_t *c, real_t span_min)
+{
+    const real_t *p = c->p;
+    fw_cplx_t psi_i1 = emf_current_flux(c, p[FW_IDX_LD_H], p[FW_IDX_LQ_H]);
+    if (!w->on) {
+        emf_window_open(w);
+        w->psi_i = psi_i1;
+        return 0;
+    }
+    return emf_add(w, c, emf_q(&w->psi_i, psi_i1, c), span_min, 0);
+}
+
+/* The polarity watch in RUN: the back-EMF test of the start-up, run while the speed is
+ * below pol_loss_min_rpm (above it the flux estimator's lambda_d watches). A frame turned
+ * round near standstill turns the speed loop's torque round too, and the shaft runs away
+ * backwards; the saliency the slopes measure cannot tell (it repeats every pi), but the back-
+ * EMF of that motion points the other way than the raw angle moves. Two windows of
+ * pol_watch_window_ms, the second started half a window later, each restarted when it ends
+ * or decides: a window's voltage-model errors (volts, against the back-EMF's 2.7 V at
+ * 60 r/min on the paper machine) integrate only over its length, and a runaway starting
+ * anywhere is inside one window's first half. Windows start only below
+ * pol_loss_settled_min_rpm, where the flux estimator does not watch (a window runs on while a
+ * runaway passes it): in steady running at 250 r/min, 2 N*m on harsh, where the raw angle
+ * scatters by tens of degrees per period, a window turned a correct frame round. */
+void fw_polarity_watch_reset(fw_polarity_watch_t *wt, uint16_t flips)
+{
+    int16_t h;
+    for (h = 0; h < 2; h++) {
+        emf_window_clear(&wt->win[h]);
+        wt->age[h] = 0;
+    }
+    wt->started = 0;
+    wt->flips_seen = flips;
+    wt->q_on = 0;
+    wt->ew_s0 = wt->ew_s1 = wt->ew_s2 = wt->ew_sy = wt->ew_sty = FW_REAL(0.0);
+}
+
+int16_t fw_polarity_watch_step(fw_polarity_watch_t *wt, const fw_core_t *c)
+{
+    const real_t *p = c->p;
+    int32_t len = (int32_t)(p[FW_IDX_POL_WATCH_WINDOW_MS] * (FW_REAL(1e-3) / FW_TS));
+    real_t span_min = p[FW_IDX_POL_WATCH_MIN_DEG] * (FW_M_PI / FW_REAL(180.0));
+    fw_cplx_t psi_i1;
+    real_t e_q, s0;
+    int16_t h, slow = (int16_t)(fw_fabs(c->speed_f_rpm) < p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM]);
+    int16_t loaded = (int16_t)(fw_cabs2(c->i_avg) >= POL_WATCH_I_MIN * POL_WATCH_I_MIN);
+    if (len < 2 * POL_EMF_MIN_N || !(span_min > FW_REAL(0.0)) || !c->trk.init ||
+        !(fw_fabs(c->speed_f_rpm) < p[FW_IDX_POL_LOSS_MIN_RPM]) ||
+        c->polarity_flips != wt->flips_seen || (!slow && !wt->win[0].on && !wt->win[1].on)) {
+        fw_polarity_watch_reset(wt, c->polarity_flips);
+        return 0;
+    }
+    psi_i1 = emf_current_flux(c, c->ld_use, c->lq_use);
+    if (!wt->q_on) {
+        wt->q_on = 1;
+        wt->psi_i = psi_i1;
+        return 0;
+    }
+    e_q = emf_q(&wt->psi_i, psi_i1, c);
+    /* the q back-EMF's straight line over the last 20 periods or so (weights decaying by
+     * POL_WATCH_EW_BETA per period, time 0 at this period): the shaft's speed when the watch
+     * decides, which a window's own line, started before the runaway, underestimates */
+    s0 = wt->ew_s0;
+    wt->ew_s0 = POL_WATCH_EW_BETA * s0 + FW_REAL(1.0);
+    wt->ew_s2 = POL_WATCH_EW_BETA * (wt->ew_s2 - FW_REAL(2.0) * wt->ew_s1 + s0);
+    wt->ew_s1 = POL_WATCH_EW_BETA * (wt->ew_s1 - s0);
+    wt->ew_sty = POL_WATCH_EW_BETA * (wt->ew_sty - wt->ew_sy);
+    wt->ew_sy = POL_WATCH_EW_BETA * wt->ew_sy + e_q;
+    for (h = 0; h < 2; h++) {
+        fw_emf_window_t *w = &wt->win[h];
+        int16_t r;
+        if (h == 1 && !wt->started) {
+            if (wt->age[0] < len / 2) {
+                break;
+            }
+            wt->started = 1;
+        }
+        if (w->on && wt->age[h] >= len) {
+            emf_window_clear(w);
+            wt->age[h] = 0;
+        }
+        if (!w->on) {
+            if (slow) {
+                emf_window_open(w);
+                wt->age[h] = 1;
+            }
+            continue;
+        }
+        wt->age[h]++;
+        r = emf_add(w, c, e_q, span_min, 1);
+        if (r < 0 && !loaded) {
+            /* near zero current the dead time's voltage is unknown by volts while a slow
+             * shaft's back-EMF is one (27 r/min: 1.2 V); a turned frame with no current
+             * turns no torque round either: no verdict, the window restarts */
+            r = 0;
+            emf_window_clear(w);
+            wt->age[h] = 0;
+        }
+        if (r < 0) {
+            if (wt->decided_south < 65535u) {
+                wt->decided_south++;
+            }
+            return -1;
+        }
+        if (r > 0) {
+            if (wt->decided_north < 65535u) {
+                wt->decided_north++;
+            }
+            emf_window_clear(w);
+            wt->age[h] = 0;
+        }
+    }
+    return 0;
+}
+
+int16_t fw_polarity_watch_motion(const fw_polarity_watch_t *wt, real_t lambda_m, real_t *omega_now)
+{
+    real_t det = wt->ew_s0 * wt->ew_s2 - wt->ew_s1 * wt->ew_s1;
+    real_t b0, b1;
+    if (wt->ew_s0 < FW_REAL(POL_EMF_MIN_N) || !(det > FW_REAL(0.0))) {
+        return 0;
+    }
+    b1 = (wt->ew_s0 * wt->ew_sty - wt->ew_s1 * wt->ew_sy) / det;
+    b0 = (wt->ew_sy - b1 * wt->ew_s1) / wt->ew_s0;
+    /* measured in the frame on the south pole: the speed is the negative of e_q / lambda_m;
+     * b0 is this period's mean, half a period before its end */
+    *omega_now = -(b0 + FW_REAL(0.5) * b1) / lambda_m;
+    return 1;
 }
 
 /* The catch's raw angles: each period's (if the slopes gave one) at the period's end,
@@ -548,23 +706,36 @@ static int16_t catch_step(fw_polarity_t *pol, const fw_core_t *c, fw_cplx_t *v_f
     return 0;
 }
 
-int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
-                           real_t *omega_now, real_t *accel)
+/* the straight line through a window's q back-EMF: the electrical speed at its start, now
+ * and the acceleration; sign: +1 when the window's frame pointed to the north pole, -1 south */
+static int16_t emf_motion(const fw_emf_window_t *w, real_t sign, real_t lambda_m,
+                          real_t *omega_start, real_t *omega_now, real_t *accel)
 {
-    real_t n = pol->emf_s0;
-    real_t det = n * pol->emf_s2 - pol->emf_s1 * pol->emf_s1;
+    real_t n = w->s0;
+    real_t det = n * w->s2 - w->s1 * w->s1;
     real_t b0, b1, k;
-    if (!pol->emf_on || n < FW_REAL(10.0) || !(det > FW_REAL(0.0)) || pol->result != 1) {
+    if (!w->on || n < FW_REAL(10.0) || !(det > FW_REAL(0.0))) {
         return 0;
     }
-    b1 = (n * pol->emf_sny - pol->emf_s1 * pol->emf_sy) / det;
-    b0 = (pol->emf_sy - b1 * pol->emf_s1) / n;
-    k = (pol->flipped ? -FW_REAL(1.0) : FW_REAL(1.0)) / lambda_m;
+    b1 = (n * w->sny - w->s1 * w->sy) / det;
+    b0 = (w->sy - b1 * w->s1) / n;
+    k = sign / lambda_m;
     *omega_start = k * b0;
     *omega_now = k * (b0 + b1 * (n + FW_REAL(0.5)));
     *accel = k * b1 / FW_TS;
     return 1;
 }
+
+int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
+                           real_t *omega_now, real_t *accel)
+{
+    if (pol->result != 1) {
+        return 0;
+    }
+    return emf_motion(&pol->emf, pol->flipped ? -FW_REAL(1.0) : FW_REAL(1.0), lambda_m,
+                      omega_start, omega_now, accel);
+}
+
 
 int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t *adc,
                     fw_polarity_out_t *out)
@@ -601,7 +772,15 @@ int16_t fw_polarity_step(fw_polarity_t *pol, const fw_core_t *c, const fw_adc_t 
     /* (not while the motion check runs: the rotor turns because the check turns it, and the
      * check decides by the angle it travelled) */
     if (adc != 0 && pol->phase < POL_MOTION_ACC) {
-        int16_t emf = emf_step(pol, c);
+        int16_t emf = 0;
+        if (p[FW_IDX_POL_EMF_MIN_DEG] > FW_REAL(0.0) && c->trk.init) {
+            if (pol->emf_wait < POL_EMF_WAIT) {
+                pol->emf_wait++; /* the tracked frame first converges (its q axis projects
+                                    the EMF) */
+            } else {
+                emf = emf_step(&pol->emf, c, p[FW_IDX_POL_EMF_MIN_DEG] * (FW_M_PI / FW_REAL(180.0)));
+            }
+        }
         if (emf != 0) {
             pol->method_used = FW_POL_METHOD_EMF;
             pol->flipped = (int16_t)(emf < 0);
