@@ -616,12 +616,8 @@ static void polarity_lost_check(fw_core_t *c, int16_t data_ok)
             /* the speed PI's integral and the tracker's disturbance stay: they held the load
              * until the frame turned, and the watch decides within ms, before the lagging
              * speed estimate has moved them (a preload from the back-EMF's acceleration came
-             * out 40 % short, the first ms of it carrying the currents' reversal); the
-             * tracker, narrowed to its standstill bandwidth, lags the runaway (20-25 deg on
-             * harsh when the watch decides): it converges afresh, as after a reset (kept, the
-             * lag ended in a flux-check flip of a correct frame) */
+             * out 40 % short, the first ms of it carrying the currents' reversal) */
             resume_from_motion(c, w_now, back_to);
-            c->trk.conv_ticks = 0;
         }
     }
 }
