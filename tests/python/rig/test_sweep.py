@@ -132,6 +132,17 @@ def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
             p.wait(timeout=10)
 
 
+def _scheduler_address(sched_file: Path, deadline: float) -> str:
+    """The address in the scheduler's file, once the file holds all of it: the scheduler
+    creates the file before it has written it (on a loaded machine it was read empty)."""
+    while True:
+        try:
+            return str(json.loads(sched_file.read_text())["address"])
+        except (FileNotFoundError, json.JSONDecodeError, KeyError):
+            assert time.monotonic() < deadline, "scheduler did not start"
+            time.sleep(0.1)
+
+
 @pytest.fixture(scope="module")
 def dask_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A scheduler and two single-threaded workers (with nannies) on 127.0.0.1."""
@@ -143,11 +154,7 @@ def dask_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
          "--port", "0", "--no-dashboard", "--scheduler-file", str(sched_file)], **quiet)
     workers: list[subprocess.Popen[bytes]] = []
     try:
-        deadline = time.monotonic() + 60
-        while not sched_file.exists():
-            assert time.monotonic() < deadline, "scheduler did not start"
-            time.sleep(0.1)
-        address = json.loads(sched_file.read_text())["address"]
+        address = _scheduler_address(sched_file, time.monotonic() + 60)
         assert address.startswith("tcp://127.0.0.1:")
         for _ in range(2):
             workers.append(subprocess.Popen(
