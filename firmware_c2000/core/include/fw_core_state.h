@@ -181,7 +181,7 @@ typedef struct {
      * one before -1, ...): sums of w, w t, w t^2, w e, w t e */
     real_t ew_s0, ew_s1, ew_s2, ew_sy, ew_sty;
     uint16_t flips_seen;        /* the core's polarity_flips when the windows last started */
-    uint16_t decided_north, decided_south;
+    uint16_t decided_north;     /* windows that found the north pole since the start (tests) */
 } fw_polarity_watch_t;
 
 typedef struct {

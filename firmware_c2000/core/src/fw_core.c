@@ -63,7 +63,6 @@ static void reset_estimation(fw_core_t *c)
     c->flip_window_ticks = 0;
     fw_polarity_watch_reset(&c->watch, c->polarity_flips);
     c->watch.decided_north = 0;
-    c->watch.decided_south = 0;
 }
 
 static void reset_control(fw_core_t *c)

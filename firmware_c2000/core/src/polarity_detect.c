@@ -283,15 +283,11 @@ static fw_cplx_t current_flux(fw_cplx_t u, fw_cplx_t i, real_t ld, real_t lq)
     return fw_cmul(u, fw_c(ld * idq.re, lq * idq.im));
 }
 
-/* a window from this period on (its sums empty; the caller keeps the current's flux) */
+/* a window from this period on (its sums empty; the caller sets the current's flux) */
 static void emf_window_open(fw_emf_window_t *w)
 {
+    emf_window_clear(w);
     w->on = 1;
-    w->phi = w->phi_min = w->phi_max = FW_REAL(0.0);
-    w->raw = FW_REAL(0.0);
-    w->m = 0;
-    w->sp = w->spp = w->sr = w->spr = w->srr = FW_REAL(0.0);
-    w->s0 = w->s1 = w->s2 = w->sy = w->sny = FW_REAL(0.0);
 }
 
 /* this period's magnet flux change across the tracked d axis at mid-period: the q back-EMF,
@@ -486,10 +482,7 @@ int16_t fw_polarity_watch_step(fw_polarity_watch_t *wt, const fw_core_t *c)
             wt->age[h] = 0;
         }
         if (r < 0) {
-            if (wt->decided_south < 65535u) {
-                wt->decided_south++;
-            }
-            return -1;
+            return -1; /* counted by the caller's polarity_flips */
         }
         if (r > 0) {
             if (wt->decided_north < 65535u) {
