@@ -144,7 +144,7 @@ typedef struct {
     real_t lambda_inst;
     real_t lq_app_flux;  /* psi_q / iq when measurable, H */
     int16_t active;
-    int16_t neg_count;   /* consecutive updates with lambda_d < 0 (polarity lost) */
+    int16_t neg_count;   /* consecutive updates with lambda_d < -lambda_nom / 2 (polarity lost) */
     real_t settle_tc;    /* filter time constants since the estimator became active */
     int32_t n_valid;     /* plausible lambda updates since the reset */
 } fw_flux_t;

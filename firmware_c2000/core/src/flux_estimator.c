@@ -98,7 +98,11 @@ int16_t fw_flux_update(fw_flux_t *f, fw_cplx_t u, real_t omega, real_t omega_gat
     lam = psi_dq.re - ld_app * i_dq.re;
     f->lambda_inst = lam;
     f->active = 1;
-    if (lam < FW_REAL(0.0)) {
+    /* a frame turned by pi sees about -lambda_m; about 0 says only that the rotor does not turn
+     * as fast as the tracker says. That is what a held rotor gives when a torque step makes the
+     * tracker's prediction run off (down to -0.023 Wb measured on harsh), and counting any
+     * negative value turned a correct frame there. The verdict's range mirrors the learning's. */
+    if (lam < -FW_REAL(0.5) * lambda_nom) {
         if (f->neg_count < 30000) {
             f->neg_count++;
         }

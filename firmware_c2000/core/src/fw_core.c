@@ -12,7 +12,7 @@
 #include "fw_internal.h"
 
 #define FW_RPM(omega_e, pp) ((omega_e) / (pp) * FW_RPM_PER_RADS)
-#define FW_FLUX_NEG_PERIODS 50   /* 5 ms of negative lambda_d: polarity lost */
+#define FW_FLUX_NEG_PERIODS 50   /* 5 ms of lambda_d below -lambda_m / 2: polarity lost */
 #define FW_EST_VALID_MAX_RUN 50  /* est_valid drops after 5 ms without a good estimate */
 /* start's saliency governor (start_after_motion): filter per two-vector estimate (~1 ms),
  * headroom above the load's current, step of the limit per period (10/20 A/s down/up) */

@@ -16,7 +16,8 @@ drive runs.
   along the current, which is the same for every step once every phase current is well above
   the ripple. The load machine therefore first turns the rotor until the q axis lies on a
   phase axis (each phase then carries at least half the current). rs is the slope of vq over
-  iq, the intercept that error (dead time, device drop).
+  iq, the intercept that error (dead time, device drop). The shaft torque's sign at each
+  step shows whether the drive kept its polarity under the steps on the held rotor.
   The shaft torque of the same steps gives kt = 1.5·p·λm (a cross-check of λm).
 """
 
@@ -129,6 +130,13 @@ def _step(s: BenchSession, iq: float, settle_s: float | None = None,
     s.drive.command(iq_ref=iq)
     s.clock.advance(s.config.step_settle_s if settle_s is None else settle_s)
     return measure(s, s.config.step_window_s if window_s is None else window_s)
+
+
+def _frame_turned(steps: list[Sample]) -> bool:
+    """A drive that lost its position under a current step (its frame turned by π) runs the
+    steps on the south pole: the shaft torque turns against iq. Without a torque reading
+    nothing can be told."""
+    return any(math.isfinite(x.shaft_torque) and x.shaft_torque * x.iq <= 0.0 for x in steps)
 
 
 def phase_axis_offset_deg(theta_hat_deg: float) -> float:
@@ -256,6 +264,9 @@ def _identify(s: BenchSession, r: StepResult) -> None:
     s.identified["rs_ohm"] = float(rs)
     torque = np.asarray([x.shaft_torque for x in steps])
     if np.all(np.isfinite(torque)):
+        r.check("polarity kept through the rs steps", not _frame_turned(steps),
+                "shaft torque " + ", ".join(f"{t:+.3f}" for t in torque) + " N·m at iq "
+                + ", ".join(f"{i:+.2f}" for i in iq) + " A")
         kt = float(np.polyfit(iq, torque, 1)[0])
         pp = pole_pairs(s)
         r.quantity(Quantity("lambda_kt_wb", "λm from the torque constant", kt / (1.5 * pp),

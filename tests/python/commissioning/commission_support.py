@@ -14,7 +14,12 @@ MakeDesc = Callable[..., bd.BenchDescription]
 
 def paper_truth() -> dict[str, float]:
     """The paper profile's machine, read here from the profile file (independent of rig)."""
-    data = tomllib.loads((_paths.data_dir("profiles") / "paper.toml").read_text())
+    return profile_truth("paper")
+
+
+def profile_truth(profile: str) -> dict[str, float]:
+    """A profile's machine, read here from the profile file (independent of rig)."""
+    data = tomllib.loads((_paths.data_dir("profiles") / f"{profile}.toml").read_text())
     return {"rs_ohm": data["machine"]["rs_ohm"], "ld_h": data["magnetics"]["ld_h"],
             "lq_h": data["magnetics"]["lq_h"], "lambda_m_wb": data["machine"]["lambda_m_wb"],
             "pole_pairs": data["machine"]["pole_pairs"]}
