@@ -11,6 +11,7 @@ against the kernel's linux/can.h, whose structs the wire is. Python reads the sa
 
 from __future__ import annotations
 
+import itertools
 import sys
 import tomllib
 from pathlib import Path
@@ -63,7 +64,7 @@ def read(path: Path) -> dict[str, Any]:
     lengths = frame.get("fd_lengths")
     if (not isinstance(lengths, list) or len(lengths) != 16
             or any(not isinstance(n, int) for n in lengths) or lengths[0] != 0
-            or lengths[-1] != fd_max or any(b <= a for a, b in zip(lengths, lengths[1:]))
+            or lengths[-1] != fd_max or any(b <= a for a, b in itertools.pairwise(lengths))
             or lengths[:classic_max + 1] != list(range(classic_max + 1))):
         raise ValueError("[frame] fd_lengths: 16 ascending lengths (one per DLC), 0.."
                          "classic_max_len one by one, ending at fd_max_len")
@@ -132,7 +133,7 @@ def header(desc: dict[str, Any]) -> str:
                                         desc["timing"])
     lengths = ", ".join(str(n) for n in frame["fd_lengths"])
     cs = c_codegen.c_string
-    lines = c_codegen.banner(SCRIPT, "protocols/unixcan.toml") + [
+    lines = [*c_codegen.banner(SCRIPT, "protocols/unixcan.toml"),
         "#ifndef HIL_UNIXCAN_H",
         "#define HIL_UNIXCAN_H",
         "",
@@ -190,7 +191,8 @@ def header(desc: dict[str, Any]) -> str:
         f"#define HIL_UNIXCAN_FULL_PEER_GRACE_NS {timing['full_peer_grace_ms'] * 1_000_000}LL",
         "",
         "/* The wire is the kernel's structs: the build stops where linux/can.h disagrees. */",
-        "#define HIL_UNIXCAN_CHECK(name, cond) typedef char hil_unixcan_check_##name[(cond) ? 1 : -1]",
+        "#define HIL_UNIXCAN_CHECK(name, cond) "
+        "typedef char hil_unixcan_check_##name[(cond) ? 1 : -1]",
         "#if !defined(__BYTE_ORDER__) || __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__",
         "#error \"unixcan: the wire's id word is little-endian (protocols/unixcan.toml)\"",
         "#endif",
@@ -198,12 +200,14 @@ def header(desc: dict[str, Any]) -> str:
         "CAN_MTU == HIL_UNIXCAN_CLASSIC_SIZE);",
         "HIL_UNIXCAN_CHECK(fd_size, sizeof(struct canfd_frame) == HIL_UNIXCAN_FD_SIZE && "
         "CANFD_MTU == HIL_UNIXCAN_FD_SIZE);",
-        "HIL_UNIXCAN_CHECK(id_offset, offsetof(struct canfd_frame, can_id) == HIL_UNIXCAN_ID_OFFSET);",
-        "HIL_UNIXCAN_CHECK(len_offset, offsetof(struct canfd_frame, len) == HIL_UNIXCAN_LEN_OFFSET);",
+        "HIL_UNIXCAN_CHECK(id_offset, offsetof(struct canfd_frame, can_id) == "
+        "HIL_UNIXCAN_ID_OFFSET);",
+        "HIL_UNIXCAN_CHECK(len_offset, offsetof(struct canfd_frame, len) == "
+        "HIL_UNIXCAN_LEN_OFFSET);",
         "HIL_UNIXCAN_CHECK(flags_offset, offsetof(struct canfd_frame, flags) == "
         "HIL_UNIXCAN_FLAGS_OFFSET);",
-        "HIL_UNIXCAN_CHECK(data_offset, offsetof(struct canfd_frame, data) == HIL_UNIXCAN_DATA_OFFSET "
-        "&& offsetof(struct can_frame, data) == HIL_UNIXCAN_DATA_OFFSET);",
+        "HIL_UNIXCAN_CHECK(data_offset, offsetof(struct canfd_frame, data) == "
+        "HIL_UNIXCAN_DATA_OFFSET && offsetof(struct can_frame, data) == HIL_UNIXCAN_DATA_OFFSET);",
         "HIL_UNIXCAN_CHECK(max_len, CAN_MAX_DLEN == HIL_UNIXCAN_CLASSIC_MAX_LEN && "
         "CANFD_MAX_DLEN == HIL_UNIXCAN_FD_MAX_LEN);",
         "HIL_UNIXCAN_CHECK(id_bits, CAN_EFF_FLAG == HIL_UNIXCAN_EFF_FLAG && CAN_RTR_FLAG == "

@@ -106,6 +106,23 @@ def _listening(host: str, port: int) -> bool:
     return False
 
 
+def _taken(host: str, port: int) -> bool:
+    """Whether a server could not bind host:port now: a listener is there, or any other socket
+    holds the port without listening (then the viewer exited at once with status 1 and no
+    word about why)."""
+    if _listening("127.0.0.1" if host in ("0.0.0.0", "::") else host, port):
+        return True
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        # as a server binds: a port in TIME_WAIT only is free
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return True
+    return False
+
+
 def has_display() -> bool:
     """Whether a native window can open here (X11 or Wayland; the rig runs on Linux)."""
     return any(os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
@@ -120,9 +137,9 @@ def start(files: Sequence[Path] = (), *, web_port: int = DEFAULT_WEB_PORT,
           timeout_s: float = START_TIMEOUT_S) -> WebViewer:
     """Starts the server (and waits until both ports answer)."""
     for port in (web_port, grpc_port):
-        if _listening("127.0.0.1" if bind in ("0.0.0.0", "::") else bind, port):
-            raise WebViewerError(f"port {port} is already in use (another viewer?): choose "
-                                 "another with --web-port / --grpc-port")
+        if _taken(bind, port):
+            raise WebViewerError(f"port {port} is already in use (another viewer or "
+                                 "program): choose another with --web-port / --grpc-port")
     argv = [sys.executable, "-m", "rerun", "--serve-web", "--bind", bind,
             "--web-viewer-port", str(web_port), "--port", str(grpc_port),
             *[str(f) for f in files]]
@@ -141,6 +158,9 @@ def start_native(*, grpc_port: int = DEFAULT_GRPC_PORT, log: Path | None = None,
     if not has_display():
         raise WebViewerError(f"{NO_DISPLAY}: use --web")
     if not _listening("127.0.0.1", grpc_port):
+        if _taken("127.0.0.1", grpc_port):
+            raise WebViewerError(f"port {grpc_port} is in use by a program that is not a "
+                                 "viewer: choose another with --grpc-port")
         argv = [sys.executable, "-m", "rerun", "--bind", "127.0.0.1", "--port", str(grpc_port)]
         viewer = _launch(argv, "127.0.0.1", 0, grpc_port, (grpc_port,), log, env, timeout_s)
         # its server listens before its window opens: a display it cannot use ends it

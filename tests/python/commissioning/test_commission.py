@@ -112,15 +112,22 @@ def test_xsat_finds_no_cross_saturation_on_the_paper_machine(make_desc: MakeDesc
     assert abs(run.value("xsat_ldq_per_a")) < 0.1 * abs(cross_saturation_per_ampere("harsh"))
 
 
-@pytest.mark.parametrize("theta0", [45.0, 75.0])
+@pytest.mark.parametrize(("profile", "theta0", "rel"), [
+    ("paper", 45.0, 0.02), ("paper", 75.0, 0.02),
+    # harsh: -4.8 ... +0.7 % over 7 start angles and 2 noise seeds; 200 deg was the worst. At
+    # every angle the steps had turned the drive's frame by pi (the flux check took the held
+    # rotor's runaway estimate for a turned frame), which the polarity check now fails
+    ("harsh", 200.0, 0.05), ("harsh", 300.0, 0.05)])
 def test_rs_does_not_depend_on_where_the_rotor_stops(make_desc: MakeDesc, tmp_path: Path,
-                                                     theta0: float) -> None:
+                                                     profile: str, theta0: float,
+                                                     rel: float) -> None:
     """The rotor is turned until the q current lies on a phase axis before the rs steps:
     the identified rs must not depend on the angle the drive started at."""
-    desc = make_desc(f"virtual.plant.initial.theta_e_deg={theta0}")
+    desc = make_desc(f"virtual.plant.initial.theta_e_deg={theta0}",
+                     f"virtual.profile={profile}")
     run = commission.commission(desc, ["standstill"], tmp_path / "run")
     assert run.passed, run.report_path.read_text()
-    assert within(run.value("rs_ohm"), paper_truth()["rs_ohm"], 0.02), run.value("rs_ohm")
+    assert within(run.value("rs_ohm"), profile_truth(profile)["rs_ohm"], rel), run.value("rs_ohm")
     aligned = [c for c in run.step("standstill").checks if c.name.startswith("q axis on")]
     assert len(aligned) == 1 and aligned[0].passed
 

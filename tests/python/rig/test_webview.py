@@ -35,3 +35,15 @@ def test_serves_then_leaves_nothing_behind(tmp_path: Path) -> None:
     assert _group(viewer.proc.pid) == ""
     with pytest.raises(ProcessLookupError):
         os.killpg(viewer.proc.pid, 0)
+
+
+def test_a_port_held_without_listening_is_taken() -> None:
+    """A socket bound to the port but not listening: a connection finds nobody, but the
+    viewer's server cannot bind it (it exited with status 1 and said nothing why)."""
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        port = int(held.getsockname()[1])
+        with pytest.raises(webview.WebViewerError, match=f"port {port} is already in use"):
+            webview.start(web_port=webview.free_port(), grpc_port=port)
+        with pytest.raises(webview.WebViewerError, match=f"port {port} is already in use"):
+            webview.start(web_port=port, grpc_port=webview.free_port())
