@@ -108,10 +108,15 @@ def _listening(host: str, port: int) -> bool:
 
 def _taken(host: str, port: int) -> bool:
     """Whether a server could not bind host:port now: a listener is there, or any other socket
-    holds the port without listening (then the viewer exited at once with status 1 and no
-    word about why)."""
-    if _listening("127.0.0.1" if host in ("0.0.0.0", "::") else host, port):
-        return True
+    holds the port without listening."""
+    return (_listening("127.0.0.1" if host in ("0.0.0.0", "::") else host, port)
+            or _bind_refused(host, port))
+
+
+def _bind_refused(host: str, port: int) -> bool:
+    """Whether binding host:port fails, as it does for a socket that holds the port without
+    listening: a connection finds nobody there, and the viewer exited at once with status 1
+    and no word about why."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     with socket.socket(family, socket.SOCK_STREAM) as s:
         # as a server binds: a port in TIME_WAIT only is free
@@ -158,7 +163,7 @@ def start_native(*, grpc_port: int = DEFAULT_GRPC_PORT, log: Path | None = None,
     if not has_display():
         raise WebViewerError(f"{NO_DISPLAY}: use --web")
     if not _listening("127.0.0.1", grpc_port):
-        if _taken("127.0.0.1", grpc_port):
+        if _bind_refused("127.0.0.1", grpc_port):
             raise WebViewerError(f"port {grpc_port} is in use by a program that is not a "
                                  "viewer: choose another with --grpc-port")
         argv = [sys.executable, "-m", "rerun", "--bind", "127.0.0.1", "--port", str(grpc_port)]

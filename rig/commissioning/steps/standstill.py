@@ -132,13 +132,6 @@ def _step(s: BenchSession, iq: float, settle_s: float | None = None,
     return measure(s, s.config.step_window_s if window_s is None else window_s)
 
 
-def _frame_turned(steps: list[Sample]) -> bool:
-    """A drive that lost its position under a current step (its frame turned by π) runs the
-    steps on the south pole: the shaft torque turns against iq. Without a torque reading
-    nothing can be told."""
-    return any(math.isfinite(x.shaft_torque) and x.shaft_torque * x.iq <= 0.0 for x in steps)
-
-
 def phase_axis_offset_deg(theta_hat_deg: float) -> float:
     """Electrical angle from the q axis (θ̂ + 90°) to the nearest phase axis (±a, ±b, ±c,
     every 60°), in [-30°, 30°)."""
@@ -264,7 +257,9 @@ def _identify(s: BenchSession, r: StepResult) -> None:
     s.identified["rs_ohm"] = float(rs)
     torque = np.asarray([x.shaft_torque for x in steps])
     if np.all(np.isfinite(torque)):
-        r.check("polarity kept through the rs steps", not _frame_turned(steps),
+        # a drive that lost its position under a current step (its frame turned by π) runs
+        # the steps on the south pole: the shaft torque turns against iq
+        r.check("polarity kept through the rs steps", bool(np.all(torque * iq > 0.0)),
                 "shaft torque " + ", ".join(f"{t:+.3f}" for t in torque) + " N·m at iq "
                 + ", ".join(f"{i:+.2f}" for i in iq) + " A")
         kt = float(np.polyfit(iq, torque, 1)[0])
