@@ -460,6 +460,20 @@ static void slow_flip_no_load(double rpm, const char *name)
     sim_close(s);
 }
 
+/* Opens the bench on a profile at a noise seed (plus one more plant setting, or NULL) with
+ * the suites' sampling: 5 samples per switching state, 8 us after the edge */
+static void open_seeded(sim_t *s, const char *profile, int seed, const char *extra)
+{
+    char set[64];
+    const char *sets[] = {set, extra, NULL};
+    snprintf(set, sizeof set, "sensors.seed=%d", seed);
+    sim_open(s, profile, 0.0, sets);
+    CHECK(fw_param_set(s->core, FW_PID_SOC_ON_US, 8.0f) == FW_STATUS_OK &&
+              fw_param_set(s->core, FW_PID_SOC_OFF_US, 1.0f) == FW_STATUS_OK &&
+              fw_param_set(s->core, FW_PID_SOC_PER_STATE, 5.0f) == FW_STATUS_OK,
+          "sampling");
+}
+
 /* No correction of a correct frame: the shaft accelerating from standstill without load at
  * 1500 r/min/s (the coverage scenario cov_fw_release_3000rpm's start: paper, 5 samples per
  * state 8 us after the edge), seeds 1-8. The current is ~0.13 A there: the phase currents
@@ -473,15 +487,8 @@ static void no_false_flip_from_standstill(void)
     int seed, flipped = 0;
     unsigned north = 0;
     for (seed = 1; seed <= 8; seed++) {
-        char set[64];
-        const char *sets[] = {set, NULL};
         long k;
-        snprintf(set, sizeof set, "sensors.seed=%d", seed);
-        sim_open(s, "paper", 0.0, sets);
-        CHECK(fw_param_set(s->core, FW_PID_SOC_ON_US, 8.0f) == FW_STATUS_OK &&
-                  fw_param_set(s->core, FW_PID_SOC_OFF_US, 1.0f) == FW_STATUS_OK &&
-                  fw_param_set(s->core, FW_PID_SOC_PER_STATE, 5.0f) == FW_STATUS_OK,
-              "sampling");
+        open_seeded(s, "paper", seed, NULL);
         CHECK(sil_bench_drive_limits(s->b, 4.5, 3300.0, 1500.0) == 0, "limits");
         s->cmd.enable = 1;
         s->cmd.speed_ref_rpm = 3000.0f;
@@ -516,15 +523,8 @@ static void no_false_flip_hot_machine(void)
     unsigned north = 0;
     double e_max = 0.0, bias_v = 0.0;
     for (seed = 1; seed <= 4; seed++) {
-        char set[64];
-        const char *sets[] = {set, "sensors.noise_rms_a=0.001", NULL};
         long k;
-        snprintf(set, sizeof set, "sensors.seed=%d", seed);
-        sim_open(s, "harsh", 0.0, sets);
-        CHECK(fw_param_set(s->core, FW_PID_SOC_ON_US, 8.0f) == FW_STATUS_OK &&
-                  fw_param_set(s->core, FW_PID_SOC_OFF_US, 1.0f) == FW_STATUS_OK &&
-                  fw_param_set(s->core, FW_PID_SOC_PER_STATE, 5.0f) == FW_STATUS_OK,
-              "sampling");
+        open_seeded(s, "harsh", seed, "sensors.noise_rms_a=0.001");
         CHECK(sil_bench_drive_limits(s->b, 4.5, 3500.0, 3000.0) == 0, "limits");
         s->cmd.enable = 1;
         CHECK(run_until_state(s, FW_STATE_RUN, 20000), "seed %d: no RUN", seed);
