@@ -166,9 +166,13 @@ def _criterion(c: Checker, raw: Any, path: Path_, duration: float) -> Criterion 
 def _scalars(c: Checker, raw: Any, path: Path_) -> dict[str, float | int | str | bool]:
     d = c.table(raw, path, raw.keys() if isinstance(raw, dict) else ())
     flat = profiles.flatten(d)
-    for k, v in flat.items():
+    for k, v in list(flat.items()):
         if not isinstance(v, int | float | str | bool):
             c.err((*path, *k.split(".")), f"must be a number, string or boolean, not {v!r}")
+        elif not isinstance(v, bool | str) and finite(v) is None:
+            # judged here: the programs' loaders would echo a 400-digit integer whole
+            c.err((*path, *k.split(".")), f"must be a finite number, not {shown(v)}")
+            del flat[k]
     return flat
 
 

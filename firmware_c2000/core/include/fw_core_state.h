@@ -157,6 +157,7 @@ typedef struct {
     fw_cplx_t psi_i;            /* the current's own flux L(theta_hat) i at the last period end, V*s */
     real_t phi;                 /* sum of e_q Ts / lambda_m: +-(theta - theta0), rad */
     real_t phi_min, phi_max;
+    real_t phi_tol;             /* the most an rs error could have added to phi (the watch), rad */
     real_t raw;                 /* raw slope angle continued across periods (modulo pi), rad */
     real_t raw0;
     real_t raw_prev;            /* the last raw slope angle on the tracker's branch (the watch) */

@@ -132,7 +132,7 @@ static void emf_window_clear(fw_emf_window_t *w)
 {
     w->on = 0;
     w->psi_i = fw_c(FW_REAL(0.0), FW_REAL(0.0));
-    w->phi = w->phi_min = w->phi_max = FW_REAL(0.0);
+    w->phi = w->phi_min = w->phi_max = w->phi_tol = FW_REAL(0.0);
     w->raw = w->raw0 = w->raw_prev = FW_REAL(0.0);
     w->m = 0;
     w->sp = w->spp = w->sr = w->spr = w->srr = FW_REAL(0.0);
@@ -426,7 +426,7 @@ int16_t fw_polarity_watch_step(fw_polarity_watch_t *wt, const fw_core_t *c)
     int32_t len = (int32_t)(p[FW_IDX_POL_WATCH_WINDOW_MS] * (FW_REAL(1e-3) / FW_TS));
     real_t span_min = p[FW_IDX_POL_WATCH_MIN_DEG] * (FW_M_PI / FW_REAL(180.0));
     fw_cplx_t psi_i1;
-    real_t e_q, s0;
+    real_t e_q, s0, tol_step;
     int16_t h, slow = (int16_t)(fw_fabs(c->speed_f_rpm) < p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM]);
     int16_t loaded = (int16_t)(fw_cabs2(c->i_avg) >= POL_WATCH_I_MIN * POL_WATCH_I_MIN);
     if (len < 2 * POL_EMF_MIN_N || !(span_min > FW_REAL(0.0)) || !c->trk.init ||
@@ -442,6 +442,14 @@ int16_t fw_polarity_watch_step(fw_polarity_watch_t *wt, const fw_core_t *c)
         return 0;
     }
     e_q = emf_q(&wt->psi_i, psi_i1, c);
+    /* the back-EMF's angle an rs error could make this period: the voltage model takes
+     * rs_ohm, the machine's may be pol_watch_rs_tol off (harsh runs 30 % hot), and under load
+     * the current is along q, so that error is all in e_q: 0.58 ohm at 3.2 A on harsh is
+     * 1.8 V, the back-EMF of 40 r/min. A window at 1 r/min then integrated 5-10 deg of angle
+     * the rotor never turned and, with a quiet current sensor (1-3 mA), turned a correct
+     * frame round at the end of a 2 N*m load ramp. */
+    tol_step = p[FW_IDX_POL_WATCH_RS_TOL] * p[FW_IDX_RS_OHM] * fw_cabs(c->i_avg) * FW_TS /
+               p[FW_IDX_LAMBDA_M_WB];
     /* the q back-EMF's straight line over the last 20 periods or so (weights decaying by
      * POL_WATCH_EW_BETA per period, time 0 at this period): the shaft's speed when the watch
      * decides, which a window's own line, started before the runaway, underestimates */
@@ -472,7 +480,13 @@ int16_t fw_polarity_watch_step(fw_polarity_watch_t *wt, const fw_core_t *c)
             continue;
         }
         wt->age[h]++;
+        w->phi_tol += tol_step;
         r = emf_add(w, c, e_q, span_min, 1);
+        if (r < 0 && !(fw_fabs(w->phi) > w->phi_tol)) {
+            /* the back-EMF has not yet turned further than the rs error could: no verdict yet,
+             * the window runs on (a runaway's angle grows with t^2, the error's with t) */
+            r = 0;
+        }
         if (r < 0 && !loaded) {
             /* near zero current the dead time's voltage is unknown by volts while a slow
              * shaft's back-EMF is one (27 r/min: 1.2 V); a turned frame with no current

@@ -460,6 +460,20 @@ static void slow_flip_no_load(double rpm, const char *name)
     sim_close(s);
 }
 
+/* Opens the bench on a profile at a noise seed (plus one more plant setting, or NULL) with
+ * the suites' sampling: 5 samples per switching state, 8 us after the edge */
+static void open_seeded(sim_t *s, const char *profile, int seed, const char *extra)
+{
+    char set[64];
+    const char *sets[] = {set, extra, NULL};
+    snprintf(set, sizeof set, "sensors.seed=%d", seed);
+    sim_open(s, profile, 0.0, sets);
+    CHECK(fw_param_set(s->core, FW_PID_SOC_ON_US, 8.0f) == FW_STATUS_OK &&
+              fw_param_set(s->core, FW_PID_SOC_OFF_US, 1.0f) == FW_STATUS_OK &&
+              fw_param_set(s->core, FW_PID_SOC_PER_STATE, 5.0f) == FW_STATUS_OK,
+          "sampling");
+}
+
 /* No correction of a correct frame: the shaft accelerating from standstill without load at
  * 1500 r/min/s (the coverage scenario cov_fw_release_3000rpm's start: paper, 5 samples per
  * state 8 us after the edge), seeds 1-8. The current is ~0.13 A there: the phase currents
@@ -473,15 +487,8 @@ static void no_false_flip_from_standstill(void)
     int seed, flipped = 0;
     unsigned north = 0;
     for (seed = 1; seed <= 8; seed++) {
-        char set[64];
-        const char *sets[] = {set, NULL};
         long k;
-        snprintf(set, sizeof set, "sensors.seed=%d", seed);
-        sim_open(s, "paper", 0.0, sets);
-        CHECK(fw_param_set(s->core, FW_PID_SOC_ON_US, 8.0f) == FW_STATUS_OK &&
-                  fw_param_set(s->core, FW_PID_SOC_OFF_US, 1.0f) == FW_STATUS_OK &&
-                  fw_param_set(s->core, FW_PID_SOC_PER_STATE, 5.0f) == FW_STATUS_OK,
-              "sampling");
+        open_seeded(s, "paper", seed, NULL);
         CHECK(sil_bench_drive_limits(s->b, 4.5, 3300.0, 1500.0) == 0, "limits");
         s->cmd.enable = 1;
         s->cmd.speed_ref_rpm = 3000.0f;
@@ -498,6 +505,59 @@ static void no_false_flip_from_standstill(void)
            "correction, %u windows decided north\n", flipped, north);
     CHECK(flipped == 0, "%d of 8 runs turned a correct frame round", flipped);
     CHECK(north > 0, "the watch decided nothing: it did not run"); /* else the test proves nothing */
+}
+
+/* No correction of a correct frame on the hot machine: harsh's rs is 30 % above the
+ * firmware's rs_ohm, and taking up 2 N*m at 1 r/min puts 3.2 A on q, so the watch's voltage
+ * model carries (rs - rs_ohm) iq in the q back-EMF it integrates: the back-EMF of ~40 r/min
+ * while the shaft turns at a few. With harsh's own 5 mA of sensor noise the window's
+ * regression stayed too uncertain to decide; with a 1 mA sensor every seed 1-8 turned the
+ * correct frame round at the end of the load ramp (0.50-0.55 s) and ran away. Expected: no
+ * correction, still in RUN, the frame kept (within 20 deg: the cross-saturation, uncompensated
+ * here as in held_rotor_steps, turns the saliency axes by ~5 deg at 3 A) and windows decided
+ * north (the watch ran). */
+static void no_false_flip_hot_machine(void)
+{
+    sim_t *s = &S;
+    int seed, flipped = 0;
+    unsigned north = 0;
+    double e_max = 0.0, bias_v = 0.0;
+    for (seed = 1; seed <= 4; seed++) {
+        long k;
+        open_seeded(s, "harsh", seed, "sensors.noise_rms_a=0.001");
+        CHECK(sil_bench_drive_limits(s->b, 4.5, 3500.0, 3000.0) == 0, "limits");
+        s->cmd.enable = 1;
+        CHECK(run_until_state(s, FW_STATE_RUN, 20000), "seed %d: no RUN", seed);
+        s->cmd.speed_ref_rpm = 1.0f;
+        /* the load ramps to 2 N*m over 0.25-0.45 s, held to 0.8 s */
+        for (k = 0; k < 8000; k++) {
+            double t = (double)k * 1e-4;
+            if (k % 10 == 0) {
+                double tl = t < 0.25 ? 0.0 : (t < 0.45 ? 2.0 * (t - 0.25) / 0.2 : 2.0);
+                CHECK(sil_bench_load_cmd(s->b, 0, tl, 0.0, 0.0) == 0, "load");
+            }
+            sim_step(s);
+            if (k >= 6000) {
+                e_max = fmax(e_max, fabs(sim_theta_error(s)));
+            }
+        }
+        {
+            const plant_config_t *pc = plant_config(sil_bench_plant(s->b));
+            bias_v = (pc->machine.rs_ohm - (double)s->core->p[FW_IDX_RS_OHM]) * (double)s->core->iq;
+        }
+        CHECK(sim_state(s) == FW_STATE_RUN, "seed %d: state %d fault %u", seed, sim_state(s),
+              s->core->fault_code);
+        flipped += s->core->polarity_flips != 0;
+        north += s->core->watch.decided_north;
+        sim_close(s);
+    }
+    printf("hot machine, 1 mA sensor, 2 N*m taken up at 1 r/min (harsh, seeds 1-4): %d runs "
+           "with a correction, %u windows decided north, the rs error's q voltage %.2f V, "
+           "position after 0.6 s at most %.2f deg\n", flipped, north, bias_v,
+           e_max * 180 / M_PI);
+    CHECK(flipped == 0, "%d of 4 runs turned a correct frame round", flipped);
+    CHECK(north > 0, "the watch decided nothing: it did not run");
+    CHECK(e_max < 20.0 * M_PI / 180, "position error %.2f deg", e_max * 180 / M_PI);
 }
 
 /* Current plausibility (fw_core.c current_sensor_check): a current channel that no longer
@@ -757,6 +817,7 @@ int main(void)
     slow_flip("harsh", 1.0, 1.0, 0, "standstill flip");
     slow_flip_no_load(10.0, "slow flip");
     no_false_flip_from_standstill();
+    no_false_flip_hot_machine();
     current_plausibility(1, 100, "ia read 5x");
     current_plausibility(2, 100, "ia stuck at mid-scale");
     /* an intermittent fault: the count leaks (one good period takes one off), so three bad
