@@ -234,6 +234,12 @@ static int assign(plant_config_t *cfg, const field_t *f, double v, char *why, si
     return 0;
 }
 
+/* A value as an error message shows it: at most SHOWN_MAX characters, then "..." (a 400-digit
+ * number echoed whole filled the message and cut off the reason after it) */
+#define SHOWN_MAX 40
+static int shown_len(size_t n) { return n > SHOWN_MAX ? SHOWN_MAX - 3 : (int)n; }
+static const char *shown_more(size_t n) { return n > SHOWN_MAX ? "..." : ""; }
+
 static const char *skip_ws(const char *s, const char *end)
 {
     while (s < end && (*s == ' ' || *s == '\t')) {
@@ -359,8 +365,9 @@ int plant_config_load(plant_config_t *cfg, const char *path, char *err, size_t e
             seen[f - FIELDS] = 1;
             val = skip_ws(eq + 1, end);
             if (parse_number(val, (size_t)(end - val), &v) != 0) {
-                snprintf(err, errlen, "%s:%d: %s.%s: '%.*s' is not a number", path, lineno,
-                         f->section, f->key, (int)(end - val), val);
+                snprintf(err, errlen, "%s:%d: %s.%s: '%.*s%s' is not a number", path, lineno,
+                         f->section, f->key, shown_len((size_t)(end - val)), val,
+                         shown_more((size_t)(end - val)));
                 fclose(fp);
                 return -1;
             }
@@ -396,29 +403,35 @@ int plant_config_set(plant_config_t *cfg, const char *assignment, char *err, siz
     double v;
     char why[160];
     if (!eq) {
-        snprintf(err, errlen, "--set %s: expected section.key=value", assignment);
+        snprintf(err, errlen, "--set %.*s%s: expected section.key=value",
+                 shown_len(strlen(assignment)), assignment, shown_more(strlen(assignment)));
         return -1;
     }
     key_end = trim_end(s, eq);
     dot = memchr(s, '.', (size_t)(key_end - s));
     if (!dot) {
-        snprintf(err, errlen, "--set %s: expected section.key=value", assignment);
+        snprintf(err, errlen, "--set %.*s%s: expected section.key=value",
+                 shown_len(strlen(assignment)), assignment, shown_more(strlen(assignment)));
         return -1;
     }
     f = find_field(s, (size_t)(dot - s), dot + 1, (size_t)(key_end - dot - 1));
     if (!f) {
-        snprintf(err, errlen, "--set %s: %.*s: unknown field", assignment, (int)(key_end - s), s);
+        snprintf(err, errlen, "--set %.*s%s: %.*s: unknown field", shown_len(strlen(assignment)),
+                 assignment, shown_more(strlen(assignment)), shown_len((size_t)(key_end - s)), s);
         return -1;
     }
     val = skip_ws(eq + 1, end);
     end = trim_end(val, end);
     if (parse_number(val, (size_t)(end - val), &v) != 0) {
-        snprintf(err, errlen, "--set %s: %s.%s: '%.*s' is not a number", assignment, f->section,
-                 f->key, (int)(end - val), val);
+        snprintf(err, errlen, "--set %.*s%s: %s.%s: '%.*s%s' is not a number",
+                 shown_len(strlen(assignment)), assignment, shown_more(strlen(assignment)),
+                 f->section, f->key, shown_len((size_t)(end - val)), val,
+                 shown_more((size_t)(end - val)));
         return -1;
     }
     if (assign(cfg, f, v, why, sizeof(why)) != 0) {
-        snprintf(err, errlen, "--set %s: %s.%s: %s", assignment, f->section, f->key, why);
+        snprintf(err, errlen, "--set %.*s%s: %s.%s: %s", shown_len(strlen(assignment)),
+                 assignment, shown_more(strlen(assignment)), f->section, f->key, why);
         return -1;
     }
     return 0;

@@ -512,7 +512,7 @@ static void no_false_flip_from_standstill(void)
  * model carries (rs - rs_ohm) iq in the q back-EMF it integrates: the back-EMF of ~40 r/min
  * while the shaft turns at a few. With harsh's own 5 mA of sensor noise the window's
  * regression stayed too uncertain to decide; with a 1 mA sensor every seed 1-8 turned the
- * correct frame round at the end of the load ramp (0.50-0.55 s) and ran away. Expected: no
+ * correct frame round at the end of the load ramp (0.52-0.55 s) and ran away. Expected: no
  * correction, still in RUN, the frame kept (within 20 deg: the cross-saturation, uncompensated
  * here as in held_rotor_steps, turns the saliency axes by ~5 deg at 3 A) and windows decided
  * north (the watch ran). */

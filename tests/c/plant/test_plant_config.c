@@ -112,6 +112,22 @@ int main(void)
     CHECK(plant_config_set(&cfg, "loadmode=1", err, sizeof(err)) != 0);
     CHECK(plant_config_set(&cfg, "load.mode", err, sizeof(err)) != 0);
     CHECK(plant_config_set(&cfg, "adc.bits=", err, sizeof(err)) != 0);
+    {
+        /* a value of 400 digits: the message shows it shortened, so the reason after it is
+         * not cut off by a message buffer (the rig's is 512 bytes, as here) */
+        char assign[480];
+        const char *tail;
+        memcpy(assign, "sensors.noise_rms_a=", 20);
+        memset(assign + 20, '9', 400);
+        assign[420] = '\0';
+        CHECK(plant_config_set(&cfg, assign, err, sizeof(err)) != 0);
+        CHECK(strlen(err) < 200 && contains(err, "sensors.noise_rms_a") && contains(err, "..."));
+        tail = strrchr(err, ':');
+        CHECK(tail != NULL && strlen(tail) > 3); /* the reason comes last and whole */
+        if (tail != NULL) {
+            printf("400-digit value: %s\n", err);
+        }
+    }
     CHECK(plant_config_key_count() > 40);
     for (k = 0; k < plant_config_key_count(); ++k) {
         char assign[128];
