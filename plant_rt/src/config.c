@@ -234,11 +234,21 @@ static int assign(plant_config_t *cfg, const field_t *f, double v, char *why, si
     return 0;
 }
 
-/* A value as an error message shows it: at most SHOWN_MAX characters, then "..." (a 400-digit
- * number echoed whole filled the message and cut off the reason after it) */
+/* s[0..n) as an error message shows it, written to out: at most SHOWN_MAX characters, the
+ * last three "..." when cut (a 400-digit number echoed whole filled the message and cut off
+ * the reason after it) */
 #define SHOWN_MAX 40
-static int shown_len(size_t n) { return n > SHOWN_MAX ? SHOWN_MAX - 3 : (int)n; }
-static const char *shown_more(size_t n) { return n > SHOWN_MAX ? "..." : ""; }
+static const char *shown(char out[SHOWN_MAX + 1], const char *s, size_t n)
+{
+    if (n > SHOWN_MAX) {
+        memcpy(out, s, SHOWN_MAX - 3);
+        memcpy(out + SHOWN_MAX - 3, "...", 4);
+    } else {
+        memcpy(out, s, n);
+        out[n] = '\0';
+    }
+    return out;
+}
 
 static const char *skip_ws(const char *s, const char *end)
 {
@@ -365,9 +375,9 @@ int plant_config_load(plant_config_t *cfg, const char *path, char *err, size_t e
             seen[f - FIELDS] = 1;
             val = skip_ws(eq + 1, end);
             if (parse_number(val, (size_t)(end - val), &v) != 0) {
-                snprintf(err, errlen, "%s:%d: %s.%s: '%.*s%s' is not a number", path, lineno,
-                         f->section, f->key, shown_len((size_t)(end - val)), val,
-                         shown_more((size_t)(end - val)));
+                char vs[SHOWN_MAX + 1];
+                snprintf(err, errlen, "%s:%d: %s.%s: '%s' is not a number", path, lineno,
+                         f->section, f->key, shown(vs, val, (size_t)(end - val)));
                 fclose(fp);
                 return -1;
             }
@@ -402,36 +412,33 @@ int plant_config_set(plant_config_t *cfg, const char *assignment, char *err, siz
     const field_t *f;
     double v;
     char why[160];
+    char as[SHOWN_MAX + 1], part[SHOWN_MAX + 1]; /* the assignment and a part of it, shown */
+    shown(as, assignment, (size_t)(end - assignment));
     if (!eq) {
-        snprintf(err, errlen, "--set %.*s%s: expected section.key=value",
-                 shown_len(strlen(assignment)), assignment, shown_more(strlen(assignment)));
+        snprintf(err, errlen, "--set %s: expected section.key=value", as);
         return -1;
     }
     key_end = trim_end(s, eq);
     dot = memchr(s, '.', (size_t)(key_end - s));
     if (!dot) {
-        snprintf(err, errlen, "--set %.*s%s: expected section.key=value",
-                 shown_len(strlen(assignment)), assignment, shown_more(strlen(assignment)));
+        snprintf(err, errlen, "--set %s: expected section.key=value", as);
         return -1;
     }
     f = find_field(s, (size_t)(dot - s), dot + 1, (size_t)(key_end - dot - 1));
     if (!f) {
-        snprintf(err, errlen, "--set %.*s%s: %.*s: unknown field", shown_len(strlen(assignment)),
-                 assignment, shown_more(strlen(assignment)), shown_len((size_t)(key_end - s)), s);
+        snprintf(err, errlen, "--set %s: %s: unknown field", as,
+                 shown(part, s, (size_t)(key_end - s)));
         return -1;
     }
     val = skip_ws(eq + 1, end);
     end = trim_end(val, end);
     if (parse_number(val, (size_t)(end - val), &v) != 0) {
-        snprintf(err, errlen, "--set %.*s%s: %s.%s: '%.*s%s' is not a number",
-                 shown_len(strlen(assignment)), assignment, shown_more(strlen(assignment)),
-                 f->section, f->key, shown_len((size_t)(end - val)), val,
-                 shown_more((size_t)(end - val)));
+        snprintf(err, errlen, "--set %s: %s.%s: '%s' is not a number", as, f->section, f->key,
+                 shown(part, val, (size_t)(end - val)));
         return -1;
     }
     if (assign(cfg, f, v, why, sizeof(why)) != 0) {
-        snprintf(err, errlen, "--set %.*s%s: %s.%s: %s", shown_len(strlen(assignment)),
-                 assignment, shown_more(strlen(assignment)), f->section, f->key, why);
+        snprintf(err, errlen, "--set %s: %s.%s: %s", as, f->section, f->key, why);
         return -1;
     }
     return 0;
