@@ -27,6 +27,11 @@ examples:
   rig sweep fig09_load_step_realtime --random 200 --param rs=1.6:2.6 --param noise=0:0.005
   rig sweep smoke --param rs=1.5:2.5:9 --scheduler tcp://10.0.0.5:8786
 
+The summary metric takes the parameters of the scenario's criterion on it (a recovery's
+band, ...). A scenario decided over its own seeds ([run] seeds) runs all of them at every
+point: its row holds each criterion's worst seed, the summary metric's worst seed and every
+seed's value (metric_seeds); a sensors.seed axis on it is refused.
+
 Writes sweep.csv and sweep.parquet (one row per point: parameters, verdict, failure reason,
 every criterion's value and outcome, the summary metric), summary.md (pass rate, worst
 points) and worst_error.png. Exit status: 0 every point passed, 1 some did not, 2 usage,
@@ -83,6 +88,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         axes = [spec.parse_axis(a) for a in args.param]
         if len({a.name for a in axes}) != len(axes):
             raise spec.SpecError("an axis is given twice")
+        spec.check_axes(sc, axes)
         points = (spec.sample(axes, args.random, args.seed) if args.random > 0
                   else spec.grid(axes))
         window = args.window

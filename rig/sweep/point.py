@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from rig import scenario
+from rig.regression.baseline import HIGHER, LOWER
+from rig.results.result import RunResult
 from rig.run import runner
 from rig.sweep import spec
 
@@ -42,12 +44,31 @@ def _num(v: object) -> str:
     return f"{v:.4g}" if isinstance(v, int | float) else str(v)
 
 
+def criterion_on(sc: scenario.Scenario, metric: str) -> scenario.Criterion | None:
+    """The scenario's first criterion on ``metric`` (None: no criterion reads it)."""
+    return next((cr for cr in sc.criteria if cr.metric == metric), None)
+
+
 def default_window(sc: scenario.Scenario, metric: str) -> tuple[float, float]:
     """The window of the scenario's first criterion on ``metric``, else its second half."""
-    for cr in sc.criteria:
-        if cr.metric == metric:
-            return (cr.window[0], cr.window[1])
-    return (sc.duration / 2.0, sc.duration)
+    cr = criterion_on(sc, metric)
+    return (cr.window[0], cr.window[1]) if cr is not None else (sc.duration / 2.0, sc.duration)
+
+
+def metric_params(sc: scenario.Scenario, metric: str) -> dict[str, float]:
+    """The parameters the scenario's criterion gives ``metric`` (a recovery's band, ...), so
+    the summary reads the metric as the criterion of the same name does; none without one."""
+    cr = criterion_on(sc, metric)
+    return {k: float(v) for k, v in cr.params.items()} if cr is not None else {}
+
+
+def worst_of_seeds(values: Sequence[float | None], side: str) -> float | None:
+    """The worst seed's value: the smallest when higher is better, else the largest; a seed
+    without a number makes the point's value empty (it is worse than any number)."""
+    if not values or any(v is None for v in values):
+        return None
+    nums = [float(v) for v in values if v is not None]
+    return min(nums) if side == HIGHER else max(nums)
 
 
 def base_row(task: Task) -> dict[str, Any]:
@@ -82,11 +103,18 @@ def _run(task: Task) -> dict[str, Any]:
         result = runner.run_scenario(sc, runner.RunOptions(
             out=Path(tmp) / "run", bus=task.bus, channel=channel, progress=False,
             record=False, figures=False))
-        value: float | None = None
-        if result.capture is not None:
-            with _suppress_metric_errors():
-                v = result.metric(task.metric, window)
-                value = v if math.isfinite(v) else None
+        params = metric_params(sc, task.metric)
+        seed_values: list[float | None] = []
+        if result.seeds:  # decided over its own seeds: each seed's run has its capture
+            for entry in result.seeds:
+                folder = result.out_dir / entry["dir"]
+                seed_values.append(_metric_of(RunResult.load(folder), task.metric, window,
+                                              params)
+                                   if (folder / "result.json").is_file() else None)
+            cr = criterion_on(sc, task.metric)
+            value = worst_of_seeds(seed_values, cr.side() if cr is not None else LOWER)
+        else:
+            value = _metric_of(result, task.metric, window, params)
         row = {**base_row(task), "status": result.status, "passed": result.passed}
         failure = result.failure
         row["failure_kind"] = failure.kind if failure is not None else None
@@ -100,6 +128,10 @@ def _run(task: Task) -> dict[str, Any]:
         row["metric"] = task.metric
         row["metric_window"] = f"{window[0]:g}..{window[1]:g}"
         row["metric_value"] = value
+        if seed_values:
+            row["metric_seeds"] = ", ".join(
+                f"{e['seed']}: " + ("—" if v is None else f"{v:.6g}")
+                for e, v in zip(result.seeds or [], seed_values, strict=True))
         for c in result.criteria:
             row[f"crit.{c['name']}"] = c["value"]
             row[f"outcome.{c['name']}"] = c["outcome"]
@@ -108,6 +140,19 @@ def _run(task: Task) -> dict[str, Any]:
         row["wall_s"] = timing.wall_s if timing is not None else None
         result.capture = None  # close the memory maps before the folder goes
         return row
+
+
+def _metric_of(result: RunResult, metric: str, window: tuple[float, float],
+               params: dict[str, float]) -> float | None:
+    """``metric`` of one run over ``window`` (None: no capture, no data, not finite); the
+    run's capture is closed afterwards (its folder is deleted with the point)."""
+    value: float | None = None
+    if result.capture is not None:
+        with _suppress_metric_errors():
+            v = result.metric(metric, window, **params)
+            value = v if math.isfinite(v) else None
+        result.capture = None
+    return value
 
 
 class _suppress_metric_errors:

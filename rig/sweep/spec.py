@@ -22,7 +22,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from rig.scenario import Scenario
+from rig.scenario import SEED_KEY, Scenario
 
 ALIASES: dict[str, str] = {
     "rs": "machine.rs_ohm",
@@ -155,9 +155,21 @@ def sample(axes: Sequence[Axis], n: int, seed: int) -> list[dict[str, float]]:
     return [{a.name: a.draw(rng) for a in axes} for _ in range(n)]
 
 
+def check_axes(sc: Scenario, axes: Sequence[Axis]) -> None:
+    """Refuses an axis the scenario would ignore: the noise seed of a scenario decided over
+    its own seeds (``[run] seeds``), which each of its runs sets itself."""
+    if sc.seeds and any(a.key == SEED_KEY for a in axes):
+        raise SpecError(
+            f"{SEED_KEY}: {sc.name} is decided over its own seeds "
+            f"({', '.join(str(s) for s in sc.seeds)}: [run] seeds in its file), which set "
+            "the noise seed of each of its runs, so this axis would change nothing; drop it "
+            "(every point runs those seeds, and its summary metric is the worst seed's)")
+
+
 def apply(sc: Scenario, axes: Sequence[Axis], values: Mapping[str, float],
           label: str) -> Scenario:
     """The scenario with one point's values: plant overrides, firmware parameters, scales."""
+    check_axes(sc, axes)
     overrides: dict[str, Any] = dict(sc.overrides)
     firmware: dict[str, Any] = dict(sc.firmware)
     speed, load = sc.speed, sc.load

@@ -3,7 +3,8 @@ column of its own type whatever the rows hold (a column no row filled keeps its 
 
 - ``point``: int64; ``param.*``, ``crit.*``, ``metric_value``, ``sim_s``, ``wall_s``: float64
   (a missing value is null); ``passed``: bool;
-- ``status``, ``failure_kind``, ``failure``, ``metric``, ``metric_window``, ``outcome.*``:
+- ``status``, ``failure_kind``, ``failure``, ``metric``, ``metric_window``, ``outcome.*``,
+  ``metric_seeds`` (each seed's summary metric, for a scenario over its own seeds):
   string (``outcome.*`` and ``status`` dictionary-encoded in Parquet: a few distinct values).
 """
 

@@ -110,6 +110,9 @@ typedef struct {
     int32_t conv_ticks; /* periods since the last reset or detected disturbance */
     uint32_t boosts;    /* detected disturbances (diagnostics) */
     real_t e_mean, e_var; /* innovation mean and mean square */
+    real_t noise_ref2;  /* rad^2: raw-estimate noise variance the floor wn_lo is meant for (0: fixed) */
+    real_t n_var;       /* rad^2: the raw estimate's noise variance, from successive innovations */
+    real_t floor_scale; /* wn_lo's share at the present noise: cbrt(sqrt(noise_ref2 / n_var)), <= 1 */
     real_t last_err;    /* rad */
     uint16_t stamp;     /* tick of the reference instant within the period of the last update */
 } fw_tracker_t;

@@ -150,7 +150,7 @@ void fw_tracker_config(fw_tracker_t *pll, real_t bw_hz, real_t zeta);
 /* the floor low_bw_hz, the speed schedule wn = speed_ratio * |omega_e|, and the disturbance
  * detector's threshold boost_sigma (0: none); without it the loop runs at bw_hz */
 void fw_tracker_config_schedule(fw_tracker_t *pll, real_t low_bw_hz, real_t speed_ratio,
-                            real_t boost_sigma);
+                            real_t boost_sigma, real_t noise_ref_deg);
 /* once per period before the update: gains for the present speed and convergence state;
  * returns wn, rad/s */
 real_t fw_tracker_schedule(fw_tracker_t *pll);

@@ -93,7 +93,7 @@ void fw_params_apply(fw_core_t *c)
     c->cmd_timeout_ticks = (uint32_t)(p[FW_IDX_CMD_TIMEOUT_MS] * FW_REAL(10.0) + FW_REAL(0.5));
     fw_tracker_config(&c->trk, p[FW_IDX_PLL_BW_HZ], p[FW_IDX_PLL_ZETA]);
     fw_tracker_config_schedule(&c->trk, p[FW_IDX_PLL_LOW_BW_HZ], p[FW_IDX_PLL_SPEED_RATIO],
-                               p[FW_IDX_PLL_BOOST_SIGMA]);
+                               p[FW_IDX_PLL_BOOST_SIGMA], p[FW_IDX_PLL_NOISE_REF_DEG]);
     c->speed_alpha = fw_min(FW_M_2PI * p[FW_IDX_SPD_FILTER_HZ] * FW_TS, FW_REAL(1.0));
     c->pi_d.kp = p[FW_IDX_CUR_KP_D];
     c->pi_d.ki = p[FW_IDX_CUR_KI_D];

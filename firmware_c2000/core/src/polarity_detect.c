@@ -428,7 +428,8 @@ int16_t fw_polarity_watch_step(fw_polarity_watch_t *wt, const fw_core_t *c)
     fw_cplx_t psi_i1;
     real_t e_q, s0, tol_step;
     int16_t h, slow = (int16_t)(fw_fabs(c->speed_f_rpm) < p[FW_IDX_POL_LOSS_SETTLED_MIN_RPM]);
-    int16_t loaded = (int16_t)(fw_cabs2(c->i_avg) >= POL_WATCH_I_MIN * POL_WATCH_I_MIN);
+    real_t i_avg2 = fw_cabs2(c->i_avg);
+    int16_t loaded = (int16_t)(i_avg2 >= POL_WATCH_I_MIN * POL_WATCH_I_MIN);
     if (len < 2 * POL_EMF_MIN_N || !(span_min > FW_REAL(0.0)) || !c->trk.init ||
         !(fw_fabs(c->speed_f_rpm) < p[FW_IDX_POL_LOSS_MIN_RPM]) ||
         c->polarity_flips != wt->flips_seen || (!slow && !wt->win[0].on && !wt->win[1].on)) {
@@ -448,7 +449,7 @@ int16_t fw_polarity_watch_step(fw_polarity_watch_t *wt, const fw_core_t *c)
      * 1.8 V, the back-EMF of 40 r/min. A window at 1 r/min then integrated 5-10 deg of angle
      * the rotor never turned and, with a quiet current sensor (1-3 mA), turned a correct
      * frame round at the end of a 2 N*m load ramp. */
-    tol_step = p[FW_IDX_POL_WATCH_RS_TOL] * p[FW_IDX_RS_OHM] * fw_cabs(c->i_avg) * FW_TS /
+    tol_step = p[FW_IDX_POL_WATCH_RS_TOL] * p[FW_IDX_RS_OHM] * fw_sqrt(i_avg2) * FW_TS /
                p[FW_IDX_LAMBDA_M_WB];
     /* the q back-EMF's straight line over the last 20 periods or so (weights decaying by
      * POL_WATCH_EW_BETA per period, time 0 at this period): the shaft's speed when the watch

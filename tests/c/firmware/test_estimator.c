@@ -219,6 +219,63 @@ static void pll_tracking(void)
     CHECK(fabs(pll.omega - omega) < 1e-2 * omega, "pll omega %.3f", (double)pll.omega);
 }
 
+/* Gaussian noise for the tracker tests: a fixed LCG and Box-Muller, the same draws on every
+ * machine */
+static double gauss(uint32_t *state)
+{
+    double u1, u2;
+    *state = *state * 1664525u + 1013904223u;
+    u1 = ((double)(*state >> 8) + 1.0) / 16777217.0;
+    *state = *state * 1664525u + 1013904223u;
+    u2 = (double)(*state >> 8) / 16777216.0;
+    return sqrt(-2.0 * log(u1)) * cos(2.0 * M_PI * u2);
+}
+
+/* 3 s of a rotor at rest measured by raw angles with white noise sigma_deg plus a
+ * wobble of wobble_deg at 3 Hz that the 2 Hz loop lags (a tracking error, not noise);
+ * the tracker as the core schedules it, floor 2 Hz meant for 4 deg of noise */
+static void floor_run(double sigma_deg, double wobble_deg, fw_tracker_t *pll)
+{
+    uint32_t state = 12345u;
+    int k;
+    fw_tracker_config(pll, 60.0f, 1.0f);
+    fw_tracker_config_schedule(pll, 2.0f, 0.6f, 0.0f, 4.0f);
+    fw_tracker_reset(pll, 0.0f, 0.0f, 5000);
+    for (k = 1; k <= 30000; k++) {
+        double t = k * 1e-4 + 5e-5;
+        double truth = wobble_deg * M_PI / 180.0 * sin(2.0 * M_PI * 3.0 * t);
+        double raw = truth + sigma_deg * M_PI / 180.0 * gauss(&state);
+        real_t meas;
+        (void)fw_tracker_schedule(pll);
+        fw_tracker_advance(pll, FW_P_TICKS);
+        (void)fw_tracker_update(pll, (real_t)raw, 5000, &meas);
+    }
+}
+
+/* The floor follows the raw estimate's noise: 19 deg (harsh at 2 N*m) lowers it by
+ * cbrt(4 / 19); 1 deg leaves it exactly where pll_low_bw_hz puts it, even while a wobble
+ * makes the innovation's RMS larger than the 4 deg the floor is meant for (the noise is read
+ * from successive innovations, which the slow tracking error hardly enters) */
+static void tracker_floor_follows_noise(void)
+{
+    fw_tracker_t pll;
+    double want = cbrt(4.0 / 19.0), rms_deg;
+    floor_run(19.0, 0.0, &pll);
+    printf("tracker floor at 19 deg of noise: scale %.4f (cbrt(4/19) = %.4f), wn %.3f rad/s\n",
+           (double)pll.floor_scale, want, (double)pll.wn);
+    CHECK(fabs(pll.floor_scale - want) < 0.03 * want, "floor scale %.4f", (double)pll.floor_scale);
+    CHECK(fabs(pll.wn - 2.0 * M_PI * 2.0 * pll.floor_scale) < 1e-3 * pll.wn, "wn %.4f",
+          (double)pll.wn);
+    floor_run(1.0, 10.0, &pll);
+    rms_deg = sqrt(pll.e_var) * 180.0 / M_PI;
+    printf("tracker floor at 1 deg of noise and a 10 deg wobble: scale %.4f, innovation rms "
+           "%.2f deg, noise %.2f deg\n", (double)pll.floor_scale, rms_deg,
+           sqrt(pll.n_var) * 180.0 / M_PI);
+    CHECK(rms_deg > 4.0, "the wobble should lift the innovation RMS above 4 deg: %.2f", rms_deg);
+    CHECK(pll.floor_scale == 1.0f, "floor scale %.6f", (double)pll.floor_scale);
+    CHECK(pll.wn == (real_t)(FW_M_2PI * 2.0f), "wn %.6f", (double)pll.wn);
+}
+
 /* Flux estimator (flux_estimator.c) on an exact rotating flux: psi(t) = lam exp(j w t) along
  * the rotor's d axis with no current, so the volt-seconds of each period are psi(k+1) -
  * psi(k) and the compensated low-pass output must be psi itself once its start has decayed;
@@ -345,5 +402,6 @@ int main(void)
     rotating_model();
     branch_selection();
     pll_tracking();
+    tracker_floor_follows_noise();
     TEST_DONE();
 }

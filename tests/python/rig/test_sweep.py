@@ -57,6 +57,49 @@ def test_a_point_scales_speed_and_load_and_sets_parameters() -> None:
     assert p.name == f"{sc.name}[x]" and p.criteria == sc.criteria
 
 
+def test_a_seed_axis_on_a_scenario_over_its_own_seeds_is_refused(tmp_path: Path) -> None:
+    # load_step_0001rpm runs seeds 1-4 itself: a sensors.seed axis gave identical rows
+    own = scenario.load("load_step_0001rpm")
+    assert isinstance(own, scenario.Scenario) and own.seeds
+    seed_axis = [spec.parse_axis("sensors.seed=1,2")]
+    with pytest.raises(spec.SpecError, match=r"sensors\.seed: .*own seeds \(1, 2, 3, 4"):
+        spec.check_axes(own, seed_axis)
+    with pytest.raises(spec.SpecError):
+        spec.apply(own, seed_axis, {"sensors.seed": 2}, "x")
+    single = scenario.load("smoke")
+    assert isinstance(single, scenario.Scenario) and not single.seeds
+    assert spec.apply(single, seed_axis, {"sensors.seed": 2}, "x").seed == 2
+    r = subprocess.run(
+        [sys.executable, "-m", "rig", "sweep", "load_step_0001rpm", "--param",
+         "sensors.seed=1,2", "--out", str(tmp_path / "s"), "--quiet"],
+        capture_output=True, text=True, check=False, timeout=120)
+    assert r.returncode == 2 and "decided over its own seeds" in r.stderr, r.stderr
+    assert not (tmp_path / "s").exists()
+
+
+def test_the_summary_metric_reads_as_the_scenarios_criterion(tmp_path: Path) -> None:
+    # a criterion's parameters: a recovery into 20 r/min, where the metric's own default is
+    # 2 % of the 100 r/min it held (2 r/min)
+    text = (scenario.SCENARIO_DIR / "load_step_0100rpm.toml").read_text()
+    assert text.count("band_rpm = 2 }") == 2
+    f = tmp_path / "load_step_wide_band.toml"
+    f.write_text(text.replace("band_rpm = 2 }", "band_rpm = 20 }"))
+    axes = (spec.parse_axis("load_scale=1"),)
+    row = sweep_point.run(sweep_point.Task(0, str(f), axes, {"load_scale": 1.0},
+                                           metric="recovery_time_s"))
+    crit = row["crit.speed back within 2 r/min within 0.5 s"]
+    assert row["status"] == "passed" and crit is not None, row
+    assert row["metric_value"] == pytest.approx(crit, abs=1e-12)
+    assert "metric_seeds" not in row
+    # over its own seeds: each seed's value, and the worst of them, as the criterion's
+    own = sweep_point.run(sweep_point.Task(0, "start_load_p2nm_040deg", axes,
+                                           {"load_scale": 1.0}, metric="kickback_deg"))
+    seeds = [float(x.split(": ")[1]) for x in str(own["metric_seeds"]).split(", ")]
+    assert len(seeds) == 8 and len(set(seeds)) > 1, own["metric_seeds"]
+    assert own["metric_value"] == pytest.approx(max(seeds), rel=1e-5)
+    assert own["metric_value"] == pytest.approx(own["crit.shaft kick-back"], rel=1e-6)
+
+
 def test_local_pool_sweep_writes_table_and_summary(tmp_path: Path) -> None:
     out = tmp_path / "sweep"
     r = subprocess.run(
