@@ -20,7 +20,7 @@
  * Three terms, the largest wins:
  *   - low_bw_hz: the floor, where the rotor barely moves (1 r/min: 0.012 deg per period). It
  *     is meant for a raw estimate whose noise is at most noise_ref; a noisier one lowers it
- *     by the cube root of the ratio (to at most FW_TRK_FLOOR_MIN of it), as the steady-state
+ *     by the cube root of the ratio (down to FW_TRK_FLOOR_MIN of it), as the steady-state
  *     gain of a Kalman filter on position, speed and load would (its bandwidth goes as
  *     (process noise / measurement noise)^(1/6) in variance). The noise is measured from
  *     successive innovations, var(eps_k - eps_k-1) / 2, which a slow tracking error (a load
