@@ -138,7 +138,6 @@ def _run(task: Task) -> dict[str, Any]:
         timing = result.timing
         row["sim_s"] = timing.sim_s if timing is not None else None
         row["wall_s"] = timing.wall_s if timing is not None else None
-        result.capture = None  # close the memory maps before the folder goes
         return row
 
 

@@ -147,7 +147,8 @@ void fw_slope_solve(int16_t n_active, const int16_t vec[2], const fw_cplx_t di[2
 /* ---- position_tracker.c: mechanical observer, speed-scheduled, branch selection --------- */
 /* bw_hz: the fastest loop (convergence, high speed), zeta its damping */
 void fw_tracker_config(fw_tracker_t *pll, real_t bw_hz, real_t zeta);
-/* the floor low_bw_hz, the speed schedule wn = speed_ratio * |omega_e|, and the disturbance
+/* the floor low_bw_hz (meant for a raw estimate no noisier than noise_ref_deg, electrical;
+ * 0: a fixed floor), the speed schedule wn = speed_ratio * |omega_e|, and the disturbance
  * detector's threshold boost_sigma (0: none); without it the loop runs at bw_hz */
 void fw_tracker_config_schedule(fw_tracker_t *pll, real_t low_bw_hz, real_t speed_ratio,
                             real_t boost_sigma, real_t noise_ref_deg);

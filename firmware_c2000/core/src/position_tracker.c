@@ -168,6 +168,8 @@ static void floor_for_noise(fw_tracker_t *pll, real_t de)
     }
     if (pll->n_var > pll->noise_ref2) {
         target = fw_sqrt(pll->noise_ref2 / pll->n_var);
+    } else if (y == FW_REAL(1.0)) {
+        return; /* at its target: the Newton step would leave 1 exactly */
     }
     y -= (y * y * y - target) / (FW_REAL(3.0) * y * y);
     pll->floor_scale = fw_clamp(y, FW_TRK_FLOOR_MIN, FW_REAL(1.0));
