@@ -260,9 +260,9 @@ typedef struct {
 #define FW_POL_METHOD_EMF 3 /* the back-EMF test: the shaft was turning */
 #define FW_POL_METHOD_CATCH 4 /* the catch: the shaft turned fast, its back-EMF gave the angle */
 void fw_polarity_start(fw_polarity_t *pol);
-/* After a decision: the shaft's electrical speed at the start of the back-EMF window (the
- * enable), now (the end of the last period) and its acceleration, from the straight line
- * through the window's q back-EMF; 0 when the window is too short. */
+/* After a decision: the shaft's electrical speed at the enable (the straight line through the
+ * back-EMF window's q back-EMF, extended back from the window's first period), now (the end of
+ * the last period) and its acceleration; 0 when the window is too short. */
 int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
                            real_t *omega_now, real_t *accel);
 /* One period; returns pol->result (0 running, 1 done, -1 failed). */

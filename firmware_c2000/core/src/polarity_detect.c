@@ -714,9 +714,11 @@ static int16_t catch_step(fw_polarity_t *pol, const fw_core_t *c, fw_cplx_t *v_f
     return 0;
 }
 
-/* the straight line through a window's q back-EMF: the electrical speed at its start, now
- * and the acceleration; sign: +1 when the window's frame pointed to the north pole, -1 south */
-static int16_t emf_motion(const fw_emf_window_t *w, real_t sign, real_t lambda_m,
+/* the straight line through a window's q back-EMF: the electrical speed at line index
+ * n_start (sample n is the mean of the window's n-th period, n = 0 the period it opened), now
+ * (the end of the last period) and the acceleration; sign: +1 when the window's frame pointed
+ * to the north pole, -1 south */
+static int16_t emf_motion(const fw_emf_window_t *w, real_t sign, real_t lambda_m, real_t n_start,
                           real_t *omega_start, real_t *omega_now, real_t *accel)
 {
     real_t n = w->s0;
@@ -728,12 +730,21 @@ static int16_t emf_motion(const fw_emf_window_t *w, real_t sign, real_t lambda_m
     b1 = (n * w->sny - w->s1 * w->sy) / det;
     b0 = (w->sy - b1 * w->s1) / n;
     k = sign / lambda_m;
-    *omega_start = k * b0;
+    *omega_start = k * (b0 + b1 * n_start);
     *omega_now = k * (b0 + b1 * (n + FW_REAL(0.5)));
     *accel = k * b1 / FW_TS;
     return 1;
 }
 
+/* The speed at the enable is the line's at the enable, not at the window's first period: the
+ * window opens only once the tracker runs (POL_EMF_WAIT periods and more after the enable),
+ * and a load already on the shaft has accelerated it meanwhile (2 N*m on paper: ~100 r/min in
+ * the ~2.5 ms, which the speed reference's return after the start took for the speed to go
+ * back to and then stepped from to the command: 1 A more of q current at once, into the q
+ * saturation that takes the slopes' saliency; the position was lost in 1 start of 8). The
+ * start-up makes no torque before the decision, so the load's acceleration is the line's
+ * from the enable on. The enable is the start of the start-up's first period: pol->periods
+ * periods before the end of the decision's, which is the window's sample s0. */
 int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *omega_start,
                            real_t *omega_now, real_t *accel)
 {
@@ -741,7 +752,8 @@ int16_t fw_polarity_motion(const fw_polarity_t *pol, real_t lambda_m, real_t *om
         return 0;
     }
     return emf_motion(&pol->emf, pol->flipped ? -FW_REAL(1.0) : FW_REAL(1.0), lambda_m,
-                      omega_start, omega_now, accel);
+                      pol->emf.s0 + FW_REAL(0.5) - (real_t)pol->periods, omega_start, omega_now,
+                      accel);
 }
 
 
