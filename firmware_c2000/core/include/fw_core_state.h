@@ -289,7 +289,7 @@ struct fw_core {
     int16_t sensor_bad;          /* leaky count of implausible two-vector periods */
     uint32_t est_reject_count;
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
-    int16_t start_recover;       /* 1: the speed ramp brings the shaft back to start_speed_rpm */
+    int16_t start_recover;       /* 1: ramp back to start_speed_rpm; 2: then to the command, no faster */
     int32_t start_gov;           /* periods left in which |iq| follows the measured saliency */
     int16_t start_fw_hold;       /* periods left in which flux weakening's feedback holds */
     real_t g1_fast;              /* 1/H, Gamma1 along d_hat of the two-vector estimates, ~1 ms filter */

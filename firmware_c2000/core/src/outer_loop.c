@@ -43,11 +43,23 @@ void fw_outer_step(fw_core_t *c)
          * (a step command) ran the slopes where q saturation takes their saliency (2 N*m on
          * paper: the tracker slipped by 180 deg at 4.3 A in 1 of 8 seeds) */
         real_t a = p[FW_IDX_START_RECOVER_RPM_S];
-        real_t to = fw_clamp(target, fw_min(c->start_speed_rpm, c->speed_ref_ramped),
-                             fw_max(c->start_speed_rpm, c->speed_ref_ramped));
-        c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, to, a * ts);
-        if (c->speed_ref_ramped == to) {
-            c->start_recover = 0;
+        if (c->start_recover == 1) {
+            real_t to = fw_clamp(target, fw_min(c->start_speed_rpm, c->speed_ref_ramped),
+                                 fw_max(c->start_speed_rpm, c->speed_ref_ramped));
+            c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, to, a * ts);
+            if (c->speed_ref_ramped == to) {
+                c->start_recover = (int16_t)((to == target) ? 0 : 2);
+            }
+        } else {
+            /* back at the enable's speed, on to the command at its own ramp but no faster than
+             * the return: the enable's speed is a line's estimate (off by up to ~25 r/min at
+             * 2 N*m on paper), and a step command would step the reference by that error, the
+             * braking at once that the return is there to avoid */
+            c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, target,
+                                                     fw_min(p[FW_IDX_ACCEL_RPM_S], a) * ts);
+            if (c->speed_ref_ramped == target) {
+                c->start_recover = 0;
+            }
         }
     } else {
         c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, target,

@@ -643,10 +643,12 @@ static void load_start(const char *profile, double tl, double theta0_deg, const 
     sim_t *s = &S;
     const double j = 0.0005, a_rec = 3000.0 * 2 * M_PI / 60.0;
     double a1 = fabs(tl) / j, back = 0.0, ang = 0.0, bound, back_to_rpm = 0.0;
+    double ref_prev = 0.0, ref_step = 0.0;
     long k, k_run = -1, k_torque = -1, pol_err = 0;
     plant_truth_t tr;
     sim_open(s, profile, theta0_deg * M_PI / 180.0, NULL);
-    CHECK(sil_bench_drive_limits(s->b, 4.5, 3500.0, 3000.0) == 0, "limits");
+    /* the command's ramp as fast as the bus allows, as the rig sets it (it ramps itself) */
+    CHECK(sil_bench_drive_limits(s->b, 4.5, 3500.0, 100000.0) == 0, "limits");
     CHECK(sil_bench_load_cmd(s->b, 0, tl, 0.0, 0.0) == 0, "load");
     s->cmd.enable = 1;
     for (k = 0; k < 5000; k++) {
@@ -657,7 +659,10 @@ static void load_start(const char *profile, double tl, double theta0_deg, const 
         if (k_run < 0 && sim_state(s) == FW_STATE_RUN) {
             k_run = k + 1;
             back_to_rpm = s->core->start_speed_rpm;
+        } else if (k_run >= 0) {
+            ref_step = fmax(ref_step, fabs(s->core->speed_ref_ramped - ref_prev));
         }
+        ref_prev = s->core->speed_ref_ramped;
         if (k_torque < 0 && tr.te * tl >= 0.5 * tl * tl) {
             k_torque = k + 1;
         }
@@ -670,10 +675,10 @@ static void load_start(const char *profile, double tl, double theta0_deg, const 
     }
     bound = 1.3 * (0.5 * a1 * pow(k_run * 1e-4, 2) + pow(a1 * k_run * 1e-4, 2) / (2 * a_rec));
     printf("%s: %+.1f N*m, RUN after %.1f ms (method %d), torque after %.1f ms, kick-back %.1f "
-           "deg (bound %.1f), back to %+.1f r/min, polarity errors %ld periods, state %d "
-           "fault %u\n",
+           "deg (bound %.1f), back to %+.1f r/min, reference steps <= %.2f r/min, polarity "
+           "errors %ld periods, state %d fault %u\n",
            name, tl, k_run * 0.1, s->core->pol.method_used, k_torque * 0.1, back * 180 / M_PI,
-           bound * 180 / M_PI, back_to_rpm, pol_err, sim_state(s), s->core->fault_code);
+           bound * 180 / M_PI, back_to_rpm, ref_step, pol_err, sim_state(s), s->core->fault_code);
     CHECK(sim_state(s) == FW_STATE_RUN, "%s: state %d fault %u", name, sim_state(s),
           s->core->fault_code);
     CHECK(s->core->pol.method_used == FW_POL_METHOD_EMF, "%s: method %d", name,
@@ -686,6 +691,11 @@ static void load_start(const char *profile, double tl, double theta0_deg, const 
      * the enable, was 15-37 % of it: the reference then stepped by that at the return's end) */
     CHECK(fabs(back_to_rpm) < 0.15 * a1 * k_run * 1e-4 * 60.0 / (2 * M_PI),
           "%s: back to %+.1f r/min, the shaft at rest at the enable", name, back_to_rpm);
+    /* and from the return on to the command (0 here) no faster than the return itself, at
+     * start_recover_rpm_s per 1 ms speed-loop step, whatever the command's ramp: the enable's
+     * speed is an estimate, and a step from it to the command brakes at once */
+    CHECK(ref_step <= 3000.0 * 1e-3 + 1e-3, "%s: the speed reference stepped by %.2f r/min", name,
+          ref_step);
     CHECK(pol_err == 0, "%s: %ld periods of polarity error", name, pol_err);
     CHECK(fabs(sim_theta_error(s)) < 5.0 * M_PI / 180, "%s: theta error %.1f deg", name,
           sim_theta_error(s) * 180 / M_PI);
