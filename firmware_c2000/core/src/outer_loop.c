@@ -32,38 +32,31 @@ void fw_outer_step(fw_core_t *c)
     real_t vmax_fw = c->full_mod ? p[FW_IDX_FULL_VS_FRACTION] * FW_SIX_STEP * c->vdc
                                  : p[FW_IDX_FW_VMARGIN] * c->v_lim;
     real_t target = fw_clamp(c->cmd.speed_ref_rpm, -p[FW_IDX_SPEED_MAX_RPM], p[FW_IDX_SPEED_MAX_RPM]);
-    real_t iq_lim, iq_sal, iq_use;
+    real_t iq_lim, iq_sal, iq_use, to, rate;
 
     fw_paramest_apparent(&c->pe, c->iq);
     fw_outer_select_parameters(c);
-    if (c->start_recover) {
-        /* back from the speed a load start left the shaft at, to the speed it had at the
-         * enable, at start_recover_rpm_s whatever the command's ramp: a scenario's ramp of a
-         * few r/min per second would hold the shaft there for seconds, and braking at i_max
-         * (a step command) ran the slopes where q saturation takes their saliency (2 N*m on
-         * paper: the tracker slipped by 180 deg at 4.3 A in 1 of 8 seeds) */
-        real_t a = p[FW_IDX_START_RECOVER_RPM_S];
-        if (c->start_recover == 1) {
-            real_t to = fw_clamp(target, fw_min(c->start_speed_rpm, c->speed_ref_ramped),
-                                 fw_max(c->start_speed_rpm, c->speed_ref_ramped));
-            c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, to, a * ts);
-            if (c->speed_ref_ramped == to) {
-                c->start_recover = (int16_t)((to == target) ? 0 : 2);
-            }
-        } else {
-            /* back at the enable's speed, on to the command at its own ramp but no faster than
-             * the return: the enable's speed is a line's estimate (off by up to ~25 r/min at
-             * 2 N*m on paper), and a step command would step the reference by that error, the
-             * braking at once that the return is there to avoid */
-            c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, target,
-                                                     fw_min(p[FW_IDX_ACCEL_RPM_S], a) * ts);
-            if (c->speed_ref_ramped == target) {
-                c->start_recover = 0;
-            }
-        }
-    } else {
-        c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, target,
-                                                 p[FW_IDX_ACCEL_RPM_S] * ts);
+    /* the speed ramp at accel_rpm_s; after a load start (start_recover 1) back from the speed
+     * it left the shaft at to the speed it had at the enable, at start_recover_rpm_s whatever
+     * the command's ramp: a scenario's ramp of a few r/min per second would hold the shaft
+     * there for seconds, and braking at i_max (a step command) ran the slopes where q
+     * saturation takes their saliency (2 N*m on paper: the tracker slipped by 180 deg at 4.3 A
+     * in 1 of 8 seeds). Then (2) on to the command at its own ramp but no faster than the
+     * return: the enable's speed is a line's estimate (off by up to ~25 r/min at 2 N*m on
+     * paper), and a step command would step the reference by that error, the braking at once
+     * that the return is there to avoid. */
+    to = target;
+    rate = p[FW_IDX_ACCEL_RPM_S];
+    if (c->start_recover == 1) {
+        to = fw_clamp(target, fw_min(c->start_speed_rpm, c->speed_ref_ramped),
+                      fw_max(c->start_speed_rpm, c->speed_ref_ramped));
+        rate = p[FW_IDX_START_RECOVER_RPM_S];
+    } else if (c->start_recover == 2) {
+        rate = fw_min(rate, p[FW_IDX_START_RECOVER_RPM_S]);
+    }
+    c->speed_ref_ramped = fw_speed_ctrl_ramp(c->speed_ref_ramped, to, rate * ts);
+    if (c->start_recover != 0 && c->speed_ref_ramped == to) {
+        c->start_recover = (int16_t)((c->start_recover == 1 && to != target) ? 2 : 0);
     }
     /* voltage feedback: integrate the excess of |v| over the flux-weakening voltage */
     if (c->cmd.fw_mode != FW_FWMODE_ID_ZERO) {

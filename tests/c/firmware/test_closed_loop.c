@@ -641,12 +641,14 @@ static void current_plausibility(int kind, long within, const char *name)
 static void load_start(const char *profile, double tl, double theta0_deg, const char *name)
 {
     sim_t *s = &S;
-    const double j = 0.0005, a_rec = 3000.0 * 2 * M_PI / 60.0;
+    const double j = 0.0005;
     double a1 = fabs(tl) / j, back = 0.0, ang = 0.0, bound, back_to_rpm = 0.0;
-    double ref_prev = 0.0, ref_step = 0.0;
+    double ref_prev = 0.0, ref_step = 0.0, rec_rpm_s, a_rec;
     long k, k_run = -1, k_torque = -1, pol_err = 0;
     plant_truth_t tr;
     sim_open(s, profile, theta0_deg * M_PI / 180.0, NULL);
+    rec_rpm_s = (double)s->core->p[FW_IDX_START_RECOVER_RPM_S];
+    a_rec = rec_rpm_s * 2 * M_PI / 60.0; /* rad/s^2 */
     /* the command's ramp as fast as the bus allows, as the rig sets it (it ramps itself) */
     CHECK(sil_bench_drive_limits(s->b, 4.5, 3500.0, 100000.0) == 0, "limits");
     CHECK(sil_bench_load_cmd(s->b, 0, tl, 0.0, 0.0) == 0, "load");
@@ -694,8 +696,8 @@ static void load_start(const char *profile, double tl, double theta0_deg, const 
     /* and from the return on to the command (0 here) no faster than the return itself, at
      * start_recover_rpm_s per 1 ms speed-loop step, whatever the command's ramp: the enable's
      * speed is an estimate, and a step from it to the command brakes at once */
-    CHECK(ref_step <= 3000.0 * 1e-3 + 1e-3, "%s: the speed reference stepped by %.2f r/min", name,
-          ref_step);
+    CHECK(ref_step <= rec_rpm_s * FW_SPEED_DIVIDER * FW_TS + 1e-3,
+          "%s: the speed reference stepped by %.2f r/min", name, ref_step);
     CHECK(pol_err == 0, "%s: %ld periods of polarity error", name, pol_err);
     CHECK(fabs(sim_theta_error(s)) < 5.0 * M_PI / 180, "%s: theta error %.1f deg", name,
           sim_theta_error(s) * 180 / M_PI);
