@@ -101,6 +101,10 @@ def cmd_record(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     target = args.to or baseline.path_of(suite.name)
+    why = _not_a_baseline_file(target)
+    if why:  # checked before anything runs: a user's file is never overwritten
+        print(f"rig baseline record: --to {target}: {why}", file=sys.stderr)
+        return 2
     if args.from_dir is not None:
         runs = read_seed_runs(suite, seeds, args.from_dir)
     else:
@@ -222,6 +226,29 @@ def rejudge(sc: Any, criteria: list[dict[str, Any]]) -> list[dict[str, Any]]:
             c.update(passed=passed, outcome=outcome_of(passed, cr.xfail))
         out.append(c)
     return out
+
+
+def _not_a_baseline_file(target: Path) -> str:
+    """Why ``target`` may not be written ('' when it may): only a new file, or a baseline
+    file (one this command wrote: its schema says so) is replaced; never through a link."""
+    from rig.regression import baseline
+
+    if target.is_symlink():
+        return "is a symbolic link (write the file itself)"
+    if target.suffix != ".toml":
+        return "a baseline is a .toml file"
+    if not target.exists():
+        return "" if target.parent.is_dir() or not target.parent.exists() else \
+            f"{target.parent} is not a folder"
+    if not target.is_file():
+        return "is not a regular file"
+    try:
+        head = target.read_text(encoding="utf-8", errors="replace")[:4096]
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    if not any(f'schema = "{s}"' in head for s in baseline.SCHEMAS):
+        return "exists and is not a baseline file (refused: it may be yours)"
+    return ""
 
 
 def _check_other_files(new: Any, target: Path) -> None:

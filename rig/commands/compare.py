@@ -12,9 +12,13 @@ EPILOG = """\
 A and B: a run folder, a suite folder, a `rig baseline record` folder (seed-N/ inside: the
 mean over its seeds), a baseline file, or baseline:SUITE (the committed one). Each criterion
 is unchanged (within the seed spread), improved, regressed, changed (beyond the spread, no
-better side), unknown (no spread known), added or removed.
+better side), unknown (no spread known), added or removed; with its change in % and in band
+half-widths and the chance of a difference that large, most significant first. A baseline
+side is narrowed to the other side's scenario runs.
 
-exit status: 0 nothing regressed or changed; 1 something did; 2 usage.
+exit status: 0 nothing regressed or changed; 1 something did; 2 usage, a side that cannot be
+read, or sides that are not comparable (one evaluated nothing, or no scenario run in
+common); 3 --out cannot be written.
 """
 
 
@@ -42,10 +46,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     try:
         a, b = compare.load_side(args.a), compare.load_side(args.b)
+        rows = compare.compare(a, b)
     except compare.CompareError as exc:
         print(f"rig compare: {exc}", file=sys.stderr)
         return 2
-    rows = compare.compare(a, b)
     head = f"rig compare: A = {a.label}, B = {b.label}"
     table = compare.markdown(rows, only_changed=not args.all)
     summary = compare.summary_line(rows)
@@ -53,14 +57,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if args.out is not None:
         from rig import outputs
 
-        outputs.prepare(args.out)
-        pngs = compare.plots(rows, args.out, "A", "B")
-        md = [f"# {head}", "", summary, "", table, ""]
-        md += [f"![{p.stem}]({p.name})" for p in pngs]
-        outputs.write_text(args.out / "compare.md", "\n".join(md) + "\n")
-        outputs.write_text(args.out / "compare.json",
-                          json.dumps({"a": a.label, "b": b.label,
-                                      "rows": compare.to_json(rows)}, indent=1))
+        try:
+            outputs.prepare(args.out)
+            pngs = compare.plots(rows, args.out, "A", "B")
+            md = [f"# {head}", "", summary, "", table, ""]
+            md += [f"![{p.stem}]({p.name})" for p in pngs]
+            outputs.write_text(args.out / "compare.md", "\n".join(md) + "\n")
+            outputs.write_text(args.out / "compare.json",
+                              json.dumps({"a": a.label, "b": b.label,
+                                          "rows": compare.to_json(rows)}, indent=1))
+        except (OSError, outputs.OutputError) as exc:
+            print(f"rig compare: --out {args.out}: {getattr(exc, 'strerror', None) or exc}",
+                  file=sys.stderr)
+            return 3
         print(f"\n-> {args.out}/compare.md ({len(pngs)} plots)", file=sys.stderr)
     c = compare.counts(rows)
     return 1 if c.get("regressed") or c.get("changed") else 0

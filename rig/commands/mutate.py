@@ -19,10 +19,16 @@ if TYPE_CHECKING:
 EPILOG = """\
 Each mutant of tests/mutants/catalogue.toml is applied alone to a copy of this checkout
 (OUT/work), rebuilt incrementally, and judged: ctest, then the gate (the suite `gate` in
-process against the committed baselines, stopping at the first failing scenario). The
-unmutated copy goes through the same detectors first and must pass them. Results in
-OUT/results.json and OUT/summary.md; the score counts killed / (killed + survived), leaving
-out mutants argued equivalent in the catalogue and those that do not compile.
+process against the committed baselines, its flags confirmed at fresh seeds, stopping at the
+first scenario whose failure the seeds confirm). The unmutated copy goes through the same
+detectors first and must pass them. Results in OUT/results.json and OUT/summary.md.
+
+The score counts confirmed kills / (killed + survived) of the harmful mutants, leaving out
+those argued equivalent in the catalogue and those that do not compile; a kill the fresh
+seeds do not confirm (a limit failed at one seed only) is counted apart. --set benign runs
+the rounding-only mutants instead (class benign): every kill is a false alarm.
+--null-seeds LIST also runs the unmutated gate at seeds the baselines never saw: a failure
+is a false alarm. `rig mutate --set all --null-seeds 9-28` prints all three rates.
 
 exit status: 0 the campaign ran (whatever the score); 1 the unmutated tree fails a detector;
 2 usage or catalogue error.
@@ -55,6 +61,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                        help="results (default: $HIL_OUT or ./out, mutate-time)")
     p.add_argument("--keep-work", action="store_true",
                    help="keep the work copy (source and build) afterwards")
+    p.add_argument("--set", dest="which", choices=("harmful", "benign", "all"),
+                   default="harmful",
+                   help="which mutants: the harmful ones (default), the benign "
+                   "rounding-only ones (their kills are false alarms), or all")
+    p.add_argument("--null-seeds", default=None, metavar="LIST",
+                   help="also run the unmutated gate at these seeds (e.g. 9-28; none of the "
+                   "baselines' 1-8): each failure is a false alarm")
     p.add_argument("--list", action="store_true", help="list the catalogue and exit")
     cliargs.command(p, cmd_mutate)
 
@@ -79,9 +92,20 @@ def cmd_mutate(args: argparse.Namespace) -> int:
         wanted = [x.strip() for x in args.only.split(",") if x.strip()]
         unknown = sorted(set(wanted) - {m.id for m in mutants})
         if unknown:
-            print(f"rig mutate: unknown mutants: {', '.join(unknown)}", file=sys.stderr)
+            print(f"rig mutate: unknown mutants: {', '.join(unknown)[:500]}", file=sys.stderr)
             return 2
         mutants = [m for m in mutants if m.id in wanted]
+    elif args.which != "all":
+        mutants = [m for m in mutants if m.benign == (args.which == "benign")]
+    null_seeds: tuple[int, ...] = ()
+    if args.null_seeds:
+        from rig.run.seeds import parse_seeds
+
+        try:
+            null_seeds = parse_seeds(args.null_seeds)
+        except ValueError as exc:
+            print(f"rig mutate: --null-seeds: {exc}", file=sys.stderr)
+            return 2
     detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
     if not detectors or set(detectors) - {"ctest", "gate"}:
         print("rig mutate: --detectors takes ctest and/or gate", file=sys.stderr)
@@ -95,14 +119,14 @@ def cmd_mutate(args: argparse.Namespace) -> int:
     work = Path(tempfile.mkdtemp(prefix="rig-mutate-"))
     try:
         return _campaign(args, mutants, gate, MutationTree(work, jobs=args.jobs), out,
-                         detectors)
+                         detectors, null_seeds)
     finally:
         if not args.keep_work:
             shutil.rmtree(work, ignore_errors=True)
 
 
 def _campaign(args: argparse.Namespace, mutants: list[Mutant], gate: Gate, tree: MutationTree,
-              out: Path, detectors: list[str]) -> int:
+              out: Path, detectors: list[str], null_seeds: tuple[int, ...]) -> int:
     from rig.regression.mutation import campaign
     from rig.regression.mutation.worktree import BuildError
 
@@ -128,14 +152,17 @@ def _campaign(args: argparse.Namespace, mutants: list[Mutant], gate: Gate, tree:
         return 1
     try:
         verdicts = campaign.run(mutants, tree, gate, out, both=args.both,
-                                detectors=detectors, progress=say)
+                                detectors=detectors, null_seeds=null_seeds, progress=say)
     except KeyboardInterrupt:
         say(f"rig mutate: interrupted; partial results in {out}")
         return 130
     s = campaign.score(verdicts)
-    say(f"rig mutate: {s.killed}/{s.judged} killed ({s.percent:.0f} %), {s.survived} "
-        f"survived, {s.equivalent} equivalent, {s.stillborn} stillborn -> {out}/summary.md")
+    for line in campaign.summary_lines(s):
+        say(f"rig mutate: {line}")
+    say(f"rig mutate: -> {out}/summary.md")
     for v in verdicts:
-        if v.status == campaign.SURVIVED:
+        if v.status == campaign.SURVIVED and not v.benign:
             say(f"  survived: {v.id}: {v.description}")
+        if v.status == campaign.KILLED and v.benign:
+            say(f"  false alarm: {v.id}: {v.killed_by[0][:160]}")
     return 0

@@ -81,10 +81,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    metavar="N",
                    help="a suite in process (--bus inproc): run N scenarios at once, one "
                    "worker process each (default 1)")
-    p.add_argument("--baseline", choices=("auto", "require", "off"), default="auto",
+    p.add_argument("--baseline", default="auto", metavar="auto|require|off|FILE",
                    help="compare every criterion with the committed baseline "
                    "(rig/baselines/): auto where one exists (default), require: a scenario "
-                   "without one fails, off: the limits only")
+                   "or criterion without one fails, off: the limits only, FILE: that "
+                   "baseline file, as require")
+    p.add_argument("--no-confirm", action="store_true",
+                   help="fail on a value beyond its baseline's band at once, without "
+                   "confirming it at fresh seeds (rig.regression.confirm; the gate before "
+                   "issue 35)")
     p.add_argument("--fail-fast", action="store_true",
                    help="a suite: start no further scenario once one did not pass")
     p.add_argument("--junit", type=Path, default=None, metavar="FILE",
@@ -158,6 +163,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         return runner.EXIT_USAGE
     if args.seed is not None:
         target = with_seed(target, args.seed)
+    from rig.regression import baseline
+
+    try:  # a malformed baseline stops the run before anything starts, not after it
+        baseline.check_mode(args.baseline)
+    except baseline.BaselineError as exc:
+        print(f"rig run: {exc}", file=sys.stderr)
+        return runner.EXIT_USAGE
     scenarios = target.scenarios if isinstance(target, scenario.Suite) else (target,)
     if args.jobs > 1 and _bus_of(args) != "inproc":
         print("rig run: --jobs runs a suite on the in-process bench (--bus inproc); on a bus "
@@ -229,6 +241,7 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
         record=not args.no_record, figures=not args.no_figures,
         keep="all" if args.keep_all else "failing",
         jobs=args.jobs, fail_fast=args.fail_fast, baseline=args.baseline,
+        confirm=not args.no_confirm,
     )
     try:
         with terminate_as_exception():
@@ -323,14 +336,10 @@ def _counts(counts: dict[str, int]) -> str:
 
 def _baseline_mark(c: dict[str, Any]) -> str:
     """The criterion against its baseline, when it is not simply unchanged."""
-    b = c.get("baseline")
-    if not b or b.get("class") in (None, "unchanged"):
-        return ""
-    if "lo" not in b:
-        return f"  [{b['class'].upper()}: {b.get('note', '')}]"
-    return (f"  [{b['class'].upper()}: baseline {b['value']:.4g} within {b['lo']:.4g} .. "
-            f"{b['hi']:.4g} over {b['seeds']} seeds]" if b.get("value") is not None
-            else f"  [{b['class'].upper()}: baseline has no value]")
+    from rig.regression.wording import against_baseline
+
+    text = against_baseline(c.get("baseline"))
+    return f"  [{text}]" if text else ""
 
 
 def cmd_list(args: argparse.Namespace) -> int:

@@ -163,20 +163,37 @@ def _baseline_section(base: Mapping[str, Any] | None,
     lines += [f"`{base.get('file')}` (seeds {_seed_span(base.get('seeds'))}, recorded "
               f"{base.get('recorded')}): {counts or 'nothing compared'}"
               + ("" if base.get("passed") else " — **the run fails on it**"), ""]
+    from rig.regression import wording  # (rig.regression reads results: imported late)
+
     moved = [c for c in crits if (c.get("baseline") or {}).get("class") not in
              (None, "unchanged")]
+    moved.sort(key=lambda c: _by_chance(c.get("baseline") or {}))
     if moved:
-        lines += ["| criterion | value | baseline | band | against it |", "|---|---|---|---|---|"]
+        lines += ["| criterion | value | baseline | band | against it | how far (chance) | "
+                  "at fresh seeds |", "|---|---|---|---|---|---|---|"]
         for c in moved:
             b = c["baseline"]
             unit = c.get("unit") or ""
             band = (f"{_fmt(b.get('lo'))} .. {_fmt(b.get('hi'))} {unit}" if "lo" in b
                     else b.get("note", ""))
-            mark = b["class"].upper() if b["class"] in ("regressed", "changed", "stale") \
-                else b["class"]
+            mark = b["class"].upper() if b["class"] in wording.FAILING else b["class"]
             lines.append(f"| {c['name']} | {_fmt(c.get('value'))} {unit} | "
-                         f"{_fmt(b.get('value'))} {unit} | {band} | {mark} |")
+                         f"{_fmt(b.get('value'))} {unit} | {band} | {mark} | "
+                         f"{wording.distance(b) or '—'} | {wording.confirmation(b) or '—'} |")
+        if any(c["baseline"]["class"] == "excursion" for c in moved):
+            lines += ["", "An *excursion* is a value beyond its band at this seed that the same "
+                      "scenario at fresh seeds did not confirm (rig.regression.confirm): the "
+                      "noise drawn again, not a regression; it does not fail the run."]
     return lines
+
+
+def _by_chance(b: Mapping[str, Any]) -> tuple[int, float]:
+    """Failing classes first, then the least likely by chance."""
+    from rig.regression import wording
+
+    chance = b.get("chance")
+    return (0 if b.get("class") in wording.FAILING else 1,
+            chance if isinstance(chance, int | float) else 1.0)
 
 
 def _seed_span(seeds: Any) -> str:
@@ -328,19 +345,22 @@ def _suite_baseline(base: Mapping[str, Any] | None) -> list[str]:
     lines = ["## Against the baseline", "",
              f"{counts or 'nothing compared'}"
              + ("" if base.get("passed") else " — **the suite fails on it**"), ""]
-    moved = base.get("moved") or []
+    from rig.regression import wording
+
+    moved = sorted(base.get("moved") or [], key=_by_chance)
     if moved:
-        lines += ["| scenario | criterion | value | baseline | band | against it |",
-                  "|---|---|---|---|---|---|"]
+        lines += ["| scenario | criterion | value | baseline | band | against it | how far "
+                  "(chance) | at fresh seeds |", "|---|---|---|---|---|---|---|---|"]
         for m in moved:
             unit = m.get("unit") or ""
             band = (f"{_fmt(m.get('lo'))} .. {_fmt(m.get('hi'))} {unit}"
                     if m.get("lo") is not None else m.get("note", ""))
-            mark = m["class"].upper() if m["class"] in ("regressed", "changed", "stale") \
-                else m["class"]
+            mark = m["class"].upper() if m["class"] in ("regressed", "changed", "stale",
+                                                         "missing") else m["class"]
             lines.append(f"| [{m['scenario']}]({m['scenario']}/report.md) | {m['criterion']} | "
                          f"{_fmt(m.get('value'))} {unit} | {_fmt(m.get('baseline'))} {unit} | "
-                         f"{band} | {mark} |")
+                         f"{band} | {mark} | {wording.distance(m) or '—'} | "
+                         f"{wording.confirmation(m) or '—'} |")
         lines.append("")
     return lines
 

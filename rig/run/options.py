@@ -40,6 +40,9 @@ class RunOptions:
     # default), "auto" (rig run's: where a baseline exists), "require" (a run without one
     # fails)
     baseline: str = "off"
+    # a value beyond its band is a flag; confirm flags at fresh seeds before they fail the
+    # run (rig.regression.confirm); False: every flag fails at once
+    confirm: bool = True
     # suites in process: scenarios run on this many worker processes at once
     jobs: int = 1
     # suites: no scenario starts after one did not pass (the others' verdicts are not needed)

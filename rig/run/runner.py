@@ -1,5 +1,7 @@
 """Runs a scenario: once (``rig.run.single``), or once per seed of its own and decided over
-all of them (``rig.run.multi_seed``, ``[run] seeds``); and what ``rig run`` exits with."""
+all of them (``rig.run.multi_seed``, ``[run] seeds``), then, when a value lies beyond its
+baseline's band, again at fresh seeds to confirm it (``rig.regression.confirm``); and what
+``rig run`` exits with."""
 
 from __future__ import annotations
 
@@ -23,9 +25,12 @@ EXIT_INTERRUPTED = 130
 
 def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs one scenario into ``opts.out``; always writes result.json and report.md."""
-    if sc.seeds:
-        return run_over_own_seeds(sc, opts)
-    return run_single(sc, opts)
+    result = run_over_own_seeds(sc, opts) if sc.seeds else run_single(sc, opts)
+    if opts.confirm and opts.baseline != "off" and not opts.realtime:
+        from rig.regression import confirm
+
+        confirm.confirm(sc, result, opts)
+    return result
 
 
 def exit_code(passed: bool, status: str) -> int:

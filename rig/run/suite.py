@@ -78,6 +78,8 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
                 r = run_scenario(sc, replace(opts, out=out / sc.name))
                 results.append(r)
                 entries.append(entry(sc, r))
+                if opts.fail_fast and _stops(r):
+                    break
     except (KeyboardInterrupt, Terminated) as exc:
         interrupted = exc
     summary["comparisons"] = [evaluate_comparison(cmp, entries) for cmp in suite.comparisons]
@@ -116,6 +118,8 @@ def baseline_summary(entries: Sequence[Mapping[str, Any]]) -> dict[str, Any] | N
                 moved.append({"scenario": e["name"], "criterion": c["name"], "class": cls,
                               "value": c.get("value"), "baseline": b.get("value"),
                               "lo": b.get("lo"), "hi": b.get("hi"), "unit": c.get("unit"),
+                              "distance": b.get("distance"), "chance": b.get("chance"),
+                              "confirmation": b.get("confirmation"),
                               "note": b.get("note", "")})
     if not compared:
         return None
@@ -124,11 +128,22 @@ def baseline_summary(entries: Sequence[Mapping[str, Any]]) -> dict[str, Any] | N
                           for e in entries)}
 
 
+def _stops(r: RunResult) -> bool:
+    """With --fail-fast: a run whose failure holds over the seeds (a confirmed regression, a
+    crash, a stale baseline, a limit the fresh seeds confirm) stops the suite; a limit that
+    failed at this seed alone does not (the suite still fails on it, but a later scenario may
+    show what the seeds confirm)."""
+    from rig.regression.confirm import failure_kind
+
+    return not r.passed and failure_kind(r.to_json()) != "one-seed"
+
+
 def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunResult],
                   entries: list[dict[str, Any]]) -> None:
     """The suite's scenarios on ``opts.jobs`` worker processes (in process only: each run has
     its own bench); ``results`` and ``entries`` in the suite's order, up to the first run
-    missing when interrupted. ``opts.fail_fast``: no new run starts after one failed."""
+    missing when interrupted. ``opts.fail_fast``: no new run starts after one failed in a way
+    the seeds confirm (``_stops``)."""
     jobs = [parallel.Job(sc, replace(opts, out=out / sc.name, progress=False, jobs=1))
             for sc in suite.scenarios]
 
@@ -138,7 +153,7 @@ def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunRe
             print(f"{job.scenario.name}: {verdict}", file=sys.stderr)
 
     def stop(job: parallel.Job, r: RunResult | None) -> bool:
-        return opts.fail_fast and (r is None or not r.passed)
+        return opts.fail_fast and (r is None or _stops(r))
 
     got: list[RunResult | None] = [None] * len(jobs)
     try:

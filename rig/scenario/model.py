@@ -38,6 +38,18 @@ SEED_KEY = "sensors.seed"
 # the start-angle dither per seed (Scenario.with_seed): far below anything a drive could
 # care about, enough to show how a deterministic closed loop spreads
 SEED_THETA_DITHER_DEG = 0.001
+# seeds 1..8 (the baselines') dither by (seed - 1) steps; every other seed by a step count
+# spread over the same range, so no seed starts further away than the baselines saw
+DITHER_SEEDS = 8
+_GOLDEN = (5 ** 0.5 - 1) / 2
+
+
+def dither_deg(seed: int) -> float:
+    """The start angle's dither of a run at ``seed``: (seed - 1) * 0.001 deg for seeds 1-8,
+    and within the same 0 .. 0.008 deg for any other (the golden-ratio sequence)."""
+    if 1 <= seed <= DITHER_SEEDS:
+        return (seed - 1) * SEED_THETA_DITHER_DEG
+    return ((seed * _GOLDEN) % 1.0) * DITHER_SEEDS * SEED_THETA_DITHER_DEG
 
 
 @dataclass(frozen=True)
@@ -181,17 +193,19 @@ class Scenario:
     def with_seed(self, seed: int) -> Scenario:
         """The same scenario under other immaterial conditions: the plant's noise drawn from
         another seed (the profile field ``SEED_KEY``) and the start angle moved by
-        (seed - 1) * SEED_THETA_DITHER_DEG. The dither gives the noise-free ``ideal`` profile
-        a spread too: its closed loop is deterministic but not insensitive (a start
-        0.001 deg away moved its Table 2 cell at 1000 r/min from 0.0046 to 0.0033 deg and
-        its speed excursion from 0.16 to 0.08 r/min, as any change of rounding would).
-        The name is unchanged: the seed is a dimension of a run, not another scenario. A
-        scenario decided over its own seeds (``seeds``) keeps them: its verdict does not
-        depend on one seed."""
+        ``dither_deg(seed)``, a few thousandths of a degree. The dither gives the noise-free
+        ``ideal`` profile a spread too: its closed loop is deterministic but not insensitive
+        (a start 0.001 deg away moved its Table 2 cell at 1000 r/min from 0.0046 to 0.0033
+        deg and its speed excursion from 0.16 to 0.08 r/min, as any change of rounding
+        would). The name is unchanged: the seed is a dimension of a run, not another
+        scenario. A scenario decided over its own k seeds moves them as a block: at seed s
+        it runs seeds (s - 1) k + 1 .. s k (seed 1: its own)."""
         if self.seeds:
-            return self
+            k = len(self.seeds)
+            shift = (int(seed) - 1) * k
+            return replace(self, seeds=tuple(x + shift for x in self.seeds))
         return replace(self, overrides={**self.overrides, SEED_KEY: int(seed)},
-                       theta_dither_deg=(int(seed) - 1) * SEED_THETA_DITHER_DEG)
+                       theta_dither_deg=dither_deg(int(seed)))
 
     @property
     def periods(self) -> int:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rig import _paths
-from rig.regression.mutation.catalogue import Mutant
+from rig.regression.mutation.catalogue import Mutant, inside, read_text
 
 # what a mutant build does not need (large, or outputs)
 SKIP_PREFIXES = ("tests/fuzz/corpus/", "docs/", "out/", "build/", ".venv/")
@@ -91,14 +91,15 @@ class MutationTree:
                      "--output-on-failure", "--timeout", "300"], self.work)
 
     def apply(self, m: Mutant) -> str:
-        """Writes the mutant into the copy; returns the file's original text."""
-        path = self.src / m.file
-        original = path.read_text(encoding="utf-8")
+        """Writes the mutant into the copy (only a regular file inside it: checked again
+        here, against the copy); returns the file's original text."""
+        path = inside(self.src, m.file)
+        original = read_text(path, m.file)
         path.write_text(m.apply(original), encoding="utf-8")
         return original
 
     def restore(self, m: Mutant, original: str) -> None:
-        (self.src / m.file).write_text(original, encoding="utf-8")
+        inside(self.src, m.file).write_text(original, encoding="utf-8")
 
     def env(self) -> dict[str, str]:
         """The environment that makes the rig use this build's programs and libraries."""

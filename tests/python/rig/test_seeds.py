@@ -81,11 +81,15 @@ def test_combine_takes_the_worst_seed() -> None:
 
 
 def test_scenario_over_its_own_seeds(tmp_path: Path) -> None:
-    """[run] seeds = 3: one run per seed, the verdict on the worst, the same whatever
-    --seed says (the scenario keeps its own seeds)."""
+    """[run] seeds = 3: one run per seed, the verdict on the worst; --seed S moves its seeds
+    as a block (S = 1: its own; S = 9: seeds 25-27), the set-up it is judged on unchanged."""
+    from rig.regression import baseline
+
     path = write(tmp_path, "ms", run="[run]\nseeds = 3")
     sc = scenario.load_scenario(path)
-    assert sc.seeds == (1, 2, 3) and sc.with_seed(9) is sc
+    assert sc.seeds == (1, 2, 3) and sc.with_seed(1).seeds == (1, 2, 3)
+    assert sc.with_seed(9).seeds == (25, 26, 27)
+    assert baseline.setup_digest(sc.with_seed(9)) == baseline.setup_digest(sc)
     out = tmp_path / "ms"
     assert cli.main(["run", str(path), "--bus", "inproc", "--out", str(out), "--no-record",
                      "--quiet", "--baseline", "off"]) == 0
@@ -151,9 +155,10 @@ def test_jobs_need_the_in_process_bench(tmp_path: Path, capsys: pytest.CaptureFi
 
 
 def test_the_seed_dithers_the_start_angle(tmp_path: Path) -> None:
-    """Seed 1 is the scenario as written; another seed moves the start by (seed - 1)
-    thousandths of a degree on top of the scenario's own start angle, and the set-up a
-    baseline is keyed on does not change with it."""
+    """Seed 1 is the scenario as written; seeds 2-8 move the start by (seed - 1)
+    thousandths of a degree on top of the scenario's own start angle, any other seed by an
+    amount in the same range, and the set-up a baseline is keyed on does not change with
+    it."""
     from rig.regression import baseline
     from rig.run.single import bench_configuration
 
@@ -162,3 +167,9 @@ def test_the_seed_dithers_the_start_angle(tmp_path: Path) -> None:
     assert sc.with_seed(4).start_theta_deg == pytest.approx(sc.initial_theta_deg + 0.003)
     assert "initial.theta_e_deg=0.003" in " ".join(bench_configuration(sc.with_seed(4)).plant_sets)
     assert baseline.setup_digest(sc.with_seed(4)) == baseline.setup_digest(sc)
+    # any other seed stays within the range the baselines' seeds 1-8 span (0 .. 0.008 deg)
+    from rig.scenario.model import dither_deg
+
+    others = [dither_deg(s) for s in (*range(9, 200), 1001, 1008, 2**31 - 1)]
+    assert all(0.0 <= d < 0.008 for d in others)
+    assert len({round(d, 9) for d in others}) == len(others)  # no two the same
