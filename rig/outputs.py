@@ -132,7 +132,7 @@ def write_text(path: Path, text: str) -> None:
 
 FULL_RATE_FILES = ("plant.trace", "fw.trace", "rig.trace", "capture")
 RUN_FILES = ("capture", "recording.rrd", "result.json", "report.md", "plant.trace", "fw.trace",
-             "rig.trace", "figure.png", "scenario.toml")
+             "rig.trace", "figure.png", "scenario.toml", "confirm")
 FIGURE_GLOB = "criterion-*.png"  # rig.results.figures: a picture per criterion that did not pass
 # the programs' logs and ready files (rig.supervisor, rig.bench.virtual): opened for writing by
 # name, so a link there must go before a program follows it; the criteria's pictures

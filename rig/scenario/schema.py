@@ -34,12 +34,20 @@ class Issue:
         return f"{where}: {self.message}"
 
 
+MAX_SHOWN = 40  # schema errors printed for one file (the rest counted)
+UNKNOWN_SHOWN = 20  # unknown fields of one table named one by one (the rest counted)
+
+
 class ScenarioError(ValueError):
-    """One or more schema errors; ``str()`` gives one ``file:line: field: message`` per line."""
+    """One or more schema errors; ``str()`` gives one ``file:line: field: message`` per line,
+    at most ``MAX_SHOWN`` of them and a count of the rest."""
 
     def __init__(self, issues: Sequence[Issue]) -> None:
         self.issues = list(issues)
-        super().__init__("\n".join(str(i) for i in self.issues))
+        lines = [str(i) for i in self.issues[:MAX_SHOWN]]
+        if len(self.issues) > MAX_SHOWN:
+            lines.append(f"... and {len(self.issues) - MAX_SHOWN} more errors")
+        super().__init__("\n".join(lines))
 
 
 def field_name(path: Path_) -> str:
@@ -67,12 +75,14 @@ class Checker:
             self.err(path, f"must be a table, not {type(data).__name__}")
             return {}
         allowed = set(allowed)
-        for key in data:
-            if key not in allowed:
-                self.err(
-                    (*path, key),
-                    f"unknown field (allowed here: {', '.join(sorted(allowed))})",
-                )
+        unknown = [key for key in data if key not in allowed]
+        for key in unknown[:UNKNOWN_SHOWN]:
+            self.err(
+                (*path, key),
+                f"unknown field (allowed here: {', '.join(sorted(allowed))})",
+            )
+        if len(unknown) > UNKNOWN_SHOWN:
+            self.err(path, f"{len(unknown) - UNKNOWN_SHOWN} more unknown fields")
         return data
 
     def number(
@@ -131,9 +141,17 @@ class Checker:
         return v
 
 
+MAX_FILE_BYTES = 1 << 20  # a scenario or suite is written by hand: 1 MiB is far beyond one
+
+
 def read_text(path: Path) -> str:
-    """A scenario or suite file as text; not UTF-8 is a schema error at its line."""
-    raw = path.read_bytes()
+    """A scenario or suite file as text; not UTF-8, or larger than any such file is, is a
+    schema error."""
+    with open(path, "rb") as fh:
+        raw = fh.read(MAX_FILE_BYTES + 1)
+    if len(raw) > MAX_FILE_BYTES:
+        raise ScenarioError([Issue(str(path), None, "", f"larger than {MAX_FILE_BYTES} bytes: "
+                                   "not a scenario or suite file")])
     try:
         # a byte order mark (editors on Windows write one) is not part of the TOML text
         return raw.decode("utf-8").removeprefix(BOM)
@@ -152,7 +170,7 @@ def parse_toml(file: Path, text: str) -> dict[str, Any]:
         raise ScenarioError([Issue(str(file), deep, "", f"arrays or inline tables nested more "
                                    f"than {MAX_NESTING} deep")])
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
     except RecursionError:  # the guard above should have caught it
         raise ScenarioError([Issue(str(file), None, "", "nested too deeply")]) from None
     except tomllib.TOMLDecodeError as exc:
@@ -160,3 +178,38 @@ def parse_toml(file: Path, text: str) -> dict[str, Any]:
         raise ScenarioError(
             [Issue(str(file), int(m.group(1)) if m else None, "", f"TOML syntax: {exc}")]
         ) from exc
+    except ValueError as exc:  # an integer beyond Python's digit limit, inside tomllib
+        m = re.search(r"\d{" + str(MAX_DIGITS) + ",}", text)
+        line = text.count("\n", 0, m.start()) + 1 if m else None
+        raise ScenarioError([Issue(str(file), line, "", f"a number of more than {MAX_DIGITS} "
+                                   "digits")]) from exc
+    if _depth(data) > MAX_NESTING:  # table headers and dotted keys nest without brackets
+        raise ScenarioError([Issue(str(file), _deep_key_line(text), "",
+                                   f"tables nested more than {MAX_NESTING} deep")])
+    return data
+
+
+MAX_DIGITS = 400  # no number a scenario takes has more; Python's own limit is 4300
+
+
+def _depth(data: Any) -> int:
+    """How deep tables and arrays nest in a parsed document (iterative: no recursion)."""
+    deepest = 0
+    stack: list[tuple[Any, int]] = [(data, 0)]
+    while stack:
+        node, d = stack.pop()
+        deepest = max(deepest, d)
+        if isinstance(node, dict):
+            stack.extend((v, d + 1) for v in node.values())
+        elif isinstance(node, list):
+            stack.extend((v, d + 1) for v in node)
+    return deepest
+
+
+def _deep_key_line(text: str) -> int | None:
+    """The first line whose table header or key has more dotted parts than MAX_NESTING."""
+    for n, line in enumerate(text.splitlines(), 1):
+        key = line.split("=", 1)[0] if "=" in line else line
+        if key.count(".") >= MAX_NESTING:
+            return n
+    return None

@@ -4,6 +4,7 @@ their runs (``[[comparisons]]``)."""
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,14 @@ from rig.scenario.files import SCENARIO_DIR, SUITE_DIR, scenario_path, suite_pat
 from rig.scenario.model import PROFILES, Comparison, Scenario, Suite
 from rig.scenario.parse import parse_file
 from rig.scenario.positions import Path_
-from rig.scenario.schema import Checker, Issue, ScenarioError, parse_toml, read_text
+from rig.scenario.schema import (
+    MAX_SHOWN,
+    Checker,
+    Issue,
+    ScenarioError,
+    parse_toml,
+    read_text,
+)
 
 COMPARISON_RELATIONS = ("<", "<=", ">", ">=")
 
@@ -51,6 +59,7 @@ def parse_suite(file: Path, text: str) -> Suite:
         c.err(("scenarios",), "must be a non-empty list of scenario names or paths "
                               "(or the suite must include other suites)")
         raw = []
+    parsed: dict[Path, Scenario | ScenarioError] = {}  # each file read once
     for i, entry in enumerate(raw):
         if not isinstance(entry, str):
             c.err(("scenarios", i), f"must be a scenario name or path, not {entry!r}")
@@ -63,17 +72,22 @@ def parse_suite(file: Path, text: str) -> Suite:
         if target is None:
             c.err(("scenarios", i), f"no scenario {base!r} (looked in {SCENARIO_DIR})")
             continue
-        try:
-            sc = parse_file(target)
-        except ScenarioError as exc:
-            issues.extend(exc.issues)
+        if target not in parsed:
+            try:
+                parsed[target] = parse_file(target)
+            except ScenarioError as exc:
+                parsed[target] = exc
+                issues.extend(exc.issues)
+        sc = parsed[target]
+        if isinstance(sc, ScenarioError):
             continue
         scenarios.append(sc.with_profile(profile) if profile else sc.on_own_profile())
     if not issues:
         comparisons += _comparisons(c, data.get("comparisons", []), scenarios)
-    names = [s.name for s in scenarios]
-    for dup in sorted({n for n in names if names.count(n) > 1}):
-        c.err(("scenarios",), f"{dup!r} appears more than once (its output folder is its name)")
+    seen = Counter(s.name for s in scenarios)
+    for dup in sorted(n for n, k in seen.items() if k > 1)[:MAX_SHOWN]:
+        c.err(("scenarios",), f"{dup!r} appears {seen[dup]} times (its output folder is its "
+                              "name)")
     if c.issues or issues:
         raise ScenarioError(c.issues + issues)
     return Suite(name, file, description, tuple(scenarios), tuple(comparisons))

@@ -21,6 +21,7 @@ from rig.regression.baseline import (
     HIGHER,
     IMPROVED,
     LOWER,
+    MISSING,
     NEW,
     REGRESSED,
     STALE,
@@ -241,3 +242,74 @@ def test_a_scenario_over_its_own_seeds_is_held_to_its_mean(tmp_path: Path) -> No
     assert rec.band.classify(rec.statistic(c(again)), LOWER) == UNCHANGED
     worse = [v * 3 for v in per]
     assert rec.band.classify(rec.statistic(c(worse)), LOWER) == REGRESSED
+
+
+# -- require requires; a malformed file stops a run before it starts (issue 36) -----------
+
+
+def _recorded(test_scenario: scenario.Scenario) -> baseline.Baseline:
+    seeds = (1, 2, 3, 4, 5, 6, 7, 8)
+    runs = {s: [SeedResult([crit("position", 0.4 + 0.01 * (s % 3)),
+                            crit("no polarity loss", 0.0, comparison="==")])] for s in seeds}
+    b, problems = baseline.build("t", seeds, [test_scenario], runs, {"commit": "x"})
+    assert not problems
+    return b
+
+
+def test_require_fails_a_criterion_without_its_line(test_scenario: scenario.Scenario) -> None:
+    """A baseline with one criterion's line deleted: under require that criterion is
+    missing and fails the run (auto: new, passes)."""
+    b = _recorded(test_scenario)
+    key = baseline.entry_key(test_scenario.name, "paper")
+    text = "\n".join(line for line in b.dumps().splitlines()
+                     if not line.startswith('"no polarity loss"'))
+    again = baseline.Baseline.loads(text)
+    run = [{**crit("position", 0.41), "metric": "pos_err_max_deg", "window": [0.2, 0.3],
+            "params": {}},
+           {**crit("no polarity loss", 0.0, comparison="=="), "metric": "polarity_loss_count",
+            "window": [0.05, 0.3], "params": {}}]
+    setup = baseline.setup_digest(test_scenario)
+    summary = again.judge(key, setup, 1, run, require=True)
+    assert [c["baseline"]["class"] for c in run] == [UNCHANGED, MISSING]
+    assert not summary["passed"] and MISSING in baseline.FAILING
+    summary = again.judge(key, setup, 1, run, require=False)
+    assert run[1]["baseline"]["class"] == NEW and summary["passed"]
+
+
+@pytest.mark.parametrize(("edit", "why"), [
+    (lambda t: t.replace('seeds = [1, 2, 3, 4, 5, 6, 7, 8]', "seeds = 5"), "seeds must be"),
+    (lambda t: t.replace("sd = ", "sd = 1" + "0" * 400 + " + 0*", 1), "not TOML"),
+    (lambda t: t.replace("sd = ", "sd = 1" + "0" * 400 + ".0, xsd = ", 1), "not a finite"),
+    (lambda t: t.replace('metric = "pos_err_max_deg"', "metric = 3"), "metric must be"),
+    (lambda t: t.replace("lo = ", "lo = 0.425, xlo = ", 1), "does not hold its own value"),
+    (lambda t: t.replace("values = [", "values = [9.0, ", 1), "values has 9 entries"),
+    (lambda t: t.replace('schema = "hil-baseline/2"', 'schema = "x"'), "schema"),
+])
+def test_a_malformed_baseline_names_file_and_line(test_scenario: scenario.Scenario,
+                                                   edit: object, why: str) -> None:
+    text = _recorded(test_scenario).dumps()
+    bad = edit(text)  # type: ignore[operator]
+    assert bad != text
+    with pytest.raises(baseline.BaselineError, match=why) as info:
+        baseline.Baseline.loads(bad, Path("/x/t.toml"))
+    assert str(info.value).startswith("/x/t.toml")
+
+
+def test_a_malformed_baseline_stops_the_run_before_it_starts(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, test_scenario: scenario.Scenario,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Exit 2 with the file and line, nothing simulated, no result.json; the same for a
+    named file (--baseline FILE), which is judged like require."""
+    folder = tmp_path / "baselines"
+    folder.mkdir()
+    text = _recorded(test_scenario).dumps()
+    (folder / "t.toml").write_text(text.replace("lo = ", "lo = 0.425, xlo = ", 1))
+    monkeypatch.setenv("HIL_BASELINE_DIR", str(folder))
+    out = tmp_path / "run"
+    assert cli.main(["run", "smoke", "--bus", "inproc", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"{folder / 't.toml'}:" in err and "does not hold its own value" in err
+    assert not (out / "result.json").exists()
+    assert cli.main(["run", "smoke", "--bus", "inproc", "--out", str(out), "--quiet",
+                     "--baseline", str(tmp_path / "nope.toml")]) == 2
+    assert "no such file" in capsys.readouterr().err

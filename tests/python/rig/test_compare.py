@@ -94,3 +94,105 @@ def test_baselines_compared_to_each_other() -> None:
     assert rows[0].cls == "regressed"
     assert "1 regressed" in compare.summary_line(rows)
     assert baseline.REGRESSED == "regressed"
+
+
+# -- what rig compare refuses, and how it ranks (issue 36) ---------------------------------
+
+
+def _run(folder: Path, name: str, criteria: object, schema: str = "hil-result/1") -> Path:
+    folder.mkdir(parents=True)
+    (folder / "result.json").write_text(json.dumps({
+        "schema": schema, "scenario": name, "profile": "paper", "criteria": criteria}))
+    return folder
+
+
+def test_nothing_evaluated_or_nothing_in_common_is_not_comparable(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Two interrupted runs (nothing evaluated) are not "unchanged"; runs of two different
+    scenarios are not "added and removed": both are not comparable, exit 2."""
+    empty_a = _run(tmp_path / "ia", "cell", [{"name": "pos", "metric": "m", "value": None,
+                                                "outcome": "not_evaluated"}])
+    empty_b = _run(tmp_path / "ib", "cell", [{"name": "pos", "metric": "m", "value": None,
+                                                "outcome": "not_evaluated"}])
+    assert cli.main(["compare", str(empty_a), str(empty_b)]) == 2
+    err = capsys.readouterr().err
+    assert "not comparable" in err and "evaluated nothing" in err
+    one = _run(tmp_path / "x", "cellx", [{"name": "pos", "metric": "m", "value": 1.0,
+                                          "outcome": "pass"}])
+    other = _run(tmp_path / "y", "celly", [{"name": "pos", "metric": "m", "value": 1.0,
+                                            "outcome": "pass"}])
+    assert cli.main(["compare", str(one), str(other)]) == 2
+    err = capsys.readouterr().err
+    assert "no scenario run in common" in err and "cellx@paper" in err
+
+
+def test_a_baseline_is_narrowed_to_the_runs_scenarios(tmp_path: Path) -> None:
+    """A suite's baseline against a run of one of its scenarios compares that scenario, not
+    "364 removed"."""
+    def rec(v: float) -> Record:
+        return Record("pos", "pos_err_max_deg", (0.0, 1.0), {}, "deg", "lower", "pass",
+                      Band.of([v, v * 1.02, v * 0.98, v * 1.01, v * 0.99], "deg"))
+
+    b = Baseline("s", (1, 2, 3, 4, 5), "now", {}, {
+        f"cell{i}@paper": Entry(f"cell{i}@paper", "x", {"pos": rec(0.5)}) for i in range(50)})
+    path = tmp_path / "s.toml"
+    path.write_text(b.dumps())
+    run = _run(tmp_path / "r", "cell7", [{"name": "pos", "metric": "pos_err_max_deg",
+                                          "value": 0.5, "outcome": "pass", "unit": "deg",
+                                          "comparison": "<="}])
+    rows = compare.compare(compare.load_side(str(path)), compare.load_side(str(run)))
+    assert [(r.key, r.cls) for r in rows] == [(("cell7@paper", "pos"), "unchanged")]
+
+
+@pytest.mark.parametrize("bad", [
+    [1, 2, 3],                                                          # a list
+    {"schema": "hil-result/1", "scenario": "c", "profile": "p", "criteria": "abc"},
+    {"schema": "hil-result/1", "scenario": "c", "profile": "p", "criteria": [5]},
+    {"schema": "hil-result/1", "scenario": "c", "profile": "p",
+     "criteria": [{"name": "x", "value": "abc"}]},
+    {"schema": "hil-result/1", "scenario": "c", "profile": "p",
+     "criteria": [{"name": "x", "value": 1, "seeds": [{"value": "1.0"}]}]},
+    {"schema": "hil-result/1", "scenario": ["c"], "profile": "p", "criteria": []},
+    {"schema": "hil-suite/1", "scenarios": "x"},
+    {"schema": "hil-suite/1", "scenarios": [3]},
+    {"schema": "other"},
+])
+def test_malformed_result_json_is_a_clear_error(tmp_path: Path, bad: object,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    good = _run(tmp_path / "good", "c", [{"name": "x", "metric": "m", "value": 1.0,
+                                          "outcome": "pass"}])
+    folder = tmp_path / "bad"
+    folder.mkdir()
+    (folder / "result.json").write_text(json.dumps(bad))
+    assert cli.main(["compare", str(good), str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert "result.json" in err and "Traceback" not in err
+
+
+def test_rows_carry_percent_band_widths_and_chance_most_significant_first(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Inside its band an RMS error 29 % lower is still shown (with its change in %), and
+    rows come most significant first: the least likely by chance on top."""
+    monkeypatch.setenv("HIL_BASELINE_DIR", str(tmp_path / "none"))
+    vals = [1.0, 1.3, 0.7, 1.2, 0.8, 1.1, 0.9, 1.0]
+    seeds = seed_folders(tmp_path / "rec", vals)
+    a = compare.load_side(str(seeds))
+    run = suite_folder(tmp_path / "b", {"pos": 0.71})
+    rows = compare.compare(a, compare.load_side(str(run)))
+    r = rows[0]
+    assert r.cls == "unchanged" and r.pct == pytest.approx(-29.0)
+    assert r.widths is not None and -1 < r.widths < 0 and r.chance is not None
+    table = compare.markdown(rows)
+    assert "-29.0 %" in table
+    # two moves: the one less likely by chance comes first
+    seeds2 = seed_folders(tmp_path / "rec2", vals)
+    for f in (seeds2 / f"seed-{i}" / "cell@paper" / "result.json" for i in range(1, 9)):
+        d = json.loads(f.read_text())
+        d["criteria"].append(dict(d["criteria"][0], name="other"))
+        f.write_text(json.dumps(d))
+    b = suite_folder(tmp_path / "c", {"pos": 1.5, "other": 3.0})
+    rows = compare.compare(compare.load_side(str(seeds2)), compare.load_side(str(b)))
+    assert [r.key[1] for r in rows] == ["other", "pos"]
+    assert rows[0].chance is not None and rows[1].chance is not None
+    assert rows[0].chance < rows[1].chance
