@@ -96,23 +96,28 @@ def _midranks(xs: Sequence[float]) -> list[float]:
     return ranks
 
 
+@functools.lru_cache(maxsize=4096)
+def _subset_sums(doubled: tuple[int, ...], m: int) -> tuple[int, ...]:
+    """How many subsets of m of the (doubled, so integer) ranks have each sum: the rank-sum
+    statistic's null distribution, counted exactly (cached: without ties it depends on the
+    sample sizes only)."""
+    import numpy as np
+
+    total = sum(doubled)
+    exact = math.comb(len(doubled), m) < 2**62  # int64 holds every count; else Python ints
+    ways = np.zeros((m + 1, total + 1), dtype=np.int64 if exact else object)
+    ways[0, 0] = 1  # ways[k, s]: subsets of k of the ranks so far whose sum is s
+    for r in doubled:
+        ways[1:, r:] += ways[:-1, : total + 1 - r].copy()
+    return tuple(int(x) for x in ways[m])
+
+
 def _rank_sum_tail(ranks: Sequence[float], m: int, observed: float) -> float:
     """P(the ranks of m of ``ranks`` drawn at random sum to at least ``observed``), counted
-    exactly over every split (doubled ranks are integers: a table of subset sums by size)."""
-    doubled = [round(2 * r) for r in ranks]
-    total = sum(doubled)
-    # ways[k][s]: the subsets of k of the ranks seen so far whose doubled sum is s
-    ways = [[0] * (total + 1) for _ in range(m + 1)]
-    ways[0][0] = 1
-    for r in doubled:
-        for k in range(m, 0, -1):
-            row, prev = ways[k], ways[k - 1]
-            for s in range(total, r - 1, -1):
-                if prev[s - r]:
-                    row[s] += prev[s - r]
+    exactly over every split."""
+    counts = _subset_sums(tuple(sorted(round(2 * r) for r in ranks)), m)
     need = math.ceil(2 * observed - 1e-9)
-    hits = sum(ways[m][need:])
-    return hits / math.comb(len(ranks), m)
+    return sum(counts[need:]) / math.comb(len(ranks), m)
 
 
 def shift_p(base: Sequence[float], new: Sequence[float], margin: float = 0.0) -> float:
