@@ -379,12 +379,13 @@ class Baseline:
         for line in (
             f"The baseline of suite `{self.suite}`: every criterion's value over the plant's "
             f"noise seeds {_span(self.seeds)},",
-            f"the value at each seed (values) and its band (rig/regression/baseline.py: the "
-            f"{PREDICTION:.0%} prediction",
-            f"interval of one more seed, at least {REL_FLOOR:.0%} of the mean or the unit's "
-            "resolution), widened to the seeds' range.",
-            f"Written by `rig baseline record {self.suite}`; a change to it is a change of "
-            "accepted behaviour: review it like code.",
+            "the value at each seed (values) and its band (rig/regression/baseline.py: the "
+            f"{PREDICTION:.0%}",
+            f"prediction interval of one more seed, at least {REL_FLOOR:.0%} of the mean or "
+            "the unit's resolution),",
+            "widened to the seeds' range. Written by "
+            f"`rig baseline record {self.suite}`; a change to it",
+            "is a change of accepted behaviour: review it like code.",
         ):
             doc.add(tomlkit.comment(line))
         doc["schema"] = SCHEMA
