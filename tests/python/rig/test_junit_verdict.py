@@ -23,6 +23,7 @@ import subprocess
 import sys
 import threading
 import time
+import types
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -246,6 +247,23 @@ def test_the_issue_example_stale_baseline_fails_the_junit_file(tmp_path: Path) -
     for case in stale:
         assert "STALE against rig/baselines/paper.toml" in case.result[0].message
         assert "pos_err" in case.result[0].message or "=" in case.result[0].message
+    # the pytest plugin agrees: the test's properties and the explanation say the same
+    from rig import pytest_plugin
+    from rig.results.result import RunResult
+
+    result = RunResult.load(tmp_path / "o")
+    item = types.SimpleNamespace(user_properties=[], stash=pytest.Stash())
+    pytest_plugin.record(item, result)  # type: ignore[arg-type]
+    props = dict(item.user_properties)
+    name = TABLE2.stem
+    assert props[f"{name}/passed"] == "false"
+    assert props[f"{name}/verdict"] == next(
+        c for c in _cases(xml).values() if c.name.endswith(": run")).result[0].message
+    assert props[f"{name}/steady-state position error/baseline.class"] == "stale"
+    why = result.explain()
+    assert why.count("STALE against rig/baselines/paper.toml") == len(stale)
+    with pytest.raises(AssertionError, match="STALE against"):
+        result.assert_passed()
 
 
 def test_a_regression_inside_the_limit_is_a_failure_naming_value_band_and_file(
