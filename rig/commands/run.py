@@ -486,14 +486,29 @@ def cmd_view(args: argparse.Namespace) -> int:
     return _view_web(args, files)
 
 
+# signals whose default action ends the rig: each stops the web viewer first (a SIGKILL,
+# which no handler sees, ends it through the kernel: rig.results.webview)
+STOPPING = ("SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGVTALRM", "SIGPROF")
+
+
 def _view_web(args: argparse.Namespace, files: list[Path]) -> int:
+    import signal
+
     from rig.supervisor import Terminated, terminate_as_exception
 
+    def stop(signum: int, frame: object) -> None:
+        raise Terminated(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, stop) for sig in
+                (getattr(signal, name) for name in STOPPING)}
     try:
         with terminate_as_exception():  # SIGTERM/SIGHUP stop the server too (its own session)
             return _serve_web(args, files)
     except Terminated:
         return 130
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _serve_web(args: argparse.Namespace, files: list[Path]) -> int:
