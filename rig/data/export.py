@@ -481,14 +481,10 @@ def checked_destination(dest: Path, suffixes: tuple[str, ...], what: str) -> Pat
 
 @contextlib.contextmanager
 def _whole_or_nothing(dest: Path) -> Iterator[Path]:
-    """A temporary file next to ``dest`` (with its suffix: asammdf names a file by it),
-    renamed to ``dest`` when the block succeeds and removed whatever ends it: a file is
-    complete or not there, and no temporary file is left behind."""
+    """A temporary file next to ``dest`` (``rig.results.whole``: renamed to ``dest`` when the
+    block succeeds, removed whatever ends it), its folder made first."""
+    from rig.results.whole import whole
+
     dest.parent.mkdir(parents=True, exist_ok=True)
-    # (the suffix in lower case: asammdf writes a name ending in .MF4 to .mf4 instead)
-    tmp = dest.with_name(f".{dest.stem}.tmp-{os.getpid()}{dest.suffix.lower()}")
-    try:
+    with whole(dest) as tmp:
         yield tmp
-        os.replace(tmp, dest)
-    finally:
-        tmp.unlink(missing_ok=True)

@@ -28,6 +28,7 @@ import numpy as np
 
 from rig import protocols
 from rig.data import capture, metrics
+from rig.results.whole import whole
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -143,7 +144,13 @@ def overview(cap: capture.Capture, result: Mapping[str, Any], path: Path) -> Non
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(loc="upper left", fontsize=7)
-    fig.savefig(path)
+    save(fig, path)
+
+
+def save(fig: Any, path: Path) -> None:
+    """A figure as PNG, whole or not at all (``rig.results.whole``)."""
+    with whole(path) as tmp:
+        fig.savefig(tmp, format="png")
 
 
 def _limit_lines(c: Mapping[str, Any], columns: Sequence[str]) -> list[float]:
@@ -189,7 +196,7 @@ def criterion_figure(cap: capture.Capture, c: Mapping[str, Any], counters: Mappi
     fig = draw_criterion(cap, c, counters)
     if fig is None:
         return False
-    fig.savefig(path)
+    save(fig, path)
     return True
 
 

@@ -109,6 +109,7 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
         # interrupted while the results were worked out: the result says so, whole
         cap, interrupted = None, interrupted or exc
         evaluation.judge_interrupted(result, sc, plan, run, found.failure, exc)
+        _kept_before(out, result)
         result.timing = run.timing(wall)
         result.finished = _now()
     with signals_deferred():  # result.json and report.md are written whole
@@ -119,6 +120,24 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
     if interrupted is not None:
         raise interrupted
     return result
+
+
+def _kept_before(out: Path, result: RunResult) -> None:
+    """What the run wrote whole before a signal stopped its post-processing (the recording and
+    pictures are renamed into place only when complete: rig.results.whole): said in
+    result.json, not left beside a ``recording: null``."""
+    rrd = out / "recording.rrd"
+    if rrd.is_file():
+        result.recording = {"path": rrd.name, "bytes": rrd.stat().st_size,
+                            "note": "written before the run was interrupted"}
+    from rig.results import figures
+
+    pictures = [p.name for p in (out / figures.OVERVIEW, *sorted(out.glob("criterion-*.png")))
+                if p.is_file()]
+    if pictures:
+        result.figures = {"files": [{"path": n, "shows": "overview" if n == figures.OVERVIEW
+                                     else "criterion"} for n in pictures],
+                          "note": "drawn before the run was interrupted"}
 
 
 def figures_modules() -> tuple[str, ...]:
