@@ -355,6 +355,8 @@ def _fresh_result(path: Path, started: float) -> dict[str, Any] | None:
 
 
 def _print_verdict(result: RunResult) -> None:
+    from rig.results import shown
+
     verdict = "PASS" if result.passed else "FAIL"
     print(f"{result.scenario}: {verdict} ({result.status})", file=sys.stderr)
     failure = result.failure
@@ -373,11 +375,8 @@ def _print_verdict(result: RunResult) -> None:
                 "not_evaluated": "NOT EVALUATED"}.get(
             str(c.get("outcome")), "ok   " if c.get("passed") else "FAIL ")
         value = c.get("value")
-        shown = "n/a" if value is None else f"{value:.4g}"
-        limit = c.get("limit")
-        bound = "reported" if limit is None else f"{c['comparison']} {limit:g}"
-        print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
-              f"({bound}) over {c['window']}{_baseline_mark(c)}", file=sys.stderr)
+        print(f"  {mark} {c['name']}: {shown.measured(c)} ({shown.bound(c)}) over "
+              f"{c['window']}{_baseline_mark(c)}", file=sys.stderr)
         if c.get("outcome") == "not_evaluated" or (value is None and c.get("note")):
             note = str(c.get("note"))
             if failure is not None:  # the failure is printed once, above
@@ -393,14 +392,12 @@ def _counts(counts: dict[str, int]) -> str:
 
 def _baseline_mark(c: dict[str, Any]) -> str:
     """The criterion against its baseline, when it is not simply unchanged."""
+    from rig.results import shown
+
     b = c.get("baseline")
     if not b or b.get("class") in (None, "unchanged"):
         return ""
-    if "lo" not in b:
-        return f"  [{b['class'].upper()}: {b.get('note', '')}]"
-    return (f"  [{b['class'].upper()}: baseline {b['value']:.4g} within {b['lo']:.4g} .. "
-            f"{b['hi']:.4g} over {b['seeds']} seeds]" if b.get("value") is not None
-            else f"  [{b['class'].upper()}: baseline has no value]")
+    return f"  [{b['class'].upper()}: {shown.baseline_band(c)}]"
 
 
 def cmd_list(args: argparse.Namespace) -> int:

@@ -114,6 +114,7 @@ def baseline_summary(entries: Sequence[Mapping[str, Any]]) -> dict[str, Any] | N
             counts[cls] = counts.get(cls, 0) + 1
             if cls not in ("unchanged", "new"):
                 moved.append({"scenario": e["name"], "criterion": c["name"], "class": cls,
+                              "metric": c.get("metric"),
                               "value": c.get("value"), "baseline": b.get("value"),
                               "lo": b.get("lo"), "hi": b.get("hi"), "unit": c.get("unit"),
                               "note": b.get("note", "")})
