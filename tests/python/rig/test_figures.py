@@ -68,6 +68,18 @@ def test_a_run_writes_its_pictures_and_its_report_shows_them(failing_run: Path) 
         _png(failing_run / f["path"])
 
 
+def test_a_run_report_opens_with_the_answer(failing_run: Path) -> None:
+    report = (failing_run / "report.md").read_text()
+    head, _, details = report.partition("## Details")
+    lines = head.splitlines()
+    assert lines[0] == "# smoke_tight: FAIL"
+    assert lines[2] == "**FAIL** (failed): 4 of 6 criteria passed, 2 failed."
+    assert lines[4].startswith("- **FAIL** too tight: pos_err_max_deg = ")
+    assert lines[5].startswith("- **FAIL** speed too tight: speed_track_err_max_rpm = ")
+    assert "![" in head and "(figure.png)" in head  # the figure before the details
+    assert "## Criteria" in details and "## Versions" in details
+
+
 def test_a_failing_criterion_shows_its_window_and_limit(failing_run: Path) -> None:
     result = json.loads((failing_run / "result.json").read_text())
     cap = capture.Capture(failing_run / "capture")
@@ -140,6 +152,15 @@ def test_a_suite_report_links_its_runs_pictures(tmp_path: Path) -> None:
     (tmp_path / "smoke_tight.toml").write_text(SMOKE.read_text() + TIGHT)
     cli.main(["run", str(suite), "--bus", "inproc", "--quiet", "--out", str(tmp_path / "s")])
     report = (tmp_path / "s" / "report.md").read_text()
+    # it opens with the verdict and a table of every scenario's verdict, linked
+    lines = report.splitlines()
+    assert lines[0] == "# Suite pair: FAIL" and lines[2].startswith("**FAIL**: 1/2 scenarios")
+    table = lines[4:8]
+    assert table[0].startswith("| scenario | verdict |")
+    assert table[2].startswith("| [smoke](smoke/report.md) | pass |")
+    assert table[3].startswith("| [smoke_tight](smoke_tight/report.md) | **FAIL** (failed) | "
+                               "too tight, speed too tight")
+    assert table[3].endswith("[figure](smoke_tight/figure.png) |")
     links = re.findall(r"\]\(([^)]+\.png)\)", report)
     assert "smoke/figure.png" in links and "smoke_tight/figure.png" in links
     assert "smoke_tight/criterion-5.png" in links
