@@ -21,6 +21,7 @@ from rig.regression import baseline
 from rig.regression.baseline import EITHER, HIGHER, LOWER, better_side
 from rig.results.result import Failure, RunResult, Timing, write_result
 from rig.results.verdict import NOT_EVALUATED, outcome_of
+from rig.run import progress
 from rig.run.options import RunOptions
 from rig.run.single import run_single
 from rig.scenario import Scenario
@@ -90,7 +91,10 @@ def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
                            replace(opts, out=out / seed_folder(seed), baseline="off",
                                    live=False, progress=False))
             results.append(r)
-            if opts.progress:
+            shown = progress.active()
+            if shown is not None:
+                shown.say(f"{sc.name}: seed {seed}: {r.status}")
+            elif opts.progress:
                 print(f"{sc.name}: seed {seed}: {r.status}", file=sys.stderr)
     except BaseException as exc:  # interrupted: combine what finished
         interrupted = exc

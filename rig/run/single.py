@@ -30,12 +30,11 @@ from rig.link.bus import LinkError
 from rig.link.clock import BenchStall
 from rig.regression import baseline
 from rig.results.result import Failure, RunResult, Timing, write_result
-from rig.run import evaluation, in_process, on_bus, pacing
+from rig.run import evaluation, in_process, on_bus, pacing, progress
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import Execution
 from rig.run.options import RunOptions
 from rig.run.plan import Plan
-from rig.run.progress import Progress
 from rig.run.record import write_recording
 from rig.scenario import Scenario
 from rig.supervisor import ChildFailed, Terminated, signals_deferred
@@ -77,8 +76,8 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
             bench = in_process.sil_bench(sc, plan, config, opts, result, run)
         else:
             bench = on_bus.virtual_bench(sc, plan, config, opts, result, run)
-        line = Progress(sc.name, sc.duration, enabled=opts.progress)
-        with bench as paced:
+        with progress.item(sc.name, sc.duration, enabled=opts.progress) as line, \
+                bench as paced:
             run.periods_done = pacing.pace(plan, paced, run, line)
     except ChildFailed as exc:
         failure = Failure("crash", f"{exc.name}: {exc.what}", exc.log_tail, exc.name)
