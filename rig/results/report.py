@@ -1,4 +1,12 @@
-"""``report.md``: a human-readable summary of a run's ``result.json`` (and of a suite's)."""
+"""``report.md``: a human-readable summary of a run's ``result.json`` (and of a suite's).
+
+A run's report opens with the answer (the verdict, what decided it, the figures), then the
+details; a suite's with the table of its scenarios and their verdicts, linked.
+
+Built as lists of lines, not with a template engine (Jinja2 is installed, with Dask's
+dashboard): nearly every line holds a choice made from the result (a verdict, a class against
+the baseline, a value by its DBC name, a section left out), which a template would move into
+a second language without making the module shorter."""
 
 from __future__ import annotations
 
