@@ -59,6 +59,10 @@ def answer(result: Mapping[str, Any]) -> list[str]:
     said = [f"{counts['pass'] + counts['xpass']} of {len(crits)} criteria passed"]
     said += [f"{counts[o]} {_OUTCOME_WORD[o]}" for o in ("fail", "not_evaluated", "xfail",
                                                           "xpass") if counts[o]]
+    moved = [f"{n} {k}" for k, n in (base.get("counts") or {}).items()
+             if k in ("regressed", "changed", "stale") and n]
+    if moved:
+        said.append(f"{', '.join(moved)} against the baseline")
     lines = [f"**{verdict}** ({result.get('status')}): {', '.join(said)}."]
     failure = result.get("failure")
     bullets: list[str] = []
