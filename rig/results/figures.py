@@ -305,6 +305,8 @@ def draw_criterion(cap: capture.Capture, c: Mapping[str, Any], counters: Mapping
         focus = max(*counted, 10.0) * cap.ts
         lo, hi = t0 - 0.5 * focus, min(hi, t0 + 2.0 * focus)
     t = _times(cap)
+    if t.size:  # (no margin past the capture's end)
+        lo, hi = max(lo, float(t[0])), min(hi, float(t[-1]))
     sel = (t >= lo) & (t <= hi)
 
     def col(name: str) -> np.ndarray:
