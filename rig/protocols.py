@@ -40,6 +40,24 @@ def names(db: str, message: str, signal: str) -> dict[int, str]:
     return {int(value): str(name) for value, name in (sig.choices or {}).items()}
 
 
+def value_name(db: str, message: str, signal: str, value: float | None) -> str | None:
+    """The DBC's name of one raw value of a signal (``RUN`` for DRIVE_STATUS.state 3); None
+    when the value is not a whole number its value table names."""
+    if value is None or value != value or value in (float("inf"), float("-inf")):
+        return None
+    if float(value) != int(value):
+        return None
+    return names(db, message, signal).get(int(value))
+
+
+def named_value(db: str, message: str, signal: str, value: float | None) -> str:
+    """A value of an enumerated signal as a person reads it: its DBC name with the number
+    beside it (``RUN (3)``), the number alone where the table has no name for it."""
+    name = value_name(db, message, signal, value)
+    number = "n/a" if value is None else f"{value:g}"
+    return f"{name} ({number})" if name is not None else number
+
+
 def spelled(db: str, message: str, signal: str) -> dict[str, int]:
     """A signal's value table keyed as the DBC spells the names (``IDLE``, as the generated C
     constants are): the inverse of ``names``."""

@@ -22,7 +22,10 @@ costs nothing in unrelated test runs.
 Every run a test makes is recorded as the test's properties (``record_property``: what
 ``--junitxml`` writes), named ``SCENARIO/CRITERION/KEY`` with the keys ``rig run --junit``
 gives a criterion (metric, value, limit, comparison, unit, window, outcome) and
-``SCENARIO/report``; a failing test shows the reports of its runs in a section of its own.
+``SCENARIO/report``, ``SCENARIO/passed`` and, for a run that did not pass, ``SCENARIO/verdict``
+(the message of ``rig run --junit``'s run testcase; a criterion's class against its baseline
+is its ``baseline.class`` property); a failing test shows the reports of its runs, and why
+each that did not pass did not, in a section of its own.
 """
 
 from __future__ import annotations
@@ -202,6 +205,10 @@ def record(item: pytest.Item, result: RunResult) -> None:
     name = result.scenario
     item.user_properties.append((f"{name}/report", str(result.report_path)))
     item.user_properties.append((f"{name}/status", result.status))
+    item.user_properties.append((f"{name}/passed", str(result.passed).lower()))
+    verdict = junit.run_verdict(result.to_json())
+    if verdict is not None:  # why the run did not pass, as rig run --junit says it
+        item.user_properties.append((f"{name}/verdict", verdict[2]))
     for c in result.criteria:
         for key, value in junit.criterion_properties(c):
             item.user_properties.append((f"{name}/{c['name']}/{key}", value))
@@ -213,7 +220,9 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]
     report: pytest.TestReport = yield
     runs = item.stash.get(RUNS, [])
     if report.failed and runs:
-        lines = [f"{r.scenario}: {r.status} -> {r.report_path}" for r in runs]
+        lines = [line for r in runs for line in (
+            f"{r.scenario}: {r.status} -> {r.report_path}",
+            *([] if r.passed else r.explain().splitlines()[1:]))]
         report.sections.append(("hil runs (reports)", "\n".join(lines)))
     return report
 

@@ -59,7 +59,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         if args.mf4 is not None:
             dest = run_dir if args.mf4 is True else args.mf4
             if dest.is_dir():  # a folder: the file in it, named after the scenario
-                dest = dest / f"{_scenario(run_dir)}.mf4"
+                dest = dest / f"{export.default_name(run_dir)}.mf4"
             info = export.write_mf4(run_dir, dest)
             print(f"rig export: {info['channels']} channels in {info['groups']} groups, "
                   f"{info['samples']} samples each, and {info['frames']} frames -> {dest} "
@@ -75,12 +75,3 @@ def cmd_export(args: argparse.Namespace) -> int:
         print(f"rig export: cannot write: {exc}", file=sys.stderr)
         return 3
     return 0
-
-
-def _scenario(run_dir: Path) -> str:
-    import json
-
-    try:
-        return str(json.loads((run_dir / "result.json").read_text())["scenario"])
-    except (OSError, ValueError, KeyError):
-        return run_dir.name

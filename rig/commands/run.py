@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import fnmatch
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -150,17 +152,41 @@ def with_seed(target: Any, seed: int) -> Any:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from rig.run import runner
+
+    if args.junit is not None:
+        problem = junit_target_problem(args.junit, args.out)
+        if problem is not None:
+            print(f"rig run: --junit: {problem}", file=sys.stderr)
+            return runner.EXIT_USAGE
+    said: list[str] = []  # what stopped a run that wrote nothing (for the JUnit file)
+    where: list[Path] = []
+    started = time.time()
+    status = _cmd_run(args, said, where)
+    if args.junit is not None:
+        name = Path(str(args.target)).stem if str(args.target).endswith(".toml") \
+            else str(args.target)
+        status = _write_junit(args.junit, where[0] if where else None, name, status,
+                              started, said[-1] if said else "")
+    return status
+
+
+def _refuse(said: list[str], message: str, status: int) -> int:
+    print(f"rig run: {message}", file=sys.stderr)
+    said.append(message)
+    return status
+
+
+def _cmd_run(args: argparse.Namespace, said: list[str], where: list[Path]) -> int:
     from rig import scenario
     from rig.run import runner
 
     try:
         target = scenario.load(args.target)
     except FileNotFoundError as exc:
-        print(f"rig run: {exc}", file=sys.stderr)
-        return runner.EXIT_USAGE
+        return _refuse(said, str(exc), runner.EXIT_USAGE)
     except scenario.ScenarioError as exc:
-        print(f"rig run: invalid scenario:\n{exc}", file=sys.stderr)
-        return runner.EXIT_USAGE
+        return _refuse(said, f"invalid scenario:\n{exc}", runner.EXIT_USAGE)
     if args.seed is not None:
         target = with_seed(target, args.seed)
     from rig.regression import baseline
@@ -168,29 +194,23 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:  # a malformed baseline stops the run before anything starts, not after it
         baseline.check_mode(args.baseline)
     except baseline.BaselineError as exc:
-        print(f"rig run: {exc}", file=sys.stderr)
-        return runner.EXIT_USAGE
+        return _refuse(said, str(exc), runner.EXIT_USAGE)
     scenarios = target.scenarios if isinstance(target, scenario.Suite) else (target,)
     if args.jobs > 1 and _bus_of(args) != "inproc":
-        print("rig run: --jobs runs a suite on the in-process bench (--bus inproc); on a bus "
-              "the scenarios share its channel one at a time", file=sys.stderr)
-        return runner.EXIT_USAGE
+        return _refuse(said, "--jobs runs a suite on the in-process bench (--bus inproc); on a "
+                       "bus the scenarios share its channel one at a time", runner.EXIT_USAGE)
     if args.realtime and args.bus == "inproc":
-        print("rig run: --realtime needs a bus (the in-process bench runs in lockstep only)",
-              file=sys.stderr)
-        return runner.EXIT_USAGE
+        return _refuse(said, "--realtime needs a bus (the in-process bench runs in lockstep "
+                       "only)", runner.EXIT_USAGE)
     if args.realtime:
         bad = [s.name for s in scenarios if not s.realtime_ok]
         if bad:
-            print(f"rig run: --realtime is not allowed for {', '.join(bad)} "
-                  "(run.realtime_ok = false)", file=sys.stderr)
-            return runner.EXIT_USAGE
+            return _refuse(said, f"--realtime is not allowed for {', '.join(bad)} "
+                           "(run.realtime_ok = false)", runner.EXIT_USAGE)
     out = args.out or runner.default_out(target.name)
+    where.append(out)
     try:
-        status = _run(args, target, out)
-        if args.junit is not None:
-            status = _write_junit(args.junit, out, target.name, status)
-        return status
+        return _run(args, target, out)
     finally:
         if args.out is None:  # runs named by time pile up: say so when they have
             from rig.commands.clean import notice
@@ -201,6 +221,35 @@ def cmd_run(args: argparse.Namespace) -> int:
             hint = notice(out.parent)
             if hint:
                 print(hint, file=sys.stderr)
+
+
+def junit_target_problem(dest: Path, out: Path | None) -> str | None:
+    """Why ``--junit`` cannot write ``dest`` (checked before the run, as ``--save-params``
+    does: a user's file is never replaced), or None. It replaces only a file it wrote
+    itself, never writes through a link, and never takes the name of one of the run's own
+    files in its output folder (``result.json``, ``report.md``, ...)."""
+    from rig import outputs
+    from rig.results import junit
+
+    if dest.is_symlink():
+        return f"{dest} is a symbolic link; refused (nothing is written through a link)"
+    if out is not None:
+        try:
+            inside = dest.resolve().is_relative_to(out.resolve())
+        except OSError:
+            inside = False
+        own = dest.name in (*outputs.RUN_FILES, ".hil-run") or any(
+            fnmatch.fnmatch(dest.name, p) for p in outputs.RUN_PATTERNS)
+        if inside and own:
+            return (f"{dest} is one of the run's own files in its output folder {out}; "
+                    "choose another FILE")
+    if dest.exists():
+        if not dest.is_file():
+            return f"{dest} is not a regular file"
+        if not junit.is_written_file(dest):
+            return (f"{dest} exists and was not written by --junit; refused (remove it or "
+                    "choose another FILE)")
+    return None
 
 
 def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
@@ -268,36 +317,58 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
     return runner.exit_code(result.passed, result.status)
 
 
-def _write_junit(dest: Path, out: Path, name: str, status: int) -> int:
-    """The JUnit file of what the run (or suite) wrote into ``out``; exit 3 when it cannot be
-    written (the run's own status otherwise)."""
-    from rig import outputs
+def _write_junit(dest: Path, out: Path | None, name: str, status: int, started: float,
+                 why: str) -> int:
+    """The JUnit file of what the run (or suite) wrote into ``out``, or of a run that wrote
+    nothing; it has a failure or an error exactly when ``status`` is not 0. Exit 3 when it
+    cannot be written (the run's own status otherwise)."""
     from rig.results import junit
 
-    try:
-        data = json.loads((out / "result.json").read_text())
-    except (OSError, ValueError):
-        return status  # the run wrote nothing (it could not start): nothing to report
-    if data.get("schema") == "hil-suite/1":
-        runs = []
+    runs: list[dict[str, Any]] = []
+    summary: dict[str, Any] | None = None
+    data = _fresh_result(out / "result.json", started) if out is not None else None
+    if data is not None and data.get("schema") == "hil-suite/1":
+        summary = data
         for entry in data.get("scenarios") or []:
-            try:
-                runs.append(json.loads((out / entry["dir"] / "result.json").read_text()))
-            except (OSError, ValueError, KeyError):
-                continue
-        comparisons = data.get("comparisons") or []
-    else:
-        runs, comparisons = [data], []
+            got = _fresh_result(out / str(entry.get("dir")) / "result.json", started) \
+                if out is not None else None
+            if got is not None:
+                runs.append(got)
+    elif data is not None:
+        runs = [data]
     try:
-        junit.write(dest, runs, name, comparisons, suite_dir=out)
-    except outputs.OutputError as exc:
+        suites = [junit.scenario_suite(r, junit.report_path(Path(str(r.get("out_dir", "."))),
+                                                              dest)) for r in runs]
+        if summary is not None and out is not None:
+            suites.append(junit.suite_suite(name, summary, len(runs),
+                                            junit.report_path(out, dest)))
+        doc = junit.document(suites, name)
+        if status != 0 and doc.failures + doc.errors == 0:
+            # the run said no, and nothing it wrote says why: the file says it all the same
+            doc = junit.document([*suites, junit.nothing_ran(
+                name, status, why or f"rig run exited {status} (see its output)")], name)
+        junit.write_document(dest, doc)
+    except OSError as exc:  # a full or read-only file system, a folder in the way
         print(f"rig run: --junit: {exc}", file=sys.stderr)
         return max(status, 3)
     print(f"  -> {dest} (JUnit XML)", file=sys.stderr)
     return status
 
 
+def _fresh_result(path: Path, started: float) -> dict[str, Any] | None:
+    """A result.json this command wrote (not one an earlier run left there), else None."""
+    try:
+        if path.stat().st_mtime < started - 1.0:
+            return None
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
 def _print_verdict(result: RunResult) -> None:
+    from rig.results import shown
+
     verdict = "PASS" if result.passed else "FAIL"
     print(f"{result.scenario}: {verdict} ({result.status})", file=sys.stderr)
     failure = result.failure
@@ -316,11 +387,8 @@ def _print_verdict(result: RunResult) -> None:
                 "not_evaluated": "NOT EVALUATED"}.get(
             str(c.get("outcome")), "ok   " if c.get("passed") else "FAIL ")
         value = c.get("value")
-        shown = "n/a" if value is None else f"{value:.4g}"
-        limit = c.get("limit")
-        bound = "reported" if limit is None else f"{c['comparison']} {limit:g}"
-        print(f"  {mark} {c['name']}: {c['metric']} = {shown} {c.get('unit', '')} "
-              f"({bound}) over {c['window']}{_baseline_mark(c)}", file=sys.stderr)
+        print(f"  {mark} {c['name']}: {shown.measured(c)} ({shown.bound(c)}) over "
+              f"{c['window']}{_baseline_mark(c)}", file=sys.stderr)
         if c.get("outcome") == "not_evaluated" or (value is None and c.get("note")):
             note = str(c.get("note"))
             if failure is not None:  # the failure is printed once, above
@@ -338,7 +406,7 @@ def _baseline_mark(c: dict[str, Any]) -> str:
     """The criterion against its baseline, when it is not simply unchanged."""
     from rig.regression.wording import against_baseline
 
-    text = against_baseline(c.get("baseline"))
+    text = against_baseline(c)
     return f"  [{text}]" if text else ""
 
 
@@ -425,14 +493,29 @@ def cmd_view(args: argparse.Namespace) -> int:
     return _view_web(args, files)
 
 
+# signals whose default action ends the rig: each stops the web viewer first (a SIGKILL,
+# which no handler sees, ends it through the kernel: rig.results.webview)
+STOPPING = ("SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGVTALRM", "SIGPROF")
+
+
 def _view_web(args: argparse.Namespace, files: list[Path]) -> int:
+    import signal
+
     from rig.supervisor import Terminated, terminate_as_exception
 
+    def stop(signum: int, frame: object) -> None:
+        raise Terminated(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, stop) for sig in
+                (getattr(signal, name) for name in STOPPING)}
     try:
         with terminate_as_exception():  # SIGTERM/SIGHUP stop the server too (its own session)
             return _serve_web(args, files)
     except Terminated:
         return 130
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _serve_web(args: argparse.Namespace, files: list[Path]) -> int:

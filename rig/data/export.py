@@ -29,10 +29,11 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import getpass
 import json
 import os
+import re
 import stat
-import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -80,6 +81,17 @@ def _result(run_dir: Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ExportError(f"{run_dir}/result.json is not a run's result")
     return data
+
+
+def default_name(run_dir: Path) -> str:
+    """The file name an export of ``run_dir`` takes without one given: the scenario's name as
+    a plain file name (no folder, no leading dot: a ``scenario`` of ``../../x`` in
+    result.json names ``x``, never a path), else the run folder's name."""
+    name = str(_result(run_dir).get("scenario") or "")
+    name = re.sub(r"[^A-Za-z0-9_.@+-]+", "_", name.replace("\\", "/").rsplit("/", 1)[-1])
+    name = name.lstrip(".")
+    return name or re.sub(r"[^A-Za-z0-9_.@+-]+", "_", run_dir.resolve().name).lstrip(".") \
+        or "run"
 
 
 def open_capture(run_dir: Path) -> capture.Capture:
@@ -176,21 +188,34 @@ def start_time(run_dir: Path) -> float:
         return 0.0
 
 
-def header_comment(result: Mapping[str, Any]) -> str:
-    """The MDF header's comment (HDcomment XML): the run's identity, verdict and versions."""
-    root = ET.Element("HDcomment")
-    ET.SubElement(root, "TX").text = (f"{result.get('scenario')}: {result.get('description')} "
-                                      f"({result.get('status')})")
-    props = ET.SubElement(root, "common_properties")
+PROJECT = "sensorless IPMSM drive HIL rig (Mubarok & Liu, IEEE Access 2022)"
+
+
+def set_header(header: Any, result: Mapping[str, Any]) -> None:
+    """The MDF header of a run, in asammdf's own fields: its start time, author (who ran the
+    export), project, subject (the drive, its profile and scenario) and description, and the
+    run's identity, verdict and versions as further common properties (asammdf keeps them
+    beside author and project, in the dictionary its field setters write: pinned version)."""
+    started = result.get("started")
+    if started:
+        with contextlib.suppress(ValueError, TypeError):
+            header.start_time = dt.datetime.fromisoformat(str(started))
+    header.description = (f"{result.get('scenario')}: {result.get('description')} "
+                          f"({result.get('status')})")
+    try:
+        header.author = getpass.getuser()
+    except (KeyError, OSError):  # no user name for this uid (a container)
+        header.author = f"uid {os.getuid()}"
+    header.project = PROJECT
+    header.subject = (f"the drive on the {result.get('profile')} profile, scenario "
+                      f"{result.get('scenario')}")
+    header.department = ""
     items: list[tuple[str, Any]] = [(k, result.get(k)) for k in (
         "scenario", "scenario_file", "figure", "profile", "mode", "bus", "channel", "started",
         "finished", "status")]
     items += [(f"version.{k}", v) for k, v in sorted((result.get("versions") or {}).items())]
     items.append(("commit", (result.get("versions") or {}).get("rig.commit", "unknown")))
-    for key, value in items:
-        if value not in (None, ""):
-            ET.SubElement(props, "e", name=key).text = str(value)
-    return ET.tostring(root, encoding="unicode")
+    header._common_properties.update({k: str(v) for k, v in items if v not in (None, "")})
 
 
 def write_mf4(run_dir: Path, dest: Path) -> dict[str, Any]:
@@ -207,11 +232,7 @@ def write_mf4(run_dir: Path, dest: Path) -> dict[str, Any]:
     n_channels = 0
     groups = channel_groups(cap)
     try:
-        started = result.get("started")
-        if started:
-            with contextlib.suppress(ValueError, TypeError):
-                mdf.header.start_time = dt.datetime.fromisoformat(str(started))
-        mdf.header.comment = header_comment(result)
+        set_header(mdf.header, result)
         for g in groups:
             signals = [Signal(samples=np.asarray(cap[ch["column"]]), timestamps=t,
                               name=ch["name"], unit=ch["unit"], comment=ch["comment"],
@@ -460,13 +481,10 @@ def checked_destination(dest: Path, suffixes: tuple[str, ...], what: str) -> Pat
 
 @contextlib.contextmanager
 def _whole_or_nothing(dest: Path) -> Iterator[Path]:
-    """A temporary file next to ``dest`` (with its suffix: asammdf names a file by it),
-    renamed to ``dest`` when the block succeeds and removed whatever ends it: a file is
-    complete or not there, and no temporary file is left behind."""
+    """A temporary file next to ``dest`` (``rig.results.whole``: renamed to ``dest`` when the
+    block succeeds, removed whatever ends it), its folder made first."""
+    from rig.results.whole import whole
+
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.stem}.tmp-{os.getpid()}{dest.suffix}")
-    try:
+    with whole(dest) as tmp:
         yield tmp
-        os.replace(tmp, dest)
-    finally:
-        tmp.unlink(missing_ok=True)

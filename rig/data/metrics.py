@@ -649,6 +649,24 @@ def is_counter(name: str) -> bool:
     ).isalnum()
 
 
+# Metrics, counters and capture columns whose values are raw values of an enumerated DBC
+# signal (its value table names them): shown as ``RUN (3)`` wherever a person reads them
+# (``rig.results.shown``). FW_TRACE.state carries DRIVE_STATUS.state's values.
+ENUMERATED: dict[str, tuple[str, str, str]] = {
+    "fw_state_start": ("drive", "DRIVE_STATUS", "state"),
+    "fw_state_end": ("drive", "DRIVE_STATUS", "state"),
+    "fw.state": ("drive", "DRIVE_STATUS", "state"),
+    "firmware.fault_code": ("drive", "DRIVE_STATUS", "fault_code"),
+    "firmware.fault_code_last": ("drive", "DRIVE_STATUS", "fault_code"),
+}
+
+
+def enumerated(name: str) -> tuple[str, str, str] | None:
+    """(database, message, signal) whose value table names the values of a metric, counter
+    or capture column; None for a quantity."""
+    return ENUMERATED.get(name)
+
+
 def known(name: str) -> bool:
     return name in METRICS or is_counter(name)
 

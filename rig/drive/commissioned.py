@@ -95,17 +95,36 @@ def values_to_save(identified: Mapping[str, float], written: Mapping[str, float]
     return out
 
 
-def render(values: Mapping[str, float], profile: str, command: Sequence[str]) -> str:
-    """The file ``--save-params`` writes: where the values come from, then the table."""
+def render(values: Mapping[str, float], profile: str, command: Sequence[str],
+           previous: str | None = None) -> str:
+    """The file ``--save-params`` writes (with tomlkit): where the values come from, then
+    the table. ``previous``: the text of the file it replaces; the comments a reviewer wrote
+    in its ``[firmware]`` table (above a parameter, after its value) stay with the parameters
+    that are still there."""
+    import tomlkit
+
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d")
-    lines = [
-        f"{HEADER} on the virtual bench of the {profile} profile",
-        f"# ({when}), written by:",
-        f"#   {' '.join(command)}",
-        "# Scenario runs on this profile set these parameters on the drive after the hardware",
-        "# ones from the profile and before a scenario's own [firmware]",
-        "# (rig/drive/commissioned.py).",
-        "[firmware]",
-    ]
-    lines += [f"{k} = {format(float(v), '.6g')}" for k, v in sorted(values.items())]
-    return "\n".join(lines) + "\n"
+    doc = tomlkit.document()
+    for line in (
+        f"{HEADER[2:]} on the virtual bench of the {profile} profile",
+        f"({when}), written by:",
+        f"  {' '.join(command)}",
+        "Scenario runs on this profile set these parameters on the drive after the hardware",
+        "ones from the profile and before a scenario's own [firmware]",
+        "(rig/drive/commissioned.py).",
+    ):
+        doc.add(tomlkit.comment(line))
+    table = tomlkit.table()
+    if previous is not None:
+        try:
+            old = tomlkit.parse(previous).get("firmware")
+        except tomlkit.exceptions.ParseError:
+            old = None
+        if isinstance(old, tomlkit.items.Table):
+            table = old
+            for name in [k for k in table if k not in values]:
+                del table[name]
+    for name, value in sorted(values.items()):
+        table[name] = float(format(float(value), ".6g"))
+    doc.add("firmware", table)
+    return tomlkit.dumps(doc)

@@ -43,18 +43,18 @@ def confirmation(b: Mapping[str, Any]) -> str:
            f"level {conf.get('alpha', float('nan')):g})"
 
 
-def against_baseline(b: Mapping[str, Any] | None) -> str:
-    """One line, or '' for an unchanged criterion."""
+def against_baseline(c: Mapping[str, Any]) -> str:
+    """One line for a criterion (result.json's), or '' when it is unchanged."""
+    from rig.results import shown as values_shown  # enum values by their DBC names
+
+    b = c.get("baseline")
     if not b or b.get("class") in (None, "unchanged"):
         return ""
     cls = str(b["class"])
     shown = cls.upper() if cls in FAILING else cls
-    if "lo" not in b:
-        return f"{shown}: {b.get('note', '')}"
-    if b.get("value") is None:
-        return f"{shown}: baseline has no value"
-    parts = [f"baseline {b['value']:.4g} within {b['lo']:.4g} .. {b['hi']:.4g} over "
-             f"{b.get('seeds')} seeds"]
+    if "lo" not in b or b.get("value") is None:
+        return f"{shown}: {values_shown.baseline_band(c)}"
+    parts = [values_shown.baseline_band(c)]
     if cls in (*FLAGGED, EXCURSION, "improved"):
         d = distance(b)
         if d:

@@ -7,6 +7,13 @@ resolve to nothing (``--host-resolver-rules``), so the page reaches only this ma
 viewer's own calls outside (version check, telemetry, web fonts) fail at once, are counted,
 and are told apart from the viewer's errors.
 
+The protocol client is written here, not taken from a library, because the pipe is the
+point: the DevTools libraries for Python (pychrome, websocket clients) reach Chromium over a
+TCP port (one more port to find free and to leave held when the rig is killed), and the
+browser drivers (Playwright, pyppeteer) download a browser build of their own, which this
+rig's machines cannot fetch. Over the pipe the protocol is JSON messages ended by a NUL byte:
+``_Pipe`` is that and nothing more.
+
 ``look()`` opens a URL of the web viewer, waits until the viewer holds the recording and
 shows every expected view of its blueprint (the viewer's state, ``viewer_state()`` of its
 JavaScript handle), waits until the picture is still, and saves a PNG screenshot.

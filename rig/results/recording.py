@@ -37,6 +37,7 @@ import rerun.blueprint as rrb
 
 from rig import protocols
 from rig.data.capture import Capture
+from rig.results.whole import whole
 
 APP_ID = "sensorless_hil"
 TS_NS = protocols.timebase().period_ns  # one PWM period in ns
@@ -257,7 +258,19 @@ def display_step(n: int, decimate: int = DISPLAY_DECIMATE,
     return max(decimate, math.ceil(n / max_rows)) if max_rows > 0 else decimate
 
 
-def write(
+def write(path: str | Path, cap: Capture, **options: Any) -> dict[str, Any]:
+    """Writes the recording whole or not at all (``rig.results.whole``: a full disk or a
+    signal leaves no recording cut short, and no 0-byte one); returns what was written (rows
+    per entity, display step, evidence columns and rows). Options: ``_write_to``'s."""
+    path = Path(path)
+    with whole(path) as tmp:
+        info = _write_to(tmp, cap, recording_id=options.pop("recording_id", None)
+                         or f"hil-{path.parent.name}", **options)
+    info["path"] = str(path)
+    return info
+
+
+def _write_to(
     path: str | Path,
     cap: Capture,
     *,
@@ -270,10 +283,21 @@ def write(
     display_max_rows: int = DISPLAY_MAX_ROWS,
     recording_id: str | None = None,
 ) -> dict[str, Any]:
-    """Writes the recording; returns what was written (rows per entity, display step,
-    evidence columns and rows)."""
     path = Path(path)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id or f"hil-{path.parent.name}")
+    try:
+        return _log_all(rec, path, cap, title, report_markdown, timing, counters, evidence,
+                        decimate, display_max_rows)
+    except BaseException:
+        with contextlib.suppress(Exception):  # the file sink lets go of the file
+            rec.disconnect()
+        raise
+
+
+def _log_all(rec: rr.RecordingStream, path: Path, cap: Capture, title: str,
+             report_markdown: str, timing: TimedSamples | None,
+             counters: TimedSamples | None, evidence: Mapping[str, Ranges] | None,
+             decimate: int, display_max_rows: int) -> dict[str, Any]:
     evidence = {k: merge_ranges(v) for k, v in (evidence or {}).items() if k in cap}
     evidence = {k: v for k, v in evidence.items() if v}
     rec.save(path, default_blueprint=blueprint(with_counters=counters is not None,

@@ -1,4 +1,12 @@
-"""``report.md``: a human-readable summary of a run's ``result.json`` (and of a suite's)."""
+"""``report.md``: a human-readable summary of a run's ``result.json`` (and of a suite's).
+
+A run's report opens with the answer (the verdict, what decided it, the figures), then the
+details; a suite's with the table of its scenarios and their verdicts, linked.
+
+Built as lists of lines, not with a template engine (Jinja2 is installed, with Dask's
+dashboard): nearly every line holds a choice made from the result (a verdict, a class against
+the baseline, a value by its DBC name, a section left out), which a template would move into
+a second language without making the module shorter."""
 
 from __future__ import annotations
 
@@ -6,6 +14,8 @@ import math
 import re
 from collections.abc import Mapping
 from typing import Any
+
+from rig.results import shown
 
 
 def _fmt(v: Any, digits: int = 4) -> str:
@@ -32,11 +42,72 @@ def _size(n: float | None) -> str:
     return f"{n:.1f} GB"
 
 
-def scenario_report(result: Mapping[str, Any]) -> str:
-    """Markdown for one scenario run."""
+def metrics_named(name: str) -> bool:
+    """A counter whose values a DBC value table names."""
+    from rig.data import metrics
+
+    return metrics.enumerated(name) is not None
+
+
+def answer(result: Mapping[str, Any]) -> list[str]:
+    """The report's opening: the verdict, what decided it (the run's failure, each criterion
+    that failed, was not evaluated or moved against its baseline), the known failures."""
     verdict = "PASS" if result.get("passed") else "FAIL"
-    lines = [
-        f"# {result.get('scenario', '?')}: {verdict}",
+    crits = list(result.get("criteria") or [])
+    base = result.get("baseline") or {}
+    counts = {o: sum(1 for c in crits if _outcome(c) == o) for o in _OUTCOME}
+    said = [f"{counts['pass'] + counts['xpass']} of {len(crits)} criteria passed"]
+    said += [f"{counts[o]} {_OUTCOME_WORD[o]}" for o in ("fail", "not_evaluated", "xfail",
+                                                          "xpass") if counts[o]]
+    moved = [f"{n} {k}" for k, n in (base.get("counts") or {}).items()
+             if k in ("regressed", "changed", "stale") and n]
+    if moved:
+        said.append(f"{', '.join(moved)} against the baseline")
+    lines = [f"**{verdict}** ({result.get('status')}): {', '.join(said)}."]
+    failure = result.get("failure")
+    bullets: list[str] = []
+    if failure:
+        bullets.append(f"**{failure.get('kind')}**: {failure.get('message')}")
+    if base.get("error") or (base.get("missing") and not base.get("passed", True)):
+        bullets.append(f"**baseline**: {base.get('error') or base.get('note')} (fails the run)")
+    for c in crits:
+        o = _outcome(c)
+        b = c.get("baseline") or {}
+        moved = b.get("class") in ("regressed", "changed", "stale")
+        where = f"over [{_fmt((c.get('window') or [None])[0])}, " \
+            f"{_fmt((c.get('window') or [None, None])[1])}] s"
+        if o in ("fail", "not_evaluated"):
+            why = c.get("note") if o == "not_evaluated" else \
+                f"{shown.measured(c)}, limit {shown.bound(c)} {where}"
+            bullets.append(f"{_OUTCOME[o]} {c.get('name')}: {why}")
+        if moved:
+            bullets.append(f"**{str(b['class']).upper()}** {c.get('name')}: {shown.measured(c)}"
+                           f", {shown.baseline_band(c)} (`{base.get('file')}`)")
+        elif o in ("xfail", "xpass"):
+            bullets.append(f"{_OUTCOME[o]} {c.get('name')}: {shown.measured(c)}, limit "
+                           f"{shown.bound(c)} {where}")
+    if bullets:
+        lines += ["", *(f"- {x}" for x in bullets)]
+    return lines
+
+
+def scenario_report(result: Mapping[str, Any]) -> str:
+    """Markdown for one scenario run: the answer first (verdict, what decided it, the
+    figure), then the details."""
+    verdict = "PASS" if result.get("passed") else "FAIL"
+    lines = [f"# {result.get('scenario', '?')}: {verdict}", "", *answer(result)]
+    pictures = (result.get("figures") or {}).get("files") or []
+    overview = [f for f in pictures if f.get("shows") == "overview"]
+    if overview:
+        lines += ["", f"![{result.get('scenario')}: position error, speed, currents and load; "
+                  f"the windows of criteria that did not pass shaded]({overview[0]['path']})"]
+    for f in pictures:
+        if f.get("shows") == "criterion":
+            lines += ["", f"![{f.get('criterion')}: what it read over its window, and its "
+                      f"limit]({f['path']})"]
+    lines += [
+        "",
+        "## Details",
         "",
         f"{result.get('description', '')}",
         "",
@@ -52,11 +123,6 @@ def scenario_report(result: Mapping[str, Any]) -> str:
     ]
     if result.get("figure"):
         lines.append(f"| paper | {result['figure']} |")
-    pictures = (result.get("figures") or {}).get("files") or []
-    overview = [f for f in pictures if f.get("shows") == "overview"]
-    if overview:
-        lines += ["", f"![{result.get('scenario')}: position error, speed, currents and load; "
-                  f"the windows of criteria that did not pass shaded]({overview[0]['path']})"]
     injected = result.get("faults") or []
     if injected:
         lines += ["", "## Faults injected", ""]
@@ -79,10 +145,14 @@ def scenario_report(result: Mapping[str, Any]) -> str:
         for c in crits:
             w = c.get("window") or [None, None]
             unit = c.get("unit") or ""
+            value = "—" if c.get("value") is None else shown.with_unit(
+                str(c["metric"]), c.get("value"), unit)
+            limit = "—" if c.get("limit") is None else shown.with_unit(
+                str(c["metric"]), c.get("limit"), unit)
             lines.append(
                 f"| {c['name']} | `{c['metric']}` | [{_fmt(w[0])}, {_fmt(w[1])}] | "
-                f"{_fmt(c.get('value'))} {unit} | {c.get('comparison', '<=')} "
-                f"{_fmt(c.get('limit'))} {unit} | {_OUTCOME.get(_outcome(c), _outcome(c))} |"
+                f"{value} | {c.get('comparison', '<=')} {limit} | "
+                f"{_OUTCOME.get(_outcome(c), _outcome(c))} |"
             )
             if c.get("note"):
                 lines.append(f"| | | | {c['note']} | | |")
@@ -90,10 +160,6 @@ def scenario_report(result: Mapping[str, Any]) -> str:
                 lines.append(f"| | | | expected failure: {c['xfail']} | | |")
     else:
         lines.append("(none)")
-    for f in pictures:
-        if f.get("shows") == "criterion":
-            lines += ["", f"![{f.get('criterion')}: what it read over its window, and its "
-                      f"limit]({f['path']})"]
     lines += _baseline_section(result.get("baseline"), crits)
     cap = result.get("capture") or {}
     if cap:
@@ -140,7 +206,8 @@ def scenario_report(result: Mapping[str, Any]) -> str:
     if counters:
         lines += ["", "## Counters", "", "| counter | value |", "|---|---|"]
         for k in sorted(counters):
-            lines.append(f"| `{k}` | {_fmt(counters[k])} |")
+            v = counters[k]
+            lines.append(f"| `{k}` | {shown.value(k, v) if metrics_named(k) else _fmt(v)} |")
     versions = result.get("versions") or {}
     if versions:
         lines += ["", "## Versions", ""]
@@ -177,8 +244,9 @@ def _baseline_section(base: Mapping[str, Any] | None,
             band = (f"{_fmt(b.get('lo'))} .. {_fmt(b.get('hi'))} {unit}" if "lo" in b
                     else b.get("note", ""))
             mark = b["class"].upper() if b["class"] in wording.FAILING else b["class"]
-            lines.append(f"| {c['name']} | {_fmt(c.get('value'))} {unit} | "
-                         f"{_fmt(b.get('value'))} {unit} | {band} | {mark} | "
+            metric = str(c.get("metric"))
+            lines.append(f"| {c['name']} | {shown.with_unit(metric, c.get('value'), unit)} | "
+                         f"{shown.with_unit(metric, b.get('value'), unit)} | {band} | {mark} | "
                          f"{wording.distance(b) or '—'} | {wording.confirmation(b) or '—'} |")
         if any(c["baseline"]["class"] == "excursion" for c in moved):
             lines += ["", "An *excursion* is a value beyond its band at this seed that the same "
@@ -216,6 +284,8 @@ def _listeners(counters: dict[str, Any], foreign: bool) -> str:
 
 _OUTCOME = {"pass": "pass", "fail": "**FAIL**", "xfail": "XFAIL", "xpass": "**XPASS**",
             "not_evaluated": "**NOT EVALUATED**"}
+_OUTCOME_WORD = {"fail": "failed", "not_evaluated": "not evaluated", "xfail": "XFAIL (known)",
+                 "xpass": "XPASS (a known failure passed: remove its xfail)"}
 _TABLE2 = re.compile(r"table2_(\d+)rpm_([0-9p]+)nm")
 
 
@@ -247,13 +317,13 @@ def _cell(c: Mapping[str, Any] | None) -> str:
         return "—"
     mark = {"fail": " ✗", "xfail": " (xfail)", "xpass": " (XPASS)",
             "not_evaluated": " (not evaluated)"}.get(_outcome(c), "")
-    return f"{_fmt(c.get('value'), 3)}{mark}"
+    value = "—" if c.get("value") is None else shown.value(str(c.get("metric")),
+                                                          c.get("value"), 3)
+    return f"{value}{mark}"
 
 
 def _bound(c: Mapping[str, Any]) -> str:
-    if c.get("limit") is None:
-        return "reported"
-    return f"{c.get('comparison', '<=')} {_fmt(c.get('limit'))} {c.get('unit') or ''}".strip()
+    return shown.bound(c)
 
 
 def _table2(entries: list[Mapping[str, Any]]) -> list[str]:
@@ -303,8 +373,9 @@ def _figures(entries: list[Mapping[str, Any]]) -> list[str]:
         if crits:
             lines += ["| criterion | value | bound | result |", "|---|---|---|---|"]
             for c in crits:
-                lines.append(f"| {c.get('name')} | {_fmt(c.get('value'))} {c.get('unit') or ''}"
-                             f" | {_bound(c)} | {_OUTCOME.get(_outcome(c), _outcome(c))} |")
+                value = shown.with_unit(str(c.get("metric")), c.get("value"), c.get("unit"))
+                lines.append(f"| {c.get('name')} | {value} | {_bound(c)} | "
+                             f"{_OUTCOME.get(_outcome(c), _outcome(c))} |")
             for c in crits:
                 if _outcome(c) == "not_evaluated":
                     lines.append(f"\n- {c.get('name')}: {c.get('note')}")
@@ -355,17 +426,43 @@ def _suite_baseline(base: Mapping[str, Any] | None) -> list[str]:
             unit = m.get("unit") or ""
             band = (f"{_fmt(m.get('lo'))} .. {_fmt(m.get('hi'))} {unit}"
                     if m.get("lo") is not None else m.get("note", ""))
-            mark = m["class"].upper() if m["class"] in ("regressed", "changed", "stale",
-                                                         "missing") else m["class"]
+            mark = m["class"].upper() if m["class"] in wording.FAILING else m["class"]
+            metric = str(m.get("metric"))
             lines.append(f"| [{m['scenario']}]({m['scenario']}/report.md) | {m['criterion']} | "
-                         f"{_fmt(m.get('value'))} {unit} | {_fmt(m.get('baseline'))} {unit} | "
+                         f"{shown.with_unit(metric, m.get('value'), unit)} | "
+                         f"{shown.with_unit(metric, m.get('baseline'), unit)} | "
                          f"{band} | {mark} | {wording.distance(m) or '—'} | "
                          f"{wording.confirmation(m) or '—'} |")
         lines.append("")
     return lines
 
 
+def _scenarios_table(entries: list[Mapping[str, Any]]) -> list[str]:
+    """Every scenario and its verdict, linked to its report and figure: the suite at a
+    glance."""
+    lines = ["| scenario | verdict | failed / not evaluated / moved against the baseline | "
+             "wall (s) | figure |", "|---|---|---|---|---|"]
+    for s in entries:
+        why = ", ".join(s.get("failed_criteria", [])) or (s.get("failure") or "")
+        moved = [f"{c.get('name')} ({(c.get('baseline') or {}).get('class')})"
+                 for c in s.get("criteria") or []
+                 if (c.get("baseline") or {}).get("class") in ("regressed", "changed",
+                                                               "stale")]
+        why = "; ".join(x for x in (why, ", ".join(moved)) if x)
+        figure = next((p for p in s.get("figures") or [] if p == "figure.png"), None)
+        verdict = _verdict(s) if s.get("passed") else (
+            f"**FAIL** ({s.get('status')})" if s.get("status") != "error"
+            else f"**ERROR** ({s.get('status')})")
+        lines.append(
+            f"| [{s['name']}]({s['dir']}/report.md) | {verdict} | {why} | "
+            f"{_fmt(s.get('wall_s'))} | "
+            + (f"[figure]({s['dir']}/{figure})" if figure else "") + " |")
+    return lines
+
+
 def suite_report(summary: Mapping[str, Any]) -> str:
+    """Markdown for a suite: its verdict and a table of every scenario's verdict first, then
+    the details (Table 2, the figures, comparisons, the baseline)."""
     verdict = "PASS" if summary.get("passed") else "FAIL"
     entries = list(summary.get("scenarios", []))
     counts = {"pass": 0, "fail": 0, "xfail": 0, "xpass": 0, "not_evaluated": 0}
@@ -378,28 +475,22 @@ def suite_report(summary: Mapping[str, Any]) -> str:
     lines = [
         f"# Suite {summary.get('suite')}: {verdict}",
         "",
-        f"{summary.get('description', '')}",
+        f"**{verdict}**: {sum(1 for s in entries if s.get('passed'))}/{len(entries)} scenarios "
+        f"passed; criteria: {counts['pass']} pass, {counts['fail']} fail, {counts['xfail']} "
+        f"xfail, {counts['xpass']} xpass, {counts['not_evaluated']} not evaluated."
+        + ("" if summary.get("complete", True) else " The suite did not run to its end."),
         "",
-        f"{sum(1 for s in entries if s.get('passed'))}/{len(entries)} scenarios passed; "
-        f"criteria: {counts['pass']} pass, {counts['fail']} fail, {counts['xfail']} xfail, "
-        f"{counts['xpass']} xpass, {counts['not_evaluated']} not evaluated.",
+        *_scenarios_table(entries),
+        "",
+        f"{summary.get('description', '')}",
         "",
     ]
     lines += _suite_baseline(summary.get("baseline"))
     lines += _table2(entries)
     lines += _figures(entries)
     lines += _comparisons(list(summary.get("comparisons") or []))
-    lines += [
-        "## Runs",
-        "",
-        "| scenario | result | failed criteria / failure | wall (s) | pictures |",
-        "|---|---|---|---|---|",
-    ]
-    for s in entries:
-        why = ", ".join(s.get("failed_criteria", [])) or (s.get("failure") or "")
-        pictures = ", ".join(f"[{p}]({s['dir']}/{p})" for p in s.get("figures") or [])
-        lines.append(
-            f"| [{s['name']}]({s['dir']}/report.md) | {'pass' if s.get('passed') else '**FAIL**'}"
-            f" ({s.get('status')}) | {why} | {_fmt(s.get('wall_s'))} | {pictures} |"
-        )
+    pictures = [(s, p) for s in entries for p in s.get("figures") or [] if p != "figure.png"]
+    if pictures:
+        lines += ["## Pictures of the criteria that did not pass", ""]
+        lines += [f"- [{s['name']}: {p}]({s['dir']}/{p})" for s, p in pictures]
     return "\n".join(lines) + "\n"

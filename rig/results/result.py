@@ -17,7 +17,7 @@ from rig import outputs
 from rig.data import capture, metrics
 from rig.outputs import Kept
 from rig.results import report
-from rig.results.verdict import AGAINST, NOT_EVALUATED, outcome
+from rig.results.verdict import AGAINST, outcome
 from rig.scenario import Scenario
 
 SCHEMA = "hil-result/1"
@@ -217,19 +217,24 @@ class RunResult:
         return metrics.compute(name, w, params)
 
     def explain(self) -> str:
+        """Why the run did not pass, as ``rig run --junit`` says it: the run's own verdict,
+        then each criterion that failed, was not evaluated or moved against its baseline."""
+        from rig.results import junit
+
+        data = self.to_json()
         lines = [f"{self.scenario}: {self.status} (report: {self.report_path})"]
-        if self.failure is not None:
-            lines.append(f"  {self.failure.kind}: {self.failure.message}")
-            if self.failure.log_tail:
+        run = junit.run_verdict(data)
+        if run is not None:
+            lines.append(f"  {run[2]}")
+            if self.failure is not None and self.failure.log_tail:
                 lines += ["    " + x for x in self.failure.log_tail.splitlines()[-15:]]
-        for c in self.failed_criteria():
-            if outcome(c) == NOT_EVALUATED:
-                lines.append(f"  NOT EVALUATED {c['name']}: {c.get('note')}")
+        file = (self.baseline or {}).get("file")
+        for c in self.criteria:
+            verdict = junit.criterion_verdict(c, file)
+            if verdict is None or verdict[0] == "skipped":
                 continue
-            lines.append(
-                f"  FAIL {c['name']}: {c['metric']} over {c['window']} = {c['value']} "
-                f"(limit {c['comparison']} {c['limit']})"
-            )
+            mark = "NOT EVALUATED" if verdict[0] == "error" else "FAIL"
+            lines.append(f"  {mark} {c['name']}: {verdict[2]} ({junit.window_text(c)})")
         return "\n".join(lines)
 
     def assert_passed(self) -> None:

@@ -7,6 +7,12 @@ streams to it: ``grpc_url``) and the web viewer (HTML + Wasm) on ``web_port``; `
 the viewer connected to that server. Both listen on ``bind`` (default 127.0.0.1: this
 machine only; ``--bind 0.0.0.0`` to view from another one).
 
+The web viewer lives as long as the rig: the rerun binary is started directly (not through
+``python -m rerun``, which runs it as a child of a Python process of its own: two processes,
+only one of them ours) with the kernel's parent-death signal set (``PR_SET_PDEATHSIG``,
+SIGKILL), so a rig killed by any signal, even SIGKILL, takes the server and its ports with it.
+The rig's own handlers (``rig view``) stop it cleanly on the signals it can catch.
+
 ``start_native()`` opens a native viewer window whose gRPC server listens on 127.0.0.1 (rerun's
 own ``spawn`` binds 0.0.0.0 and, on a machine without a display, leaves the SDK waiting for
 a viewer that never comes); it needs a display (``has_display``).
@@ -24,6 +30,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 DEFAULT_WEB_PORT = 9090  # Rerun's defaults
@@ -136,6 +143,41 @@ def has_display() -> bool:
 NO_DISPLAY = "no display here (DISPLAY and WAYLAND_DISPLAY are unset)"
 
 
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def rerun_binary() -> str:
+    """The viewer binary rerun-sdk ships (``rerun_cli/rerun``; ``$RERUN_CLI_PATH`` as
+    rerun's own launcher honours it)."""
+    import importlib.util
+
+    if os.environ.get("RERUN_CLI_PATH"):
+        return os.environ["RERUN_CLI_PATH"]
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is None or spec.origin is None:
+        raise WebViewerError("rerun-sdk's viewer (rerun_cli) is not installed")
+    path = Path(spec.origin).parent / "rerun"
+    if not path.is_file():
+        raise WebViewerError(f"rerun-sdk's viewer binary is missing: {path}")
+    return str(path)
+
+
+def _tied_to(parent: int) -> Any:
+    """A ``preexec_fn`` that ties the child to ``parent``'s life: SIGKILL when it ends (the
+    thread that started it: the rig starts its viewers from its main thread), and an exit at
+    once if it already ended before the tie was made."""
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)  # (loaded before the fork)
+
+    def tie() -> None:
+        libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        if os.getppid() != parent:
+            os._exit(1)
+
+    return tie
+
+
 def start(files: Sequence[Path] = (), *, web_port: int = DEFAULT_WEB_PORT,
           grpc_port: int = DEFAULT_GRPC_PORT, bind: str = "127.0.0.1",
           log: Path | None = None, env: Mapping[str, str] | None = None,
@@ -145,11 +187,11 @@ def start(files: Sequence[Path] = (), *, web_port: int = DEFAULT_WEB_PORT,
         if _taken(bind, port):
             raise WebViewerError(f"port {port} is already in use (another viewer or "
                                  "program): choose another with --web-port / --grpc-port")
-    argv = [sys.executable, "-m", "rerun", "--serve-web", "--bind", bind,
+    argv = [rerun_binary(), "--serve-web", "--bind", bind,
             "--web-viewer-port", str(web_port), "--port", str(grpc_port),
             *[str(f) for f in files]]
     return _launch(argv, bind, web_port, grpc_port, (web_port, grpc_port), log, env,
-                   timeout_s)
+                   timeout_s, tied=True)
 
 
 def start_native(*, grpc_port: int = DEFAULT_GRPC_PORT, log: Path | None = None,
@@ -180,14 +222,17 @@ def start_native(*, grpc_port: int = DEFAULT_GRPC_PORT, log: Path | None = None,
 
 
 def _launch(argv: list[str], bind: str, web_port: int, grpc_port: int, ports: Sequence[int],
-            log: Path | None, env: Mapping[str, str] | None, timeout_s: float) -> WebViewer:
-    """Starts a viewer process in a session of its own; waits (at most timeout_s) until
-    ``ports`` answer, failing at once when it exits."""
+            log: Path | None, env: Mapping[str, str] | None, timeout_s: float,
+            tied: bool = False) -> WebViewer:
+    """Starts a viewer process in a session of its own (``tied``: ended by the kernel when
+    this process ends); waits (at most timeout_s) until ``ports`` answer, failing at once
+    when it exits."""
     out = open(log, "wb") if log is not None else subprocess.DEVNULL
     try:
         proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out,
                                 stderr=subprocess.STDOUT, start_new_session=True,
-                                env={**os.environ, **(env or {})})
+                                env={**os.environ, **(env or {})},
+                                preexec_fn=_tied_to(os.getpid()) if tied else None)
     finally:
         if log is not None:
             out.close()  # type: ignore[union-attr]

@@ -11,8 +11,8 @@ such scenarios are decided on the paired per-seed values (rig.run.suite)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
-import sys
 from dataclasses import replace
 from typing import Any
 
@@ -21,6 +21,7 @@ from rig.regression import baseline
 from rig.regression.baseline import EITHER, HIGHER, LOWER, better_side
 from rig.results.result import Failure, RunResult, Timing, write_result
 from rig.results.verdict import NOT_EVALUATED, outcome_of
+from rig.run import progress
 from rig.run.options import RunOptions
 from rig.run.single import run_single
 from rig.scenario import Scenario
@@ -84,14 +85,21 @@ def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
     one = replace(sc, seeds=())
     results: list[RunResult] = []
     interrupted: BaseException | None = None
+    outer = progress.active()  # a suite's: the seeds are one of its items
+    own = progress.Display(sc.name, len(sc.seeds), unit="seed", enabled=opts.progress,
+                           work=[sc.duration] * len(sc.seeds)) if outer is None else None
     try:
-        for seed in sc.seeds:
-            r = run_single(one.with_seed(seed),
-                           replace(opts, out=out / seed_folder(seed), baseline="off",
-                                   live=False, progress=False))
-            results.append(r)
-            if opts.progress:
-                print(f"{sc.name}: seed {seed}: {r.status}", file=sys.stderr)
+        with own or contextlib.nullcontext():
+            for seed in sc.seeds:
+                r = run_single(one.with_seed(seed),
+                               replace(opts, out=out / seed_folder(seed), baseline="off",
+                                       live=False, progress=False))
+                results.append(r)
+                line = f"{sc.name}: seed {seed}: {r.status}"
+                if own is not None:
+                    own.done(f"seed {seed}", r.passed, line)
+                elif outer is not None:
+                    outer.say(line)
     except BaseException as exc:  # interrupted: combine what finished
         interrupted = exc
     first = results[0] if results else None

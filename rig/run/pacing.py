@@ -21,7 +21,7 @@ from rig.link.drive_master import DriveMaster
 from rig.run.errors import RunError
 from rig.run.execution import Execution
 from rig.run.plan import Plan
-from rig.run.progress import Progress
+from rig.run.progress import Display
 
 TS = capture.TS
 REALTIME_SLICE_S = 0.002  # real time: how often the rig looks at the plan
@@ -45,25 +45,22 @@ class PacedBench:
     stall_s: float = 0.0
 
 
-def pace(plan: Plan, bench: PacedBench, run: Execution, line: Progress) -> int:
+def pace(plan: Plan, bench: PacedBench, run: Execution, line: Display) -> int:
     """The plan through ``bench``: by grants when its clock grants, else on the wall clock;
     returns the periods simulated (lockstep) or the last period commanded (real time). The
     progress line is drawn while the bench is idle and after each grant."""
 
     def show() -> None:
-        line.update(*bench.where())
+        line.at(*bench.where())
         bench.on_show()
 
     bench.clock.on_idle(show)
-    try:
-        if isinstance(bench.clock, GrantClock):
-            return lockstep(plan, bench.clock, bench.drive, bench.commands, run,
-                            lambda _until: show())
-        assert bench.progress is not None
-        return realtime(plan, bench.clock, bench.drive, bench.commands, bench.progress,
-                        bench.stall_s, run)
-    finally:
-        line.finish()
+    if isinstance(bench.clock, GrantClock):
+        return lockstep(plan, bench.clock, bench.drive, bench.commands, run,
+                        lambda _until: show())
+    assert bench.progress is not None
+    return realtime(plan, bench.clock, bench.drive, bench.commands, bench.progress,
+                    bench.stall_s, run)
 
 
 def lockstep(plan: Plan, clock: GrantClock, drive: DriveMaster,

@@ -4,7 +4,6 @@ dimension of a run: the same scenario, the noise drawn from another seed."""
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -13,6 +12,7 @@ from rig.bench import sil
 from rig.results.result import RunResult
 from rig.run import parallel
 from rig.run.options import RunOptions
+from rig.run.progress import Display
 from rig.scenario import Scenario, Suite
 
 
@@ -72,19 +72,20 @@ def run_over_seeds(suite: Suite, seeds: Sequence[int], root: Path, jobs: int,
             work.append(parallel.Job(sc.with_seed(seed),
                                      replace(base, out=seed_dir(root, seed) / sc.name)))
     total = len(work)
-    finished = 0
+    display = Display(f"{suite.name} over seeds {seeds[0]}-{seeds[-1]}", total, unit="run",
+                      enabled=progress, work=[j.scenario.duration * max(1, len(j.scenario.seeds))
+                                              for j in work])
 
     def done(job: parallel.Job, r: RunResult | None) -> None:
-        nonlocal finished
-        finished += 1
-        if progress:
-            verdict = "?" if r is None else "PASS" if r.passed else "FAIL"
-            seed = job.scenario.seed
-            print(f"[{finished}/{total}] seed {seed if seed is not None else 'own'} "
-                  f"{job.scenario.name}: {verdict}", file=sys.stderr)
+        verdict = "?" if r is None else "PASS" if r.passed else "FAIL"
+        seed = job.scenario.seed
+        display.done(job.scenario.name, r is not None and r.passed,
+                     f"[{display.done_items + 1}/{total}] seed "
+                     f"{seed if seed is not None else 'own'} {job.scenario.name}: {verdict}")
 
     got: list[RunResult | None] = [None] * total
-    parallel.run_jobs(work, jobs, got, on_done=done)
+    with display:
+        parallel.run_jobs(work, jobs, got, on_done=done)
     runs: dict[int, list[RunResult | None]] = {
         seed: [None] * len(suite.scenarios) for seed in seeds}
     for (k, i), r in zip(slots, got, strict=True):

@@ -30,12 +30,11 @@ from rig.link.bus import LinkError
 from rig.link.clock import BenchStall
 from rig.regression import baseline
 from rig.results.result import Failure, RunResult, Timing, write_result
-from rig.run import evaluation, in_process, on_bus, pacing
+from rig.run import evaluation, in_process, on_bus, pacing, progress
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import Execution
 from rig.run.options import RunOptions
 from rig.run.plan import Plan
-from rig.run.progress import Progress
 from rig.run.record import write_recording
 from rig.scenario import Scenario
 from rig.supervisor import ChildFailed, Terminated, signals_deferred
@@ -77,8 +76,8 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
             bench = in_process.sil_bench(sc, plan, config, opts, result, run)
         else:
             bench = on_bus.virtual_bench(sc, plan, config, opts, result, run)
-        line = Progress(sc.name, sc.duration, enabled=opts.progress)
-        with bench as paced:
+        with progress.item(sc.name, sc.duration, enabled=opts.progress) as line, \
+                bench as paced:
             run.periods_done = pacing.pace(plan, paced, run, line)
     except ChildFailed as exc:
         failure = Failure("crash", f"{exc.name}: {exc.what}", exc.log_tail, exc.name)
@@ -109,6 +108,7 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
         # interrupted while the results were worked out: the result says so, whole
         cap, interrupted = None, interrupted or exc
         evaluation.judge_interrupted(result, sc, plan, run, found.failure, exc)
+        _kept_before(out, result)
         result.timing = run.timing(wall)
         result.finished = _now()
     with signals_deferred():  # result.json and report.md are written whole
@@ -119,6 +119,24 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
     if interrupted is not None:
         raise interrupted
     return result
+
+
+def _kept_before(out: Path, result: RunResult) -> None:
+    """What the run wrote whole before a signal stopped its post-processing (the recording and
+    pictures are renamed into place only when complete: rig.results.whole): said in
+    result.json, not left beside a ``recording: null``."""
+    rrd = out / "recording.rrd"
+    if rrd.is_file():
+        result.recording = {"path": rrd.name, "bytes": rrd.stat().st_size,
+                            "note": "written before the run was interrupted"}
+    from rig.results import figures
+
+    pictures = [p.name for p in (out / figures.OVERVIEW, *sorted(out.glob("criterion-*.png")))
+                if p.is_file()]
+    if pictures:
+        result.figures = {"files": [{"path": n, "shows": "overview" if n == figures.OVERVIEW
+                                     else "criterion"} for n in pictures],
+                          "note": "drawn before the run was interrupted"}
 
 
 def figures_modules() -> tuple[str, ...]:

@@ -4,7 +4,6 @@ between runs, and the ``hil-suite/1`` summary (``result.json``, ``report.md``)."
 from __future__ import annotations
 
 import json
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -18,7 +17,7 @@ from rig.regression import stats
 from rig.results import report
 from rig.results.result import RunResult
 from rig.results.verdict import NOT_EVALUATED, outcome, outcome_of
-from rig.run import parallel
+from rig.run import parallel, progress
 from rig.run.options import RunOptions
 from rig.run.runner import run_scenario
 from rig.scenario import Comparison, Scenario, Suite
@@ -70,16 +69,21 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
         "description": suite.description, "passed": False, "scenarios": entries,
     }
     interrupted: BaseException | None = None
+    display = progress.Display(suite.name, len(suite.scenarios), enabled=opts.progress,
+                               work=[sc.duration * max(1, len(sc.seeds))
+                                     for sc in suite.scenarios])
     try:
-        if opts.jobs > 1 and opts.bus == sil.INPROC:
-            _run_parallel(suite, opts, out, results, entries)
-        else:
-            for sc in suite.scenarios:
-                r = run_scenario(sc, replace(opts, out=out / sc.name))
-                results.append(r)
-                entries.append(entry(sc, r))
-                if opts.fail_fast and _stops(r):
-                    break
+        with display:
+            if opts.jobs > 1 and opts.bus == sil.INPROC:
+                _run_parallel(suite, opts, out, results, entries, display)
+            else:
+                for sc in suite.scenarios:
+                    r = run_scenario(sc, replace(opts, out=out / sc.name))
+                    results.append(r)
+                    entries.append(entry(sc, r))
+                    display.done(sc.name, r.passed)
+                    if opts.fail_fast and _stops(r):
+                        break
     except (KeyboardInterrupt, Terminated) as exc:
         interrupted = exc
     summary["comparisons"] = [evaluate_comparison(cmp, entries) for cmp in suite.comparisons]
@@ -116,6 +120,7 @@ def baseline_summary(entries: Sequence[Mapping[str, Any]]) -> dict[str, Any] | N
             counts[cls] = counts.get(cls, 0) + 1
             if cls not in ("unchanged", "new"):
                 moved.append({"scenario": e["name"], "criterion": c["name"], "class": cls,
+                              "metric": c.get("metric"),
                               "value": c.get("value"), "baseline": b.get("value"),
                               "lo": b.get("lo"), "hi": b.get("hi"), "unit": c.get("unit"),
                               "distance": b.get("distance"), "chance": b.get("chance"),
@@ -139,7 +144,7 @@ def _stops(r: RunResult) -> bool:
 
 
 def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunResult],
-                  entries: list[dict[str, Any]]) -> None:
+                  entries: list[dict[str, Any]], display: progress.Display) -> None:
     """The suite's scenarios on ``opts.jobs`` worker processes (in process only: each run has
     its own bench); ``results`` and ``entries`` in the suite's order, up to the first run
     missing when interrupted. ``opts.fail_fast``: no new run starts after one failed in a way
@@ -148,9 +153,9 @@ def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunRe
             for sc in suite.scenarios]
 
     def done(job: parallel.Job, r: RunResult | None) -> None:
-        if opts.progress:
-            verdict = "?" if r is None else "PASS" if r.passed else "FAIL"
-            print(f"{job.scenario.name}: {verdict}", file=sys.stderr)
+        verdict = "?" if r is None else "PASS" if r.passed else "FAIL"
+        display.done(job.scenario.name, r is not None and r.passed,
+                     f"{job.scenario.name}: {verdict}")
 
     def stop(job: parallel.Job, r: RunResult | None) -> bool:
         return opts.fail_fast and (r is None or _stops(r))

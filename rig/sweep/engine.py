@@ -5,7 +5,8 @@ its scheduler address. The same code either way.
 Each task may be retried (``retries``): a worker that dies takes its task with it, and the
 scheduler gives it to another worker. A task that still fails (its workers kept dying, or
 the scheduler gave up on it) is recorded as a failed row with the reason: no point is
-dropped. A progress line on stderr (rewritten on a TTY, every few seconds otherwise). What
+dropped. The progress display of every campaign (rig.run.progress: k/N, elapsed, ETA; quiet
+where stderr is not a terminal). What
 the cluster went through is counted (``Outcome``): the workers lost and the points run again
 after losing theirs; a cluster left without any worker for ``no_worker_timeout_s`` ends the
 sweep, its unfinished points failed rows saying so, instead of waiting for ever. The local
@@ -13,13 +14,13 @@ cluster serves Dask's dashboard on 127.0.0.1 (a free port): ``dashboard_link``."
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, TextIO
+from typing import Any
 
+from rig.run.progress import Display
 from rig.sweep import point as sweep_point
 
 Row = dict[str, Any]
@@ -77,37 +78,6 @@ class Outcome:
                 "points_rerun": self.rerun, "gave_up": self.gave_up}
 
 
-class ProgressLine:
-    """``sweep: 12/40 done, 1 not passed, 3.2 points/min, ETA 300 s``"""
-
-    def __init__(self, total: int, stream: TextIO | None = None, enabled: bool = True) -> None:
-        self.total = total
-        self.stream = stream if stream is not None else sys.stderr
-        self.enabled = enabled
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.interval = 0.2 if self.tty else 10.0
-        self.t0 = time.monotonic()
-        self._last = -1e9
-
-    def update(self, done: int, failed: int, *, force: bool = False) -> None:
-        now = time.monotonic()
-        if not self.enabled or (not force and now - self._last < self.interval):
-            return
-        self._last = now
-        elapsed = now - self.t0
-        rate = done / elapsed if elapsed > 0 else 0.0
-        eta = (self.total - done) / rate if rate > 0 else float("nan")
-        text = (f"sweep: {done}/{self.total} done, {failed} not passed, "
-                f"{60.0 * rate:.1f} points/min, ETA {eta:.0f} s")
-        if self.tty:
-            self.stream.write("\r" + text.ljust(78))
-            if done == self.total:
-                self.stream.write("\n")
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()
-
-
 def _workers(c: Any) -> set[str]:
     try:
         return set((c.scheduler_info().get("workers") or {}).keys())
@@ -141,50 +111,47 @@ def run_tasks(c: Any, tasks: Sequence[sweep_point.Task],
     futures = c.map(fn, list(tasks), retries=retries, pure=False, key=keys)
     by_future = dict(zip(futures, tasks, strict=True))
     rows: dict[int, Row] = {}
-    line = ProgressLine(len(tasks), enabled=progress)
-    failed = 0
-    pending = set(futures)
-    alone_since: float | None = None
-    seen.workers_seen |= _workers(c)
-    while pending:
-        try:
-            wait(list(pending), timeout=POLL_S, return_when="FIRST_COMPLETED")
-        except TimeoutError:
-            pass  # none finished in this poll: look at the workers
-        done = {f for f in pending if f.status != "pending"}
-        pending -= done
-        now_workers = _workers(c)
-        seen.workers_lost |= seen.workers_seen - now_workers
-        seen.workers_seen |= now_workers
-        for fut in done:
-            task = by_future[fut]
+    line = Display("sweep", len(tasks), unit="point", enabled=progress)
+    with line:
+        pending = set(futures)
+        alone_since: float | None = None
+        seen.workers_seen |= _workers(c)
+        while pending:
             try:
-                row: Row = fut.result()
-            except Exception as exc:  # KilledWorker, a lost connection, a task error
-                row = sweep_point.failed_row(task, type(exc).__name__, str(exc) or repr(exc))
-            rows[task.index] = row
-            if not row.get("passed"):
-                failed += 1
-            if on_row is not None:
-                on_row(row)
-        line.update(len(rows), failed)
-        if now_workers or done:
-            alone_since = None
-            continue
-        alone_since = alone_since or time.monotonic()
-        if time.monotonic() - alone_since >= no_worker_timeout_s:
-            seen.gave_up = (f"the cluster had no worker for {no_worker_timeout_s:g} s "
-                            f"({len(pending)} points unfinished)")
-            c.cancel(list(pending))
-            for fut in pending:
+                wait(list(pending), timeout=POLL_S, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                pass  # none finished in this poll: look at the workers
+            done = {f for f in pending if f.status != "pending"}
+            pending -= done
+            now_workers = _workers(c)
+            seen.workers_lost |= seen.workers_seen - now_workers
+            seen.workers_seen |= now_workers
+            for fut in done:
                 task = by_future[fut]
-                rows[task.index] = sweep_point.failed_row(task, "no_workers", seen.gave_up)
-                failed += 1
+                try:
+                    row: Row = fut.result()
+                except Exception as exc:  # KilledWorker, a lost connection, a task error
+                    row = sweep_point.failed_row(task, type(exc).__name__, str(exc) or repr(exc))
+                rows[task.index] = row
+                line.done(f"point {task.index}", bool(row.get("passed")))
                 if on_row is not None:
-                    on_row(rows[task.index])
-            break
+                    on_row(row)
+            if now_workers or done:
+                alone_since = None
+                continue
+            alone_since = alone_since or time.monotonic()
+            if time.monotonic() - alone_since >= no_worker_timeout_s:
+                seen.gave_up = (f"the cluster had no worker for {no_worker_timeout_s:g} s "
+                                f"({len(pending)} points unfinished)")
+                c.cancel(list(pending))
+                for fut in pending:
+                    task = by_future[fut]
+                    rows[task.index] = sweep_point.failed_row(task, "no_workers", seen.gave_up)
+                    line.done(f"point {task.index}", False)
+                    if on_row is not None:
+                        on_row(rows[task.index])
+                break
     seen.rerun = _reruns(c, keys)
     for fut in futures:
         fut.release()
-    line.update(len(rows), failed, force=True)
     return [rows[t.index] for t in tasks]

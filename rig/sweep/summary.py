@@ -41,7 +41,8 @@ def plot(rows: Sequence[dict[str, Any]], params: Sequence[str], metric: str,
     from rig.sweep.spec import unit_of
 
     n = max(1, len(params))
-    fig = Figure(figsize=(4.2 * n, 3.6), layout="tight")
+    # at least as wide as the title needs (one parameter's 4.2 in cut it off)
+    fig = Figure(figsize=(max(6.4, 4.2 * n), 3.8), layout="tight")
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, n, squeeze=False)
     metric_unit = metrics.unit_of(metric) if metrics.known(metric) else ""
@@ -59,7 +60,7 @@ def plot(rows: Sequence[dict[str, Any]], params: Sequence[str], metric: str,
         ax.set_ylabel(_label(metric, metric_unit))
         ax.grid(True, alpha=0.3)
     axes[0][0].legend(fontsize=8)
-    fig.suptitle(f"worst error ({metric}) against each swept parameter")
+    fig.suptitle(f"worst error ({metric})\nagainst each swept parameter", fontsize=11)
     if path is not None:
         fig.savefig(path, dpi=110)
     return fig

@@ -71,3 +71,24 @@ def test_a_broken_commissioned_drive_stops_the_run_before_it_starts(
     sc = load_scenario("table2_0001rpm_2nm").with_profile("harsh")
     with pytest.raises(EnvironmentProblem, match="outside"):
         bench_configuration(sc)
+
+
+def test_render_writes_toml_that_reads_back_and_keeps_a_reviewers_comments(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import tomllib
+
+    text = commissioned.render({"xsat_ldq_per_a": -0.000177312345, "spd_kp": 0.5}, "harsh",
+                               ["rig", "commission", "standstill", "xsat"])
+    assert tomllib.loads(text) == {"firmware": {"spd_kp": 0.5, "xsat_ldq_per_a": -0.000177312}}
+    path = tmp_path / "harsh.toml"
+    path.write_text(text)
+    assert commissioned.is_saved_file(path)
+    monkeypatch.setattr(commissioned, "FOLDER", tmp_path)
+    assert commissioned.parameters("harsh") == {"spd_kp": 0.5, "xsat_ldq_per_a": -0.000177312}
+    # a reviewer's comments stay with the parameters still identified
+    reviewed = text.replace("xsat_ldq_per_a = ", "# reviewed: 7 start angles, 2 seeds\n"
+                            "xsat_ldq_per_a = ").replace("-0.000177312", "-0.000177312  # +-3 %")
+    again = commissioned.render({"xsat_ldq_per_a": -0.0002}, "harsh", ["rig"], reviewed)
+    assert "# reviewed: 7 start angles, 2 seeds\nxsat_ldq_per_a = -0.0002  # +-3 %" in again
+    assert tomllib.loads(again) == {"firmware": {"xsat_ldq_per_a": -0.0002}}  # spd_kp gone
+    assert again.startswith(commissioned.HEADER)

@@ -24,7 +24,7 @@ import pytest
 from asammdf import MDF
 
 from rig import cli, protocols
-from rig.data import capture
+from rig.data import capture, export
 from rig.data.trace import HEADER_SIZE, RECORD_SIZE, TraceFile, frame_ids
 from rig.results.result import RunResult
 
@@ -99,6 +99,10 @@ def test_mf4_holds_the_capture_value_for_value(run: RunResult, tmp_path: Path) -
         # the file starts when the run started; its header says which run it is
         assert mdf.header.start_time == dt.datetime.fromisoformat(run.started)
         props = {e.get("name"): e.text for e in ET.fromstring(mdf.header.comment).iter("e")}
+        # asammdf's own header fields are filled (they were empty)
+        assert mdf.header.author and mdf.header.project == export.PROJECT
+        assert "smoke" in mdf.header.subject and "ideal" in mdf.header.subject
+        assert mdf.header.description.startswith("smoke: ")
     result = json.loads((run.out_dir / "result.json").read_text())
     assert props["scenario"] == "smoke" and props["profile"] == "ideal"
     assert props["bus"] == "inproc" and props["status"] == "passed"
@@ -259,6 +263,35 @@ def test_mf4_destinations(run: RunResult, tmp_path: Path,
     assert cli.main(["export", str(run.out_dir), "--mf4", "/proc/no-such/x.mf4"]) == 3
     assert "cannot write" in capsys.readouterr().err
     assert _leftovers(d) == [] and _leftovers(run.out_dir) == []
+
+
+def test_mf4_without_a_name_stays_in_the_run_folder(run: RunResult, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]
+                                                     ) -> None:
+    """Issue 36.7: a result.json whose scenario is ../../x wrote the file two folders up; a
+    result.json that is a list was a traceback; an upper-case .MF4 left a 1 MB temporary
+    file behind."""
+    top = tmp_path / "top"
+    d = top / "a" / "b" / "run"
+    shutil.copytree(run.out_dir, d)
+    result = d / "result.json"
+    data = json.loads(result.read_text())
+    result.write_text(json.dumps({**data, "scenario": "../../x"}))
+    assert cli.main(["export", str(d), "--mf4"]) == 0
+    assert sorted(p.relative_to(top).as_posix() for p in top.rglob("*.mf4")) == [
+        "a/b/run/x.mf4"]
+    result.write_text(json.dumps({**data, "scenario": "../.."}))
+    assert cli.main(["export", str(d), "--mf4"]) == 0
+    assert (d / "run.mf4").is_file() and not list(top.glob("*.mf4"))
+    result.write_text("[1, 2]")
+    assert cli.main(["export", str(d), "--mf4"]) == 2
+    assert "is not a run's result" in capsys.readouterr().err
+    result.write_text(json.dumps(data))
+    upper = tmp_path / "up"
+    upper.mkdir()
+    assert cli.main(["export", str(d), "--mf4", str(upper / "X.MF4")]) == 0
+    assert [p.name for p in upper.iterdir()] == ["X.MF4"]
+    MDF(upper / "X.MF4").close()
 
 
 def _copy(run: RunResult, tmp_path: Path) -> Path:

@@ -68,6 +68,18 @@ def test_a_run_writes_its_pictures_and_its_report_shows_them(failing_run: Path) 
         _png(failing_run / f["path"])
 
 
+def test_a_run_report_opens_with_the_answer(failing_run: Path) -> None:
+    report = (failing_run / "report.md").read_text()
+    head, _, details = report.partition("## Details")
+    lines = head.splitlines()
+    assert lines[0] == "# smoke_tight: FAIL"
+    assert lines[2] == "**FAIL** (failed): 4 of 6 criteria passed, 2 failed."
+    assert lines[4].startswith("- **FAIL** too tight: pos_err_max_deg = ")
+    assert lines[5].startswith("- **FAIL** speed too tight: speed_track_err_max_rpm = ")
+    assert "![" in head and "(figure.png)" in head  # the figure before the details
+    assert "## Criteria" in details and "## Versions" in details
+
+
 def test_a_failing_criterion_shows_its_window_and_limit(failing_run: Path) -> None:
     result = json.loads((failing_run / "result.json").read_text())
     cap = capture.Capture(failing_run / "capture")
@@ -140,8 +152,159 @@ def test_a_suite_report_links_its_runs_pictures(tmp_path: Path) -> None:
     (tmp_path / "smoke_tight.toml").write_text(SMOKE.read_text() + TIGHT)
     cli.main(["run", str(suite), "--bus", "inproc", "--quiet", "--out", str(tmp_path / "s")])
     report = (tmp_path / "s" / "report.md").read_text()
+    # it opens with the verdict and a table of every scenario's verdict, linked
+    lines = report.splitlines()
+    assert lines[0] == "# Suite pair: FAIL" and lines[2].startswith("**FAIL**: 1/2 scenarios")
+    table = lines[4:8]
+    assert table[0].startswith("| scenario | verdict |")
+    assert table[2].startswith("| [smoke](smoke/report.md) | pass |")
+    assert table[3].startswith("| [smoke_tight](smoke_tight/report.md) | **FAIL** (failed) | "
+                               "too tight, speed too tight")
+    assert table[3].endswith("[figure](smoke_tight/figure.png) |")
     links = re.findall(r"\]\(([^)]+\.png)\)", report)
     assert "smoke/figure.png" in links and "smoke_tight/figure.png" in links
     assert "smoke_tight/criterion-5.png" in links
     for link in links:
         assert (tmp_path / "s" / link).is_file(), link
+
+
+# -- issue 39: every figure shows what its criterion measured --------------------------------
+
+FAULT = Path(__file__).resolve().parents[3] / "rig" / "scenarios" / "fault_adc_frame_loss.toml"
+STATE_CRITERION = scenario_text.tables("criteria", [scenario_text.criterion(
+    "ends in RUN (it does not)", "fw_state_end", (0.5, "end"), 3, "==")])
+
+
+@pytest.fixture(scope="module")
+def fault_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("fault")
+    scen = d / "fault_adc_frame_loss.toml"
+    scen.write_text(FAULT.read_text() + STATE_CRITERION)
+    cli.main(["run", str(scen), "--bus", "inproc", "--quiet", "--keep-all", "--no-record",
+              "--baseline", "off", "--out", str(d / "run")])
+    return d / "run"
+
+
+def _by_gid(ax: object, gid: str) -> list[object]:
+    return [a for a in ax.get_children() if a.get_gid() == gid]  # type: ignore[attr-defined]
+
+
+def _flat(ln: object, along: str) -> bool:
+    v = np.asarray(ln.get_xdata() if along == "x" else ln.get_ydata(), dtype=float)  # type: ignore[attr-defined]
+    return len(v) == 2 and v[0] == v[1]
+
+
+def _vertical_at(ax: object, gid: str) -> list[float]:
+    return sorted(float(np.asarray(ln.get_xdata())[0]) for ln in _by_gid(ax, gid)
+                  if _flat(ln, "x"))
+
+
+def _horizontal_at(ax: object, gid: str) -> list[float]:
+    return sorted(float(np.asarray(ln.get_ydata())[0]) for ln in _by_gid(ax, gid)
+                  if _flat(ln, "y") and not _flat(ln, "x"))
+
+
+def _series(ax: object, label: str) -> tuple[np.ndarray, np.ndarray]:
+    (line,) = [ln for ln in ax.get_lines() if ln.get_label() == label]  # type: ignore[attr-defined]
+    x, y = line.get_data()
+    return np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+
+
+def test_a_phase_current_peak_is_drawn_on_the_three_phase_currents(fault_run: Path) -> None:
+    """fault_adc_frame_loss's peak is 20.96 A on phase c; the figure drew ia, ib and ia - ib
+    (peaks about 15 A) with the 9.5 A limit on ia - ib."""
+    result = json.loads((fault_run / "result.json").read_text())
+    cap = capture.Capture(fault_run / "capture")
+    peak = next(c for c in result["criteria"] if c["metric"] == "i_phase_peak_a")
+    fig = figures.draw_criterion(cap, peak, result["counters"], figures.fault_events(result))
+    (ax,) = fig.axes
+    x, ia = _series(ax, "ia (true)")
+    _, ib = _series(ax, "ib (true)")
+    _, ic = _series(ax, "ic = -ia - ib (true)")
+    t0, t1 = peak["window"]
+    inside = (x >= t0) & (x <= t1)
+    biggest = max(np.max(np.abs(v[inside])) for v in (ia, ib, ic))
+    assert biggest == pytest.approx(peak["value"], rel=1e-6)  # the value is on the figure
+    assert np.max(np.abs(ic[inside])) == pytest.approx(peak["value"], rel=1e-6)  # phase c
+    # ic is the capture's -ia - ib, sample for sample where the envelope kept them
+    t = np.asarray(cap["period"], dtype=float) * cap.ts
+    full_ia = np.interp(x, t, np.asarray(cap["truth.ia"], dtype=float))
+    np.testing.assert_allclose(ia, full_ia, atol=1e-5)
+    assert _horizontal_at(ax, "limit") == [-peak["limit"], peak["limit"]]  # on |ia|, |ib|, |ic|
+    (marker,) = _by_gid(ax, "peak")
+    assert abs(float(marker.get_ydata()[0])) == pytest.approx(peak["value"], rel=1e-6)
+    # the fault: its start and end on the panel
+    assert _vertical_at(ax, "fault-start") == [0.5]
+    assert _vertical_at(ax, "fault-end") == [pytest.approx(0.51)]
+
+
+def test_the_safe_state_shows_the_state_strip_by_name_and_its_count_in_time(
+        fault_run: Path) -> None:
+    result = json.loads((fault_run / "result.json").read_text())
+    cap = capture.Capture(fault_run / "capture")
+    safe = next(c for c in result["criteria"] if c["metric"] == "safe_state_periods")
+    fig = figures.draw_criterion(cap, safe, result["counters"], figures.fault_events(result))
+    currents, strip = fig.axes
+    assert _horizontal_at(currents, "limit") == [-0.1, 0.1]  # i_safe_a on the currents
+    t0 = safe["window"][0]
+    for ax in fig.axes:  # the count from the window's start as a time, and its limit
+        assert _vertical_at(ax, "value") == [pytest.approx(t0 + safe["value"] * cap.ts)]
+        assert _vertical_at(ax, "limit") == [pytest.approx(t0 + safe["limit"] * cap.ts)]
+        assert _vertical_at(ax, "fault-start") == [0.5]
+    (state,) = _by_gid(strip, "fw-state")
+    x, y = np.asarray(state.get_xdata(), float), np.asarray(state.get_ydata(), float)
+    t = np.asarray(cap["period"], dtype=float) * cap.ts
+    np.testing.assert_array_equal(y, np.interp(x, t, np.asarray(cap["fw.state"], float)))
+    names = {tick.get_text() for tick in strip.get_yticklabels()}
+    assert names == {"RUN (3)", "FAULT (4)"}
+    assert "safe_state_periods = 121 periods" in fig.texts[0].get_text() or \
+        f"{safe['value']:g} periods" in fig.texts[0].get_text()
+
+
+def test_an_enumerated_criterion_reads_by_name(fault_run: Path) -> None:
+    result = json.loads((fault_run / "result.json").read_text())
+    cap = capture.Capture(fault_run / "capture")
+    state = next(c for c in result["criteria"] if c["metric"] == "fw_state_end")
+    assert state["outcome"] == "fail" and state["value"] == 4
+    fig = figures.draw_criterion(cap, state, result["counters"], figures.fault_events(result))
+    (strip,) = fig.axes
+    assert _horizontal_at(strip, "limit") == [3.0]
+    assert "fw_state_end = FAULT (4) (limit == RUN (3))" in fig.texts[0].get_text()
+    report = (fault_run / "report.md").read_text()
+    assert "FAULT (4)" in report and "ADC_LOSS (6)" in report
+
+
+def test_a_fault_scenarios_overview_marks_the_fault_and_shows_the_state(fault_run: Path,
+                                                                      failing_run: Path
+                                                                      ) -> None:
+    result = json.loads((fault_run / "result.json").read_text())
+    fig = figures.draw_overview(capture.Capture(fault_run / "capture"), result)
+    assert len(fig.axes) >= 4
+    panels = [ax for ax in fig.axes if ax.get_ylabel() != "load (N·m)"]
+    for ax in panels:
+        assert _vertical_at(ax, "fault-start") == [0.5]
+        assert _vertical_at(ax, "fault-end") == [pytest.approx(0.51)]
+    assert len(_by_gid(panels[-1], "fw-state")) == 1
+    assert {"IDLE (1)", "RUN (3)", "FAULT (4)"} <= {
+        tick.get_text() for tick in panels[-1].get_yticklabels()}
+    # a scenario without faults: no marks, no strip
+    plain = json.loads((failing_run / "result.json").read_text())
+    fig = figures.draw_overview(capture.Capture(failing_run / "capture"), plain)
+    assert not any(_by_gid(ax, "fault-start") or _by_gid(ax, "fw-state") for ax in fig.axes)
+
+
+def test_enumerated_values_read_by_name_on_the_terminal_and_in_shown(
+        fault_run: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from rig.commands import run as run_command
+    from rig.results import shown
+    from rig.results.result import RunResult
+
+    assert shown.value("fw_state_end", 4.0) == "FAULT (4)"
+    assert shown.value("firmware.fault_code", 6) == "ADC_LOSS (6)"
+    assert shown.value("firmware.fault_code", 99) == "99"  # no name: the number alone
+    assert shown.value("i_phase_peak_a", 20.9612) == "20.96"
+    run_command._print_verdict(RunResult.load(fault_run))
+    err = capsys.readouterr().err
+    assert "fw_state_start = RUN (3) (== RUN (3))" in err
+    assert "firmware.fault_code = ADC_LOSS (6) (== ADC_LOSS (6))" in err
+    assert "fw_state_end = FAULT (4) (== RUN (3))" in err

@@ -46,11 +46,13 @@ def test_rig_run_junit_is_read_by_a_junit_consumer(tmp_path: Path) -> None:
     suite = suites[0]
     assert suite.name == "smoke_junit"
     cases = {c.name: c for c in suite}
-    # one testcase per criterion (4 of smoke, 2 added) and one for the run itself
+    # one testcase per criterion (4 of smoke, 2 added) and one for the run itself, which
+    # fails with the run
     assert len(cases) == 7 and (suite.tests, suite.failures, suite.errors, suite.skipped) == (
-        7, 1, 0, 1)
+        7, 2, 0, 1)
     run = cases["smoke_junit: run"]
-    assert run.is_passed and _props(run)["status"] == "failed"
+    assert isinstance(run.result[0], Failure) and _props(run)["status"] == "failed"
+    assert run.result[0].message == "1 criteria failed: too tight"
     tight = cases["smoke_junit: too tight"]
     assert isinstance(tight.result[0], Failure)
     p = _props(tight)
@@ -63,7 +65,7 @@ def test_rig_run_junit_is_read_by_a_junit_consumer(tmp_path: Path) -> None:
     assert isinstance(short.result[0], Skipped) and short.result[0].type == "xfail"
     assert "a test of the xfail mapping" in short.result[0].message
     assert all(c.is_passed for n, c in cases.items() if n not in (
-        "smoke_junit: too tight", "smoke_junit: known short"))
+        "smoke_junit: run", "smoke_junit: too tight", "smoke_junit: known short"))
     # the report is attached, as a path relative to the JUnit file
     report = (dest.parent / p["report"]).resolve()
     assert report == (tmp_path / "run" / "report.md").resolve() and report.is_file()
@@ -90,11 +92,13 @@ def test_a_run_that_cannot_start_is_an_error_and_a_suite_has_its_comparisons(
               str(tmp_path / "suite"), "--junit", str(dest)])
     xmlschema.XMLSchema(XSD).validate(dest)
     suites = {s.name: s for s in JUnitXml.fromfile(str(dest))}
-    assert set(suites) == {"smoke", "smoke@paper", "pair: comparisons"}
-    (cmp_case,) = list(suites["pair: comparisons"])
+    assert set(suites) == {"smoke", "smoke@paper", "pair: suite"}
+    suite_case, cmp_case = list(suites["pair: suite"])
+    assert suite_case.name == "pair: run"
     p = _props(cmp_case)
     assert (p["a"], p["b"], p["relation"]) == ("smoke", "smoke@paper", "<=")
     assert cmp_case.is_passed == (float(p["value_a"]) <= float(p["value_b"]))
+    assert suite_case.is_passed == cmp_case.is_passed
     for name in ("smoke", "smoke@paper"):
         report = _props(next(iter(suites[name])))["report"]
         assert (dest.parent / report).resolve() == (tmp_path / "suite" / name / "report.md"

@@ -127,32 +127,6 @@ def test_compute_registry_and_compare() -> None:
     assert metrics.known("firmware.bus.tx_drops") and not metrics.known("nope")
 
 
-def test_progress_line_plain_and_tty() -> None:
-    import io
-
-    from rig.run.progress import Progress
-
-    plain = io.StringIO()
-    p = Progress("smoke", 0.5, plain, plain_interval_s=3600)
-    p.update(0.1, 120.0, 1.5)
-    p.update(0.2, 150.0, -2.5)  # rate-limited away
-    p.finish()
-    lines = plain.getvalue().splitlines()
-    assert len(lines) == 2
-    assert lines[0].startswith("smoke: t=  0.100/0.5 s") and "120.0 r/min" in lines[0]
-    assert "t=  0.200/0.5 s" in lines[1] and "(max 2.50°)" in lines[1]
-
-    class Tty(io.StringIO):
-        def isatty(self) -> bool:
-            return True
-
-    tty = Tty()
-    q = Progress("x", 1.0, tty, tty_interval_s=0.0)
-    q.update(0.5, None, None)
-    q.finish("done")
-    assert tty.getvalue().startswith("\rx: t=") and tty.getvalue().endswith("\rdone\n")
-
-
 def test_block_means_and_the_1khz_speed_error() -> None:
     # a 5 kHz square wave of +-3 r/min averages to zero over every 1 ms block (10 periods);
     # a 2 r/min offset in one block is what the 1 kHz report shows

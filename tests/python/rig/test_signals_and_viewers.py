@@ -159,3 +159,55 @@ def test_view_web_stopped_by_sigterm_frees_both_ports(tmp_path: Path) -> None:
     while (_listening(web) or _listening(grpc)) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _listening(web) and not _listening(grpc)
+
+
+def _children(pid: int) -> set[int]:
+    """Every process below ``pid`` (from /proc: each process's parent)."""
+    parent: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        parent[int(stat.parent.name)] = int(text.rsplit(")", 1)[1].split()[1])
+    found, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        kids = {c for c, pp in parent.items() if pp == p}
+        found |= kids
+        todo += list(kids)
+    return found
+
+
+def _gone(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return True
+    return state == "Z"  # (a zombie holds no port: its parent has not waited for it yet)
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGQUIT", "SIGUSR1", "SIGALRM"])
+def test_view_web_killed_by_any_signal_takes_the_server_with_it(tmp_path: Path,
+                                                                sig: str) -> None:
+    """Issue 36.7: killed by SIGKILL, SIGQUIT, SIGUSR1 or SIGALRM, `rig view --web` left the
+    Rerun web server (two processes) running, holding both ports."""
+    out = _a_run(tmp_path)
+    web, grpc = webview.free_port(), webview.free_port()
+    proc = _rig("view", "--web", str(out), "--web-port", str(web), "--grpc-port", str(grpc),
+                env=_env())
+    deadline = time.monotonic() + 60
+    while not (_listening(web) and _listening(grpc)):
+        assert proc.poll() is None, proc.communicate()[0]
+        assert time.monotonic() < deadline, "the web viewer never listened"
+        time.sleep(0.1)
+    server = _children(proc.pid)
+    assert server, "the web viewer is not a child of the rig"
+    proc.send_signal(getattr(signal, sig))
+    proc.communicate(timeout=30)
+    deadline = time.monotonic() + 20
+    while (any(not _gone(p) for p in server) or _listening(web) or _listening(grpc)) \
+            and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert [p for p in server if not _gone(p)] == []
+    assert not _listening(web) and not _listening(grpc)

@@ -158,6 +158,13 @@ def test_plots_name_their_units() -> None:
     labels = [(ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes]
     assert labels == [("rs (Ω)", "pos_err_max_deg (deg)"),
                       ("speed_scale (factor)", "pos_err_max_deg (deg)")]
+    # the title fits the picture, with one swept parameter too (it was cut off)
+    for swept in (["rs"], ["rs", "speed_scale"]):
+        fig = summary.plot(rows, swept, "pos_err_max_deg")
+        renderer = fig.canvas.get_renderer()
+        fig.canvas.draw()
+        box = fig._suptitle.get_window_extent(renderer)
+        assert box.x0 >= 0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height
 
 
 def _stop(procs: list[subprocess.Popen[bytes]]) -> None:

@@ -23,7 +23,9 @@ def test_serves_then_leaves_nothing_behind(tmp_path: Path) -> None:
     viewer = webview.start(web_port=webview.free_port(), grpc_port=webview.free_port(),
                            log=tmp_path / "rerun.log", env={"HOME": str(home)})
     with viewer:
-        assert len(_group(viewer.proc.pid).split()) >= 2  # the wrapper and the binary
+        # the binary alone (no python -m rerun wrapper around it, which a SIGKILL to the rig
+        # left behind): one process, tied to this one's life
+        assert _group(viewer.proc.pid).split() == [str(viewer.proc.pid)]
         for port in (viewer.web_port, viewer.grpc_port):
             socket.create_connection(("127.0.0.1", port), timeout=2).close()
         assert viewer.grpc_url == f"rerun+http://127.0.0.1:{viewer.grpc_port}/proxy"
