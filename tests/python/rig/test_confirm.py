@@ -206,7 +206,8 @@ def test_the_gate_false_alarm_bound_from_the_committed_baselines() -> None:
     worse side (the band's own prediction distribution at its edge), and a flag is confirmed
     by chance at most ALPHA of the time; so a harmless change fails the gate with probability
     at most the sum of those flag probabilities times ALPHA. It must stay within the 5 % the
-    gate promises (today about 1 %: see docs/status.md for what is measured)."""
+    gate promises (4.2 flags expected, 0.4 %, with the baselines of issue 35; what is
+    measured: docs/status.md)."""
     idx = baseline.index()
     expected_flags = 0.0
     n = 0
@@ -218,8 +219,10 @@ def test_the_gate_false_alarm_bound_from_the_committed_baselines() -> None:
                 if band.value is None or not band.values:
                     continue
                 n += 1
+                if band.sd == 0 and band.floor == 0:
+                    continue  # an exact value (a count that must stay 0) moves by no chance
                 edge = band.hi if rec.better != "higher" else band.lo
                 expected_flags += band.chance(edge, rec.better)
-    assert n > 1000  # the gate's criteria, every one with its per-seed values
-    assert 1.0 < expected_flags < 0.01 * n  # about 0.5 % per criterion on its worse side
+    assert n > 800  # the gate's criteria, every one with its per-seed values
+    assert 1.0 < expected_flags < 0.01 * n  # at most 0.5 % per criterion on its worse side
     assert expected_flags * confirm.ALPHA <= 0.05
