@@ -274,7 +274,8 @@ void plant_machine_stage(plant_machine_t *m, const plant_state_t *x, plant_deriv
 }
 
 /* Moves the state so that phase z carries exactly zero current (removes integration
- * drift of an open phase; the change is of the order of the integration error). */
+ * drift of an open phase; the change is of the order of the integration error). Not the
+ * cut of a phase that opens with current in it: plant_machine_cut. */
 static void project_zero(plant_machine_t *m, plant_state_t *x, int z)
 {
     double i[2], l[3], psi[2], cph[3][2], sn, cs, iz;
@@ -293,6 +294,88 @@ static void project_zero(plant_machine_t *m, plant_state_t *x, int z)
     m->i_guess[0] = i[0];
     m->i_guess[1] = i[1];
     m->last_exact = 0; /* i_guess no longer belongs to psi_last */
+}
+
+/* The cut of phase z when it is disconnected (OPEN_PHASE) at flux psi: the current that
+ * has i_z = 0 and the same flux linkage of the loop through the two remaining phases x, y.
+ * That loop sees only finite voltages (its legs, its resistance; the arc voltage of the
+ * opening contact appears in phase z), so psi_x - psi_y cannot jump; psi_z takes whatever
+ * the arc's voltage impulse gives it. With the phase axes c_x + c_y + c_z = 0 and
+ * |c_x| = |c_y|, c_x - c_y is perpendicular to c_z: with f perpendicular to c_z,
+ *     i' = s f   (i'_z = c_z . i' = 0)   and   f . psi(s f) = f . psi   (the loop's flux),
+ * g(s) = f . psi(s f) - f . psi has g'(s) = f' L(s f) f > 0 (the incremental inductance is
+ * positive definite everywhere), so the root is unique: Newton from the component the cut
+ * keeps, s0 = f . i (the root when Ld = Lq), inside the bracket the iterates build. The
+ * magnetic energy W(psi) is convex with gradient i; along the line of fluxes with the loop's
+ * flux fixed (direction c_z) it is least where i . c_z = 0: the cut never adds energy, the
+ * arc takes the difference. */
+static void cut_keeping_loop_flux(plant_machine_t *m, plant_state_t *x, int z)
+{
+    enum { MAX_ITER = 60 };
+    double i[2], l[3], psi[2], cph[3][2], sn, cs, loop, s, lo = -HUGE_VAL, hi = HUGE_VAL;
+    double f0, f1;
+    int it;
+    phase_axes(m, x->theta, cph, &sn, &cs);
+    f0 = -cph[z][1];
+    f1 = cph[z][0];
+    loop = f0 * x->psi_d + f1 * x->psi_q;
+    i[0] = m->i_guess[0];
+    i[1] = m->i_guess[1];
+    if (plant_mag_invert(m->mag, x->psi_d, x->psi_q, i, NULL) < 0) {
+        m->stats->newton_failures++;
+    }
+    s = (f0 * i[0] + f1 * i[1]) / (f0 * f0 + f1 * f1);
+    for (it = 0; it < MAX_ITER; ++it) {
+        double g, dg, ds, next;
+        plant_mag_flux(m->mag, s * f0, s * f1, psi, l);
+        g = f0 * psi[0] + f1 * psi[1] - loop;
+        if (g == 0.0) {
+            break;
+        }
+        if (g > 0.0) {
+            hi = s < hi ? s : hi;
+        } else {
+            lo = s > lo ? s : lo;
+        }
+        dg = f0 * f0 * l[0] + 2.0 * f0 * f1 * l[2] + f1 * f1 * l[1];
+        ds = g / dg;
+        if (fabs(ds) <= 1e-12) {
+            /* Newton converges quadratically near the root: the error left after a step of
+             * 1e-12 A is far below rounding (about |dL/di|/(2 L) * ds^2) */
+            s -= ds;
+            break;
+        }
+        /* A Newton step moves towards the root, so it can only leave the bracket on a side
+         * that is already finite: then bisect. */
+        next = s - ds;
+        s = next > lo && next < hi ? next : 0.5 * (lo + hi);
+    }
+    if (it == MAX_ITER) {
+        m->stats->newton_failures++;
+    }
+    i[0] = s * f0;
+    i[1] = s * f1;
+    plant_mag_flux(m->mag, i[0], i[1], psi, NULL);
+    x->psi_d = psi[0];
+    x->psi_q = psi[1];
+    m->i_guess[0] = i[0];
+    m->i_guess[1] = i[1];
+    m->last_exact = 0;
+}
+
+void plant_machine_cut(plant_machine_t *m, plant_state_t *x)
+{
+    int k;
+    if (plant_machine_zero_count(m) == 1) {
+        for (k = 0; k < 3; ++k) {
+            if (m->mode[k] == LEG_ZERO) {
+                cut_keeping_loop_flux(m, x, k);
+            }
+        }
+        return;
+    }
+    /* no loop is left (a second phase open or at zero current): every current is zero */
+    plant_machine_project(m, x);
 }
 
 void plant_machine_project(plant_machine_t *m, plant_state_t *x)

@@ -680,16 +680,16 @@ static void integrate_interval(plant_t *p, double t, double t_end, soc_queue_t *
     }
 }
 
-/* A phase that opens loses its current at once: the stator current loses its component
- * along that phase's axis, so each other phase gains half the cut current and may change
- * sign (i_c = +0.04 A becomes -0.33 A when i_b = -0.75 A is cut). The other legs' conduction
- * labels are set again from the currents that are left; with the labels of before, a leg
- * whose current had just changed sign "reached zero" one step later and every current was
- * set to zero. apply_gates then resolves the modes for the open leg's new gate state. */
+/* A phase that opens loses its current at once while the loop through the other two keeps
+ * its flux linkage (plant_machine_cut), so their currents change and may change sign. The
+ * other legs' conduction labels are set again from the currents that are left; with the
+ * labels of before, a leg whose current had just changed sign "reached zero" one step later
+ * and every current was set to zero. apply_gates then resolves the modes for the open leg's
+ * new gate state. */
 static void cut_open_phases(plant_t *p)
 {
     int k;
-    plant_machine_project(&p->mach, &p->x);
+    plant_machine_cut(&p->mach, &p->x);
     plant_machine_rhs(&p->mach, &p->x, &p->d);
     for (k = 0; k < 3; ++k) {
         if (p->mach.mode[k] != LEG_ZERO) {

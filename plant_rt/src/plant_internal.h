@@ -229,6 +229,10 @@ void plant_machine_rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t
 void plant_machine_stage(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d);
 /* Removes integration drift of open phases (their currents exactly zero). */
 void plant_machine_project(plant_machine_t *m, plant_state_t *x);
+/* The cut of a phase that is disconnected (its mode just set to LEG_ZERO) while it carries
+ * current: its current becomes zero and the flux linkage of the loop through the two
+ * remaining phases stays; with no loop left every current becomes zero. */
+void plant_machine_cut(plant_machine_t *m, plant_state_t *x);
 /* Makes the conduction modes consistent at the present state (may adjust x to put an
  * open phase's current exactly at zero). Returns the number of mode changes made. */
 int plant_machine_resolve(plant_machine_t *m, plant_state_t *x);
