@@ -212,7 +212,7 @@ void plant_set_load(plant_t *plant, int mode, double torque_nm, double speed_rpm
  * the VDC channel, added to the ADC input), ADC_GAIN (the input times value), ADC_STUCK (the
  * converter returns code value), ADC_SATURATION (the input clipped to +-value), SENSOR_LOSS
  * (the current sensor of channel IA or IB outputs 0 A), OPEN_PHASE (phase disconnected: its
- * current is cut at once), GATE_OFF (that gate of phase never turns on), DC_LINK (the DC link
+ * current is cut at once, the flux linkage of the other two phases' loop kept), GATE_OFF (that gate of phase never turns on), DC_LINK (the DC link
  * moves to value V, linearly over 'periods' periods). NONE, or a frame kind (those act on the
  * wires, plant_link.h), frees the slot. Slots add up in slot order (offsets add, gains
  * multiply, the lowest saturation level and the last stuck code or DC link win). Returns 0,

@@ -8,7 +8,8 @@
  *   converter returns its code whatever the input.
  * - A lost current sensor outputs 0 A (its ringing pick-up and the ADC noise stay).
  * - A disconnected phase carries no current from the period it opens (its current is cut at
- *   once: the energy goes into an arc the model does not follow); its terminal floats.
+ *   once, the loop through the other two phases keeping its flux linkage: the energy the
+ *   cut releases goes into an arc the model does not follow); its terminal floats.
  * - A gate that stays off: its transistor never conducts; the leg's diodes still do.
  * - The DC link moves to a new voltage (sag, overvoltage), linearly over a number of periods.
  */

@@ -55,20 +55,13 @@ static void sincos_near(plant_machine_t *m, double theta, double *s, double *c)
     m->sc_base_valid = 1;
 }
 
+static void rotor_sincos(plant_machine_t *m, double theta, double *s, double *c);
+
 static void phase_axes(plant_machine_t *m, double theta, double cph[3][2], double *s_out,
                        double *c_out)
 {
     double s, c;
-    if (m->sc_valid && theta == m->sc_theta) {
-        s = m->sc_sin;
-        c = m->sc_cos;
-    } else {
-        sincos_near(m, theta, &s, &c);
-        m->sc_theta = theta;
-        m->sc_sin = s;
-        m->sc_cos = c;
-        m->sc_valid = 1;
-    }
+    rotor_sincos(m, theta, &s, &c);
     const double h = 0.5, r = 0.5 * PLANT_SQRT3;
     /* cos/sin of theta - 2pi/3 and theta + 2pi/3 */
     const double cb = -h * c + r * s, sb = -h * s - r * c;
@@ -102,52 +95,86 @@ static void mechanics(const plant_machine_t *m, double te, double w, double *tl,
     *dw = (te - *tl - m->b_total * w) / m->j_total;
 }
 
-static void currents_from_flux(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d)
+/* The currents at flux x->psi: the last solution when the flux is the same (right-hand
+ * sides at a gate edge, after a mode change, at the period start), else the inversion
+ * from it. */
+static void currents_from_flux(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d,
+                               int stage)
 {
-    double i[2], l[3];
-    int it;
-    if (m->last_exact && x->psi_d == m->psi_last[0] && x->psi_q == m->psi_last[1]) {
-        /* The same flux as the last inversion (right-hand sides at a gate edge, after a
-         * mode change, at the period start): its solution, not a second Newton pass. */
-        i[0] = m->i_guess[0];
-        i[1] = m->i_guess[1];
-        l[0] = m->l_last[0];
-        l[1] = m->l_last[1];
-        l[2] = m->l_last[2];
-    } else {
-        /* Warm start: last solution plus one linear step with its inverse inductance. */
-        const double dpd = x->psi_d - m->psi_last[0], dpq = x->psi_q - m->psi_last[1];
-        i[0] = m->i_guess[0] + m->g_last[0] * dpd + m->g_last[2] * dpq;
-        i[1] = m->i_guess[1] + m->g_last[2] * dpd + m->g_last[1] * dpq;
-        it = plant_mag_invert(m->mag, x->psi_d, x->psi_q, i, l);
+    plant_mag_point_t *p = &m->mp;
+    if (!(x->psi_d == p->psi[0] && x->psi_q == p->psi[1])) {
+        int it = plant_mag_invert_from(m->mag, x->psi_d, x->psi_q, p, stage);
         if (it < 0) {
             m->stats->newton_failures++;
             it = -it;
         }
         m->stats->newton_iterations += (uint64_t)it;
-        m->l_last[0] = l[0];
-        m->l_last[1] = l[1];
-        m->l_last[2] = l[2];
-        m->last_exact = 1;
     }
-    d->id = i[0];
-    d->iq = i[1];
-    d->ldd = l[0];
-    d->lqq = l[1];
-    d->ldq = l[2];
-    {
-        const double inv_det = 1.0 / (l[0] * l[1] - l[2] * l[2]);
-        d->gdd = l[1] * inv_det;
-        d->gqq = l[0] * inv_det;
-        d->gdq = -l[2] * inv_det;
+    d->id = p->i[0];
+    d->iq = p->i[1];
+    d->ldd = p->l[0];
+    d->lqq = p->l[1];
+    d->ldq = p->l[2];
+    d->gdd = p->g[0];
+    d->gqq = p->g[1];
+    d->gdq = p->g[2];
+}
+
+/* The leg voltages of the conduction modes and gates in force (no leg at zero current), and
+ * their alpha-beta components v_ab = 2/3 sum_x u_x (cos a_x, sin a_x): the dq voltage is
+ * v_ab turned by -theta. They change only with a gate, a mode or the DC link, so they are
+ * kept until one of those changes (an interval between gate edges has one set). */
+static inline const double *legs_conducting(plant_machine_t *m)
+{
+    if (!(m->legs_valid && m->legs_gate[0] == m->gate[0] && m->legs_gate[1] == m->gate[1] &&
+          m->legs_gate[2] == m->gate[2] && m->legs_mode[0] == m->mode[0] &&
+          m->legs_mode[1] == m->mode[1] && m->legs_mode[2] == m->mode[2] &&
+          m->legs_vdc == m->vdc && m->legs_vdrop == m->vdrop)) {
+        int k;
+        for (k = 0; k < 3; ++k) {
+            m->legs_u[k] = plant_leg_voltage(m->gate[k], m->mode[k], m->vdc, m->vdrop);
+            m->legs_gate[k] = m->gate[k];
+            m->legs_mode[k] = m->mode[k];
+        }
+        m->legs_vdc = m->vdc;
+        m->legs_vdrop = m->vdrop;
+        m->legs_u[3] = TWO_THIRDS * (m->legs_u[0] - 0.5 * (m->legs_u[1] + m->legs_u[2]));
+        m->legs_u[4] = (m->legs_u[1] - m->legs_u[2]) * (1.0 / PLANT_SQRT3);
+        m->legs_valid = 1;
     }
-    m->i_guess[0] = i[0];
-    m->i_guess[1] = i[1];
-    m->psi_last[0] = x->psi_d;
-    m->psi_last[1] = x->psi_q;
-    m->g_last[0] = d->gdd;
-    m->g_last[1] = d->gqq;
-    m->g_last[2] = d->gdq;
+    return m->legs_u;
+}
+
+/* sin and cos of theta (the angle of the last call again, or sincos_near). */
+static void rotor_sincos(plant_machine_t *m, double theta, double *s, double *c)
+{
+    if (m->sc_valid && theta == m->sc_theta) {
+        *s = m->sc_sin;
+        *c = m->sc_cos;
+        return;
+    }
+    sincos_near(m, theta, s, c);
+    m->sc_theta = theta;
+    m->sc_sin = *s;
+    m->sc_cos = *c;
+    m->sc_valid = 1;
+}
+
+/* An integration stage with every leg conducting (the common case): the state derivatives
+ * only, without the phase axes. */
+static void stage_conducting(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d)
+{
+    const double we = m->pp * x->omega_m;
+    const double *u = legs_conducting(m);
+    double sn, cs;
+    m->stats->rhs_evals++;
+    rotor_sincos(m, x->theta, &sn, &cs);
+    currents_from_flux(m, x, d, 1);
+    d->dpsi_d = -m->rs * d->id + we * x->psi_q + (cs * u[3] + sn * u[4]);
+    d->dpsi_q = -m->rs * d->iq - we * x->psi_d + (cs * u[4] - sn * u[3]);
+    d->te = 1.5 * m->pp * (x->psi_d * d->iq - x->psi_q * d->id);
+    d->dtheta = we;
+    mechanics(m, d->te, x->omega_m, &d->tl, &d->domega);
 }
 
 /* full = 0: only what an integration stage needs (dpsi_d, dpsi_q, dtheta, domega, te, tl;
@@ -160,6 +187,10 @@ static void rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d, in
     double sn, cs, vd = 0.0, vq = 0.0;
     int k;
 
+    if (nz == 0 && !full) {
+        stage_conducting(m, x, d);
+        return;
+    }
     m->stats->rhs_evals++;
     phase_axes(m, x->theta, d->cph, &sn, &cs);
     d->n_monitor = 3;
@@ -206,17 +237,27 @@ static void rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d, in
         double bd, bq, dpd, dpq, didd, didq, mean;
         int z = -1;
 
-        currents_from_flux(m, x, d);
+        currents_from_flux(m, x, d, full ? 2 : 1);
         bd = -m->rs * d->id + we * x->psi_q;
         bq = -m->rs * d->iq - we * x->psi_d;
-        for (k = 0; k < 3; ++k) {
-            if (m->mode[k] == LEG_ZERO) {
-                z = k;
-                continue;
+        if (nz == 0) {
+            /* as stage_conducting: the leg voltages' alpha-beta vector turned by -theta */
+            const double *u = legs_conducting(m);
+            d->u_leg[0] = u[0];
+            d->u_leg[1] = u[1];
+            d->u_leg[2] = u[2];
+            vd = cs * u[3] + sn * u[4];
+            vq = cs * u[4] - sn * u[3];
+        } else {
+            for (k = 0; k < 3; ++k) {
+                if (m->mode[k] == LEG_ZERO) {
+                    z = k;
+                    continue;
+                }
+                d->u_leg[k] = plant_leg_voltage(m->gate[k], m->mode[k], m->vdc, m->vdrop);
+                vd += TWO_THIRDS * d->u_leg[k] * d->cph[k][0];
+                vq += TWO_THIRDS * d->u_leg[k] * d->cph[k][1];
             }
-            d->u_leg[k] = plant_leg_voltage(m->gate[k], m->mode[k], m->vdc, m->vdrop);
-            vd += TWO_THIRDS * d->u_leg[k] * d->cph[k][0];
-            vq += TWO_THIRDS * d->u_leg[k] * d->cph[k][1];
         }
         if (z >= 0) {
             /* Open leg z: d i_z/dt = A + B u_z = 0. */
@@ -274,25 +315,98 @@ void plant_machine_stage(plant_machine_t *m, const plant_state_t *x, plant_deriv
 }
 
 /* Moves the state so that phase z carries exactly zero current (removes integration
- * drift of an open phase; the change is of the order of the integration error). */
+ * drift of an open phase; the change is of the order of the integration error). Not the
+ * cut of a phase that opens with current in it: plant_machine_cut. */
 static void project_zero(plant_machine_t *m, plant_state_t *x, int z)
 {
-    double i[2], l[3], psi[2], cph[3][2], sn, cs, iz;
+    double i[2], cph[3][2], sn, cs, iz;
     phase_axes(m, x->theta, cph, &sn, &cs);
-    i[0] = m->i_guess[0];
-    i[1] = m->i_guess[1];
-    if (plant_mag_invert(m->mag, x->psi_d, x->psi_q, i, l) < 0) {
+    if (plant_mag_invert_from(m->mag, x->psi_d, x->psi_q, &m->mp, 0) < 0) {
         m->stats->newton_failures++;
     }
+    i[0] = m->mp.i[0];
+    i[1] = m->mp.i[1];
     iz = cph[z][0] * i[0] + cph[z][1] * i[1];
     i[0] -= iz * cph[z][0];
     i[1] -= iz * cph[z][1];
-    plant_mag_flux(m->mag, i[0], i[1], psi, NULL);
-    x->psi_d = psi[0];
-    x->psi_q = psi[1];
-    m->i_guess[0] = i[0];
-    m->i_guess[1] = i[1];
-    m->last_exact = 0; /* i_guess no longer belongs to psi_last */
+    plant_mag_point_at(m->mag, i[0], i[1], &m->mp);
+    x->psi_d = m->mp.psi[0];
+    x->psi_q = m->mp.psi[1];
+}
+
+/* The cut of phase z when it is disconnected (OPEN_PHASE) at flux psi: the current that
+ * has i_z = 0 and the same flux linkage of the loop through the two remaining phases x, y.
+ * That loop sees only finite voltages (its legs, its resistance; the arc voltage of the
+ * opening contact appears in phase z), so psi_x - psi_y cannot jump; psi_z takes whatever
+ * the arc's voltage impulse gives it. With the phase axes c_x + c_y + c_z = 0 and
+ * |c_x| = |c_y|, c_x - c_y is perpendicular to c_z: with f perpendicular to c_z,
+ *     i' = s f   (i'_z = c_z . i' = 0)   and   f . psi(s f) = f . psi   (the loop's flux),
+ * g(s) = f . psi(s f) - f . psi has g'(s) = f' L(s f) f > 0 (the incremental inductance is
+ * positive definite everywhere), so the root is unique: Newton from the component the cut
+ * keeps, s0 = f . i (the root when Ld = Lq), inside the bracket the iterates build. The
+ * magnetic energy W(psi) is convex with gradient i; along the line of fluxes with the loop's
+ * flux fixed (direction c_z) it is least where i . c_z = 0: the cut never adds energy, the
+ * arc takes the difference. */
+static void cut_keeping_loop_flux(plant_machine_t *m, plant_state_t *x, int z)
+{
+    enum { MAX_ITER = 60 };
+    double l[3], psi[2], cph[3][2], sn, cs, loop, s, lo = -HUGE_VAL, hi = HUGE_VAL;
+    double f0, f1;
+    int it;
+    phase_axes(m, x->theta, cph, &sn, &cs);
+    f0 = -cph[z][1];
+    f1 = cph[z][0];
+    loop = f0 * x->psi_d + f1 * x->psi_q;
+    if (plant_mag_invert_from(m->mag, x->psi_d, x->psi_q, &m->mp, 0) < 0) {
+        m->stats->newton_failures++;
+    }
+    s = (f0 * m->mp.i[0] + f1 * m->mp.i[1]) / (f0 * f0 + f1 * f1);
+    for (it = 0; it < MAX_ITER; ++it) {
+        double g, dg, ds, next;
+        plant_mag_flux(m->mag, s * f0, s * f1, psi, l);
+        g = f0 * psi[0] + f1 * psi[1] - loop;
+        if (g == 0.0) {
+            break;
+        }
+        if (g > 0.0) {
+            hi = s < hi ? s : hi;
+        } else {
+            lo = s > lo ? s : lo;
+        }
+        dg = f0 * f0 * l[0] + 2.0 * f0 * f1 * l[2] + f1 * f1 * l[1];
+        ds = g / dg;
+        if (fabs(ds) <= 1e-12) {
+            /* Newton converges quadratically near the root: the error left after a step of
+             * 1e-12 A is far below rounding (about |dL/di|/(2 L) * ds^2) */
+            s -= ds;
+            break;
+        }
+        /* A Newton step moves towards the root, so it can only leave the bracket on a side
+         * that is already finite: then bisect. */
+        next = s - ds;
+        s = next > lo && next < hi ? next : 0.5 * (lo + hi);
+    }
+    if (it == MAX_ITER) {
+        m->stats->newton_failures++;
+    }
+    plant_mag_point_at(m->mag, s * f0, s * f1, &m->mp);
+    x->psi_d = m->mp.psi[0];
+    x->psi_q = m->mp.psi[1];
+}
+
+void plant_machine_cut(plant_machine_t *m, plant_state_t *x)
+{
+    int k;
+    if (plant_machine_zero_count(m) == 1) {
+        for (k = 0; k < 3; ++k) {
+            if (m->mode[k] == LEG_ZERO) {
+                cut_keeping_loop_flux(m, x, k);
+            }
+        }
+        return;
+    }
+    /* no loop is left (a second phase open or at zero current): every current is zero */
+    plant_machine_project(m, x);
 }
 
 void plant_machine_project(plant_machine_t *m, plant_state_t *x)
@@ -306,11 +420,9 @@ void plant_machine_project(plant_machine_t *m, plant_state_t *x)
             }
         }
     } else if (nz >= 2) {
-        x->psi_d = m->psi_zero[0];
-        x->psi_q = m->psi_zero[1];
-        m->i_guess[0] = 0.0;
-        m->i_guess[1] = 0.0;
-        m->last_exact = 0;
+        plant_mag_point_at(m->mag, 0.0, 0.0, &m->mp);
+        x->psi_d = m->mp.psi[0]; /* = psi_zero */
+        x->psi_q = m->mp.psi[1];
     }
 }
 

@@ -42,7 +42,6 @@ static void machine_setup(plant_t *p)
 {
     const plant_config_t *c = &p->cfg;
     plant_machine_t *m = &p->mach;
-    double l[3];
     memset(m, 0, sizeof(*m));
     m->cfg = c;
     m->mag = &p->mag;
@@ -54,15 +53,9 @@ static void machine_setup(plant_t *p)
     m->j_total = c->shaft.j_kgm2 + c->shaft.j_load_kgm2;
     m->b_total = c->shaft.b_nms + c->shaft.b_load_nms;
     m->stats = &p->stats;
-    plant_mag_flux(&p->mag, 0.0, 0.0, m->psi_zero, l);
-    m->psi_last[0] = m->psi_zero[0];
-    m->psi_last[1] = m->psi_zero[1];
-    {
-        const double det = l[0] * l[1] - l[2] * l[2];
-        m->g_last[0] = l[1] / det;
-        m->g_last[1] = l[0] / det;
-        m->g_last[2] = -l[2] / det;
-    }
+    plant_mag_point_at(&p->mag, 0.0, 0.0, &m->mp);
+    m->psi_zero[0] = m->mp.psi[0];
+    m->psi_zero[1] = m->mp.psi[1];
 }
 
 plant_t *plant_new(const plant_config_t *cfg, char *err, size_t errlen)
@@ -144,17 +137,11 @@ void plant_get_stats(const plant_t *plant, plant_stats_t *stats)
 
 void plant_set_state(plant_t *p, double theta_e, double omega_m, double id, double iq)
 {
-    double psi[2];
-    plant_mag_flux(&p->mag, id, iq, psi, NULL);
-    p->x.psi_d = psi[0];
-    p->x.psi_q = psi[1];
+    plant_mag_point_at(&p->mag, id, iq, &p->mach.mp);
+    p->x.psi_d = p->mach.mp.psi[0];
+    p->x.psi_q = p->mach.mp.psi[1];
     p->x.theta = theta_e;
     p->x.omega_m = omega_m;
-    p->mach.i_guess[0] = id;
-    p->mach.i_guess[1] = iq;
-    p->mach.psi_last[0] = psi[0];
-    p->mach.psi_last[1] = psi[1];
-    p->mach.last_exact = 0;
     plant_machine_modes_from_currents(&p->mach, &p->x);
     plant_machine_rhs(&p->mach, &p->x, &p->d);
 }
@@ -308,19 +295,14 @@ static double min_monitor(const plant_deriv_t *d)
 /* Earliest h* in (0, h] where the smallest event function changes sign (it is >= 0 at 0,
  * < 0 at h). Returns the state and derivative just past the root (function < 0 there). */
 typedef struct warm_start {
-    double i[2], psi[2], g[3], l[3];
-    int exact;
+    plant_mag_point_t mp;
     double sc[3], sc_base[3]; /* sin/cos cache and series base (machine.c, phase_axes) */
     int sc_valid, sc_base_valid;
 } warm_start_t;
 
 static void warm_save(const plant_machine_t *m, warm_start_t *w)
 {
-    memcpy(w->i, m->i_guess, sizeof(w->i));
-    memcpy(w->psi, m->psi_last, sizeof(w->psi));
-    memcpy(w->g, m->g_last, sizeof(w->g));
-    memcpy(w->l, m->l_last, sizeof(w->l));
-    w->exact = m->last_exact;
+    w->mp = m->mp;
     w->sc[0] = m->sc_theta, w->sc[1] = m->sc_sin, w->sc[2] = m->sc_cos;
     w->sc_base[0] = m->sc_base, w->sc_base[1] = m->sc_base_sin, w->sc_base[2] = m->sc_base_cos;
     w->sc_valid = m->sc_valid;
@@ -329,11 +311,7 @@ static void warm_save(const plant_machine_t *m, warm_start_t *w)
 
 static void warm_restore(plant_machine_t *m, const warm_start_t *w)
 {
-    memcpy(m->i_guess, w->i, sizeof(w->i));
-    memcpy(m->psi_last, w->psi, sizeof(w->psi));
-    memcpy(m->g_last, w->g, sizeof(w->g));
-    memcpy(m->l_last, w->l, sizeof(w->l));
-    m->last_exact = w->exact;
+    m->mp = w->mp;
     m->sc_theta = w->sc[0], m->sc_sin = w->sc[1], m->sc_cos = w->sc[2];
     m->sc_base = w->sc_base[0], m->sc_base_sin = w->sc_base[1], m->sc_base_cos = w->sc_base[2];
     m->sc_valid = w->sc_valid;
@@ -680,16 +658,16 @@ static void integrate_interval(plant_t *p, double t, double t_end, soc_queue_t *
     }
 }
 
-/* A phase that opens loses its current at once: the stator current loses its component
- * along that phase's axis, so each other phase gains half the cut current and may change
- * sign (i_c = +0.04 A becomes -0.33 A when i_b = -0.75 A is cut). The other legs' conduction
- * labels are set again from the currents that are left; with the labels of before, a leg
- * whose current had just changed sign "reached zero" one step later and every current was
- * set to zero. apply_gates then resolves the modes for the open leg's new gate state. */
+/* A phase that opens loses its current at once while the loop through the other two keeps
+ * its flux linkage (plant_machine_cut), so their currents change and may change sign. The
+ * other legs' conduction labels are set again from the currents that are left; with the
+ * labels of before, a leg whose current had just changed sign "reached zero" one step later
+ * and every current was set to zero. apply_gates then resolves the modes for the open leg's
+ * new gate state. */
 static void cut_open_phases(plant_t *p)
 {
     int k;
-    plant_machine_project(&p->mach, &p->x);
+    plant_machine_cut(&p->mach, &p->x);
     plant_machine_rhs(&p->mach, &p->x, &p->d);
     for (k = 0; k < 3; ++k) {
         if (p->mach.mode[k] != LEG_ZERO) {

@@ -25,6 +25,8 @@ typedef struct plant_mag {
     double cross_k, cross_s;
     /* Bounds used to start the inversion and in the config check. */
     double ld_nominal, lq_nominal;
+    int linear; /* no saturation, no cross term: psi = (lambda_m + ld_sat id, lq0 iq) */
+    double w4_bound; /* bound of W''''s components over all currents (plant_mag_init) */
 } plant_mag_t;
 
 /* Fills mag from the config. Returns 0 or -1 with a message (non-invertible map). */
@@ -36,6 +38,27 @@ void plant_mag_flux(const plant_mag_t *mag, double id, double iq, double psi[2],
  * iterations used, negated when the tolerance was not reached. */
 int plant_mag_invert(const plant_mag_t *mag, double psi_d, double psi_q, double i[2],
                      double linc[3]);
+/* A solution of the flux map: current, flux, incremental inductances (dd, qq, dq), their
+ * inverse and the third derivatives of W' there (as plant_mag_flux3): where the next
+ * inversion starts. */
+typedef struct plant_mag_point {
+    double i[2], psi[2], l[3], g[3], t[4];
+} plant_mag_point_t;
+/* The point at current (id, iq) (one forward evaluation). */
+void plant_mag_point_at(const plant_mag_t *mag, double id, double iq, plant_mag_point_t *p);
+/* Moves p to the solution at flux (psi_d, psi_q) (a second-order warm start from p, one
+ * Newton step when that suffices, else the damped iteration). may_skip 1: an integration
+ * stage, which takes the warm start unevaluated when its error is provably below 1e-12 A;
+ * 2: a right-hand side with outputs, which does so only when the inductances' first-order
+ * update is also within 1e-12 of them; 0: never.
+ * Returns the Newton iterations (0: the closed form of linear magnetics, or a warm start
+ * taken as it is), negated when the tolerance was not reached. */
+int plant_mag_invert_from(const plant_mag_t *mag, double psi_d, double psi_q,
+                          plant_mag_point_t *p, int may_skip);
+/* The third derivatives of W' beside psi and linc: w3 = (dLdd/did, dLdd/diq = dLdq/did,
+ * dLqq/did = dLdq/diq, dLqq/diq). */
+void plant_mag_flux3(const plant_mag_t *mag, double id, double iq, double psi[2], double linc[3],
+                     double w3[4]);
 
 /* ------------------------------------------------------------------ inverter.c */
 
@@ -205,17 +228,18 @@ typedef struct plant_machine {
     int mode[3];      /* leg conduction modes */
     int load_mode;
     double load_torque, load_speed_rad, load_k;
-    double i_guess[2];   /* warm start of the flux inversion: last solution, */
-    double psi_last[2];  /* the flux it belongs to */
-    double g_last[3];    /* and the inverse incremental inductances there (dd, qq, dq) */
-    double l_last[3];    /* the incremental inductances there */
-    int last_exact;      /* i_guess is the inversion of psi_last (else only a warm start) */
+    plant_mag_point_t mp; /* the last solution of the flux map: the next one starts there */
     double psi_zero[2];  /* flux at zero current */
     /* sin and cos of the last angle evaluated (RK4 stages often repeat an angle exactly) */
     double sc_theta, sc_sin, sc_cos;
     int sc_valid;
     double sc_base, sc_base_sin, sc_base_cos; /* last angle given to libm (phase_axes) */
     int sc_base_valid;
+    /* leg voltages of the gates and modes in force with every leg conducting, and their
+     * alpha-beta vector (u[3], u[4]), for those gates, modes and DC link (machine.c) */
+    double legs_u[5];
+    int legs_gate[3], legs_mode[3], legs_valid;
+    double legs_vdc, legs_vdrop;
     plant_stats_t *stats;
 } plant_machine_t;
 
@@ -229,6 +253,10 @@ void plant_machine_rhs(plant_machine_t *m, const plant_state_t *x, plant_deriv_t
 void plant_machine_stage(plant_machine_t *m, const plant_state_t *x, plant_deriv_t *d);
 /* Removes integration drift of open phases (their currents exactly zero). */
 void plant_machine_project(plant_machine_t *m, plant_state_t *x);
+/* The cut of a phase that is disconnected (its mode just set to LEG_ZERO) while it carries
+ * current: its current becomes zero and the flux linkage of the loop through the two
+ * remaining phases stays; with no loop left every current becomes zero. */
+void plant_machine_cut(plant_machine_t *m, plant_state_t *x);
 /* Makes the conduction modes consistent at the present state (may adjust x to put an
  * open phase's current exactly at zero). Returns the number of mode changes made. */
 int plant_machine_resolve(plant_machine_t *m, plant_state_t *x);

@@ -192,9 +192,15 @@ void plant_ring_next_period(plant_sensors_t *sen, const plant_config_t *cfg, dou
 
 /* ------------------------------------------------------------ ADC */
 
+/* 2^bits: exact either way; the shift avoids a libm call per sample and channel. */
+static double pow2(int bits)
+{
+    return bits >= 0 && bits < 63 ? (double)((uint64_t)1 << bits) : ldexp(1.0, bits);
+}
+
 int32_t plant_adc_current_code(double i_a, int bits, double range_a, int *clipped)
 {
-    const double full = ldexp(1.0, bits);
+    const double full = pow2(bits);
     const double raw = floor((i_a + range_a) / (2.0 * range_a) * full + 0.5);
     *clipped = 0;
     if (!(raw >= 0.0)) { /* also catches NaN */
@@ -210,7 +216,7 @@ int32_t plant_adc_current_code(double i_a, int bits, double range_a, int *clippe
 
 int32_t plant_adc_vdc_code(double vdc_v, int bits, double range_v, int *clipped)
 {
-    const double full = ldexp(1.0, bits);
+    const double full = pow2(bits);
     const double raw = floor(vdc_v / range_v * full + 0.5);
     *clipped = 0;
     if (!(raw >= 0.0)) {

@@ -1,6 +1,7 @@
 """``rig bench plant``: what one simulated PWM period of the bench emulator costs.
 
-Three measurements, one JSON object (printed and returned):
+Three measurements, one JSON object (printed and returned) with the load average of the machine
+before and after them (``load_average``, ``load_average_after``):
 
 - ``compute``: plant compute per simulated period, median and 99th percentile in µs, per
   fidelity profile, from ``plant_bench`` (the physics library alone, no bus).
@@ -179,9 +180,12 @@ def realtime_run(transport: str, channel: str, profile: str, seconds: float,
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
+    # the machine's load beside the figures (a shared machine's figures depend on it), at
+    # the start and at the end of the measurement
     report: dict[str, Any] = {"benchmark": "plant", "host_cpus": os.cpu_count(),
                               "in_vm": os.environ.get("HIL_IN_VM") == "1",
-                              "profile": args.profile}
+                              "profile": args.profile,
+                              "load_average": [round(x, 2) for x in os.getloadavg()]}
     report["compute"] = compute_cost(args.periods)
     compute_median = report["compute"].get(args.profile, {}).get("median_us")
     transports = _transports(args)
@@ -192,6 +196,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         report["realtime"] = {t: realtime_run(t, _channel(t, args.channel), args.profile,
                                               args.realtime, args.rt_spin_us)
                               for t in transports}
+    report["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps(report))
     return report
 

@@ -15,9 +15,10 @@ Written from the physics, not from the C code, and deliberately in other coordin
 * the open-phase voltage is found from two evaluations of the linear dependence of
   d i_x/dt on u_x;
 * a disconnected phase (the OPEN_PHASE fault, ``run(disconnect=...)``) is a leg whose terminal
-  floats: from the period it opens its current is cut (the stator current loses its
-  component along that phase's axis, the arc's energy is not followed), and the other legs
-  then conduct by the signs of the currents that are left.
+  floats: from the period it opens its current is cut while the loop through the other two
+  phases keeps its flux linkage (``_cut``: a bracketing root search on the stator-frame flux;
+  the C plant runs Newton in dq), and the other legs then conduct by the signs of the
+  currents that are left.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from typing import Any
 
 import numpy as np
 from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
 
 TBPRD = 5000
 PERIOD_TICKS = 2 * TBPRD
@@ -420,7 +422,7 @@ class Reference:
                     # the cut: no current in x from now on; _settle labels the other legs
                     # by the currents that are left
                     modes[x] = OPEN
-                    self._project(y, modes)
+                    self._cut(y, x, modes)
             if changed:
                 modes = self._settle(y, gates, modes, None)
             if t_tick in soc_set:
@@ -469,6 +471,47 @@ class Reference:
             proj = cx * y[0] + sx * y[1]
             y[0] -= proj * cx
             y[1] -= proj * sx
+
+    def psi_ab(self, theta: float, i_al: float, i_be: float) -> np.ndarray:
+        """Stator-frame flux linkage of the stator-frame current (the profile's map in dq)."""
+        c, s = math.cos(theta), math.sin(theta)
+        psi_d, psi_q = self.flux.psi_real(c * i_al + s * i_be, -s * i_al + c * i_be)
+        return np.array([c * psi_d - s * psi_q, s * psi_d + c * psi_q])
+
+    def _cut(self, y: np.ndarray, leg: int, modes: Sequence[str]) -> None:
+        """The current of ``leg`` is cut when it is disconnected while carrying current.
+
+        Physics: the contact that opens draws an arc, and the arc's voltage appears in the
+        opened phase alone; the loop through the two phases still connected sees only the
+        finite leg voltages and its resistance, so its flux linkage psi_x - psi_y cannot jump
+        (a jump would need an infinite voltage around that loop). The current after the cut is
+        the one with no current in ``leg`` and the loop's flux of before. Phase k's flux and
+        current are a_k . psi_ab and a_k . i_ab with a_k its axis; a_x - a_y is perpendicular
+        to a_leg, so the current after the cut is s * n (n perpendicular to a_leg) with
+        n . psi_ab(s n) = n . psi_ab(i_ab before). The map is monotone along n (positive
+        definite incremental inductance): one root, bracketed and found by Brent's method.
+        With a second phase open no loop is left and every current is zero."""
+        if sum(m == OPEN for m in modes) != 1:
+            y[0] = y[1] = 0.0
+            return
+        ang = leg * 2 * math.pi / 3
+        n = np.array([-math.sin(ang), math.cos(ang)])
+        theta = float(y[2])
+        target = float(n @ self.psi_ab(theta, float(y[0]), float(y[1])))
+
+        def loop_flux_error(s: float) -> float:
+            return float(n @ self.psi_ab(theta, s * n[0], s * n[1])) - target
+
+        s0 = float(n @ y[:2])
+        lo, hi, width = s0 - 1.0, s0 + 1.0, 1.0
+        while loop_flux_error(lo) > 0.0:
+            width *= 2.0
+            lo = s0 - width
+        while loop_flux_error(hi) < 0.0:
+            width *= 2.0
+            hi = s0 + width
+        s = brentq(loop_flux_error, lo, hi, xtol=1e-14, rtol=4 * np.finfo(float).eps)
+        y[0], y[1] = s * n[0], s * n[1]
 
     def _integrate(
         self, y: np.ndarray, gates: Sequence[str], modes: list[str], t0: float, t1: float
