@@ -35,6 +35,10 @@ def add_arguments(i: argparse.ArgumentParser) -> None:
                    help="cortex-m*: each measured stretch this many times the CI test's "
                    "(default 4 on the M4F, 1 on the M3: its soft float is ten times the "
                    "instructions)")
+    i.add_argument("--coverage", metavar="SUITE", nargs="?", const="gate", default=None,
+                   help="cortex-m4f: instead of the budget, which basic blocks of the ISR the "
+                   "gate's cost windows execute of those the event windows of every scenario "
+                   "of SUITE (default gate) execute (rig.target_m4.coverage; minutes)")
     i.add_argument("--whole-runs", action="store_true",
                    help="cortex-m*: the cases' whole runs (minutes; hours on the M3)")
 
@@ -46,6 +50,11 @@ def sil_bench_argv(profile: str, periods: int) -> list[str]:
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
+    if args.coverage is not None:
+        from rig.target_m4 import coverage
+
+        return {"benchmark": "isr", "target": "cortex-m4f",
+                "coverage": coverage.measure(args.coverage)}
     if args.target != "host":
         # the emulator (unicorn, 70 ms to import) only for these targets, not on every start
         from rig.benchmarks import isr_m4
