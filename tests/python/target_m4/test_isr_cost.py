@@ -135,3 +135,19 @@ def test_journal_windows_hold_the_criteria_windows() -> None:
     for t0, t1 in ((0.0, 0.15), (1.9, 1.95)):
         p0, p1 = round(t0 / cost.TS), round(t1 / cost.TS)
         assert any(a <= p0 and p1 < a + n for a, n in got)
+
+
+def test_event_windows_hold_every_change_of_a_scenarios_inputs() -> None:
+    """rig bench isr --coverage's reference: the start, 10 ms before to 50 ms after each
+    moment the inputs change (enable, speed segments, load events, faults), the end."""
+    from rig import scenario
+    from rig.target_m4 import coverage
+
+    sc = scenario.load("fault_adc_frame_loss")
+    assert isinstance(sc, scenario.Scenario)
+    wins = coverage.event_windows(sc)
+    moments = [sc.enable_at, 0.3, *(e.at for e in sc.load), *(f.at for f in sc.faults)]
+    for m in moments:
+        assert any(t0 <= max(0.0, m - 0.01) and m + 0.05 <= t1 + 1e-9 for t0, t1 in wins), m
+    assert (0.0, 0.15) in wins and any(t1 == sc.duration for _, t1 in wins)
+    assert coverage.sample_windows(sc) == [(0.495, 0.52), (0.495, 0.52)]
