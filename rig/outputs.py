@@ -130,7 +130,7 @@ def write_text(path: Path, text: str) -> None:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
 
 
-FULL_RATE_FILES = ("plant.trace", "fw.trace", "rig.trace", "capture")
+FULL_RATE_FILES = ("plant.trace", "fw.trace", "rig.trace", "capture", "isr.journal")
 RUN_FILES = ("capture", "recording.rrd", "result.json", "report.md", "plant.trace", "fw.trace",
              "rig.trace", "figure.png", "scenario.toml", "confirm")
 FIGURE_GLOB = "criterion-*.png"  # rig.results.figures: a picture per criterion that did not pass

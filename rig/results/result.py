@@ -108,6 +108,9 @@ class RunResult:
     baseline: dict[str, Any] | None = None
     seeds: list[dict[str, Any]] | None = None  # a run over the scenario's own seeds: each one
     figures: dict[str, Any] | None = None  # rig.results.figures: the pictures in the run folder
+    # criteria of the scenario this run does not judge, each with why (the ISR's cost on the
+    # target, measured on the in-process bench only, on a run on a bus)
+    left_out: list[dict[str, str]] | None = None
     capture: capture.Capture | None = field(default=None, compare=False, repr=False)
 
     @classmethod
@@ -147,6 +150,8 @@ class RunResult:
             out["seeds"] = self.seeds
         if self.figures is not None:
             out["figures"] = self.figures
+        if self.left_out:
+            out["left_out"] = self.left_out
         return out
 
     @classmethod
@@ -169,7 +174,7 @@ class RunResult:
             versions=dict(data.get("versions") or {}), command_lines=data.get("command_lines"),
             finished=str(data.get("finished", "")), kept=_from_json(Kept, data.get("kept")),
             baseline=data.get("baseline"), seeds=data.get("seeds"),
-            figures=data.get("figures"), capture=cap,
+            figures=data.get("figures"), left_out=data.get("left_out"), capture=cap,
         )
 
     @classmethod

@@ -84,7 +84,9 @@ def _gate_failures(out: Path) -> tuple[list[str], str]:
             continue
         why = [f"{c['name']} ({c.get('outcome')})" for c in e.get("criteria") or []
                if c.get("outcome") in ("fail", "not_evaluated")]
-        why += [f"{c['name']} ({c['baseline']['class']})" for c in e.get("criteria") or []
+        why += [f"{c['name']} ({c['baseline']['class']}"
+                + (f": {c['baseline']['where']}" if c["baseline"].get("where") else "") + ")"
+                for c in e.get("criteria") or []
                 if (c.get("baseline") or {}).get("class") in ("regressed", "changed", "stale",
                                                                "missing")]
         if e.get("failure"):
