@@ -19,7 +19,8 @@ temporary name and renamed into place, never left truncated by a full disk. A ru
 not keep its full-rate data has it removed at the end (``prune``).
 
 ``rig clean`` never removes what a user asked to keep: a folder holding a file named ``KEEP``
-(anywhere inside it, a suite's scenario folder too),
+(anywhere inside it, a suite's scenario folder too) or lying in a folder that holds one (up
+to the output root),
 a folder outside the output root, and (unless ``--all``) a folder the user named with
 ``--out``. It removes nothing without ``--yes``.
 """
@@ -313,7 +314,7 @@ def is_run_folder(path: Path) -> bool:
         _run_schema(path / "result.json") is not None)
 
 
-def _describe(path: Path) -> RunDir | None:
+def _describe(path: Path, root: Path | None = None) -> RunDir | None:
     result, sweep = path / "result.json", path / "sweep.json"
     kind, name, passed = "", path.name, None
     if result.is_file():
@@ -335,14 +336,31 @@ def _describe(path: Path) -> RunDir | None:
     when = dt.datetime.fromtimestamp(marker.stat().st_mtime)
     full = any(path.rglob("*.trace")) or any(path.rglob("capture/meta.json"))
     return RunDir(path=path, kind=kind, name=name, when=when, bytes=_size(path), passed=passed,
-                  auto_named=m is not None, keep=holds_keep(path), full_rate=full)
+                  auto_named=m is not None, keep=holds_keep(path, root), full_rate=full)
 
 
-def holds_keep(path: Path) -> bool:
-    """A ``KEEP`` file in the folder or in any folder below it (a suite's scenario folder: the
-    suite is removed as one, so a KEEP inside keeps all of it). Symbolic links are not
-    followed (``Path.rglob``)."""
-    return (path / KEEP_MARKER).exists() or any(path.rglob(KEEP_MARKER))
+def holds_keep(path: Path, root: Path | None = None) -> bool:
+    """A ``KEEP`` file in the folder, in any folder below it (a suite's scenario folder: the
+    suite is removed as one, so a KEEP inside keeps all of it) or, with ``root``, in any
+    folder above it up to and including ``root`` (``touch out/archive/KEEP`` keeps every run
+    filed under ``out/archive``). Symbolic links are not followed (``Path.rglob``)."""
+    if (path / KEEP_MARKER).exists() or any(path.rglob(KEEP_MARKER)):
+        return True
+    return root is not None and any(
+        (above / KEEP_MARKER).exists() for above in _folders_above(path, root))
+
+
+def _folders_above(path: Path, root: Path) -> list[Path]:
+    """The folders from ``path``'s parent up to ``root`` (both as given; none when ``path``
+    is not below ``root``)."""
+    if root not in path.parents:
+        return []
+    out = []
+    for above in path.parents:
+        out.append(above)
+        if above == root:
+            break
+    return out
 
 
 def find_runs(root: Path) -> Iterator[RunDir]:
@@ -352,7 +370,7 @@ def find_runs(root: Path) -> Iterator[RunDir]:
     stack = [root]
     while stack:
         folder = stack.pop()
-        run = _describe(folder) if folder != root else None
+        run = _describe(folder, root) if folder != root else None
         if run is not None:
             yield run
             continue
@@ -381,6 +399,6 @@ def remove(run: RunDir, root: Path) -> None:
     path, base = run.path.resolve(), root.resolve()
     if base not in path.parents:
         raise ValueError(f"{run.path} is not inside {root}")
-    if holds_keep(path):
-        raise ValueError(f"{run.path} holds a {KEEP_MARKER} file")
+    if holds_keep(path, base):
+        raise ValueError(f"{run.path} holds a {KEEP_MARKER} file, or a folder above it does")
     shutil.rmtree(path)
