@@ -53,7 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    "(rs_ohm, ld_h, lq_h, lambda_m_wb, xsat_ldq_per_a) or wrote to the drive "
                    "as a TOML [firmware] table, whole or not at all; rig/commissioned/"
                    "PROFILE.toml is what scenario runs on that virtual bench use. FILE is "
-                   "checked before the run: it may not be a symbolic link, and an existing "
+                   "checked before the run: neither it nor a folder on the way to it may be a "
+                   "symbolic link, and an existing "
                    "FILE is replaced only if --save-params wrote it")
     cliargs.command(p, cmd_commission)
 
@@ -109,6 +110,10 @@ def _save_target_problem(path: Path) -> str | None:
 
     if path.is_symlink():
         return f"{path} is a symbolic link; refused (nothing is written through a link)"
+    link = _link_above(path)
+    if link is not None:
+        return (f"{path} lies in {link}, which is a symbolic link; refused (nothing is "
+                "written through a link: name the folder it points to)")
     if path.exists():
         if not path.is_file():
             return f"{path} is not a regular file"
@@ -117,6 +122,18 @@ def _save_target_problem(path: Path) -> str | None:
                     "or choose another FILE)")
     if not path.parent.is_dir():
         return f"{path.parent} is not a folder"
+    return None
+
+
+def _link_above(path: Path) -> Path | None:
+    """The first folder on the way to ``path`` (as given, from the current folder, whose own
+    path holds no link) that is a symbolic link, or None."""
+    import os
+
+    folder = Path(os.path.abspath(path)).parent
+    for above in (*reversed(folder.parents), folder):
+        if above.is_symlink():
+            return above
     return None
 
 
