@@ -13,8 +13,9 @@ us is counted by that peer as a transmit drop. Nothing is lost silently: ``shutd
 warning (logger ``can.unixcan``, on stderr by default, also under ``can.player`` and
 ``can.logger``) with the drops and overflows of the node's life.
 
-``rx_ids`` counts every frame that reached the node by identifier, the filtered ones too (the
-rig compares what nodes received with what the run's nodes sent: ``rig.run.traffic``).
+``rx_ids`` counts every frame that reached the node by its whole identity (the id word with
+its flags, and ``FD_KEY`` for a CAN FD frame: ``rig.bus.identity``), the filtered ones too
+(the rig compares what nodes received with what the run's nodes sent: ``rig.run.traffic``).
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ import can
 from can.bus import CanProtocol
 from can.typechecking import AutoDetectedConfig, CanFilters
 
-from rig.bus.unixcan_wire import WIRE
+from rig.bus.unixcan_wire import FD_KEY, WIRE
 
 # The wire (datagram layout, flag bits, FD lengths, channel names, folder and socket naming
 # and modes, the timing nodes promise each other) is protocols/unixcan.toml: WIRE.
@@ -331,7 +332,8 @@ class UnixCanBus(can.BusABC):
         self.stats = {"tx_frames": 0, "tx_drops": 0, "tx_errors": 0, "rx_frames": 0,
                       "rx_overflows": 0, "rx_filtered": 0, "peers_removed": 0,
                       "rx_malformed": 0, "foreign_entries": 0}
-        self.rx_ids: collections.Counter[int] = collections.Counter()  # by raw can_id
+        # by the id word (flags included) | FD_KEY for a CAN FD frame (rig.bus.identity)
+        self.rx_ids: collections.Counter[int] = collections.Counter()
         self._accept: Callable[[int], bool] | None = None
         self._rx: collections.deque[can.Message] = collections.deque()
         self._rx_limit = receive_buffer
@@ -457,7 +459,7 @@ class UnixCanBus(can.BusABC):
                 # few IDs must not pay for every frame of the bus (it has to keep up with
                 # the 10 kHz virtual I/O traffic it ignores).
                 (raw_id,) = _ID.unpack_from(datagram)
-                self.rx_ids[raw_id] += 1
+                self.rx_ids[raw_id | (FD_KEY if len(datagram) == WIRE.fd_size else 0)] += 1
                 if accept is not None:
                     if not accept(raw_id):
                         self.stats["rx_filtered"] += 1

@@ -125,4 +125,8 @@ def load(text: str) -> UnixCanWire:
     )
 
 
+# Not on the wire: the bit above the 32-bit id word that the rig's counts by identity set for
+# a CAN FD frame (rig.bus.identity; the datagram's size says it on the wire).
+FD_KEY = 1 << 32
+
 WIRE = load((data_dir("protocols") / "unixcan.toml").read_text(encoding="utf-8"))
