@@ -86,6 +86,11 @@ def last_json_line(path: Path) -> dict[str, Any] | None:
     return None
 
 
+def log_names(child: str) -> tuple[str, str]:
+    """The names of a child's stdout and stderr logs in the log folder."""
+    return f"{child}.stdout.log", f"{child}.stderr.log"
+
+
 def describe_status(code: int | None) -> str:
     if code is None:
         return "still running"
@@ -174,8 +179,8 @@ class Supervisor:
             raise ValueError(f"a child named {name!r} is already running")
         if ready_file is not None:
             Path(ready_file).unlink(missing_ok=True)
-        out_log = self.log_dir / f"{name}.stdout.log"
-        err_log = self.log_dir / f"{name}.stderr.log"
+        out_name, err_name = log_names(name)
+        out_log, err_log = self.log_dir / out_name, self.log_dir / err_name
         full_env = dict(os.environ)
         if env:
             full_env.update(env)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import sys
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from rig import outputs
@@ -80,7 +81,15 @@ def combine(criteria_per_seed: list[list[dict[str, Any]]], seeds: tuple[int, ...
 def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs ``sc`` once per seed of ``sc.seeds`` and writes the combined result."""
     out = opts.out
-    outputs.claim(out, sc.periods, sc.file)
+    claimed = outputs.claim(out, sc.periods, sc.file)
+    try:
+        return _over_seeds(sc, opts, out, claimed)
+    finally:
+        claimed.release()
+
+
+def _over_seeds(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Claim
+                ) -> RunResult:
     one = replace(sc, seeds=())
     results: list[RunResult] = []
     interrupted: BaseException | None = None
@@ -129,6 +138,7 @@ def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
         if result.failure is None:
             result.failure = Failure("interrupted", f"only {len(results)} of "
                                      f"{len(sc.seeds)} seeds ran")
+    claimed.record()
     write_result(result)
     if interrupted is not None:
         raise interrupted
