@@ -361,6 +361,36 @@ def signals_deferred() -> Iterator[None]:
                 signal.raise_signal(signum)
 
 
+class VerdictGuard:
+    """Once a command's verdict is decided and written, a signal no longer changes its exit
+    status: ``hold`` makes SIGINT, SIGTERM and SIGHUP only noted (the little that is left,
+    printing and reports of the written result, finishes and the command exits with the
+    verdict's status), ``release`` puts back the handlers that were in force. In the main
+    thread only (elsewhere nothing changes)."""
+
+    def __init__(self) -> None:
+        self.noted: list[int] = []
+        self._previous: dict[int, Any] = {}
+
+    def hold(self) -> None:
+        if self._previous:
+            return
+
+        def note(signum: int, frame: FrameType | None) -> None:
+            self.noted.append(signum)
+
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            try:
+                self._previous[sig] = signal.signal(sig, note)
+            except ValueError:  # not the main thread
+                pass
+
+    def release(self) -> None:
+        for signum, h in self._previous.items():
+            signal.signal(signum, h)
+        self._previous = {}
+
+
 @contextlib.contextmanager
 def _handlers(signals: Iterable[int], handler: Callable[[int, FrameType | None], None]
               ) -> Iterator[dict[int, Any]]:

@@ -174,12 +174,16 @@ def cmd_run(args: argparse.Namespace) -> int:
                   "(run.realtime_ok = false)", file=sys.stderr)
             return runner.EXIT_USAGE
     out = args.out or runner.default_out(target.name)
+    from rig.supervisor import VerdictGuard
+
+    guard = VerdictGuard()  # held once the verdict is written: a signal then changes nothing
     try:
-        status = _run(args, target, out)
+        status = _run(args, target, out, guard)
         if args.junit is not None:
             status = _write_junit(args.junit, out, target.name, status)
         return status
     finally:
+        guard.release()
         if args.out is None:  # runs named by time pile up: say so when they have
             from rig.commands.clean import notice
 
@@ -191,7 +195,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 print(hint, file=sys.stderr)
 
 
-def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
+def _run(args: argparse.Namespace, target: Any, out: Path, guard: Any) -> int:
     from rig.results import webview
     from rig.run import runner
 
@@ -204,7 +208,7 @@ def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
               file=sys.stderr)
         args.web = True
     if not args.web:
-        return _run_with(args, target, out, None)
+        return _run_with(args, target, out, None, guard)
     try:
         viewer = webview.start(web_port=args.web_port or webview.DEFAULT_WEB_PORT,
                                grpc_port=args.grpc_port or webview.DEFAULT_GRPC_PORT)
@@ -214,10 +218,13 @@ def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
     with viewer:
         print(f"rig run: live view in the web viewer at {viewer.url()} (until the run ends)",
               file=sys.stderr)
-        return _run_with(args, target, out, viewer.grpc_url)
+        return _run_with(args, target, out, viewer.grpc_url, guard)
 
 
-def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | None) -> int:
+def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | None,
+              guard: Any) -> int:
+    import time
+
     from rig import outputs, scenario
     from rig.run import runner
     from rig.run.suite import run_suite
@@ -230,10 +237,12 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
         keep="all" if args.keep_all else "failing",
         jobs=args.jobs, fail_fast=args.fail_fast, baseline=args.baseline,
     )
+    started = time.time()
     try:
         with terminate_as_exception():
             if isinstance(target, scenario.Suite):
                 suite = run_suite(target, opts)
+                guard.hold()
                 for r in suite.results:
                     _print_verdict(r)
                 ok = suite.passed
@@ -244,15 +253,51 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
                             default=runner.EXIT_FAIL)
                 return runner.EXIT_PASS if ok else max(worst, runner.EXIT_FAIL)
             result = runner.run_scenario(target, opts)
-    except (KeyboardInterrupt, Terminated):
-        print(f"rig run: interrupted; partial results in {out}", file=sys.stderr)
-        return runner.EXIT_INTERRUPTED
+            guard.hold()
+    except (KeyboardInterrupt, Terminated) as exc:
+        status = written_verdict(out, started)
+        if status is None:
+            print(f"rig run: interrupted; partial results in {out}", file=sys.stderr)
+            return runner.EXIT_INTERRUPTED
+        guard.hold()
+        print(f"rig run: {type(exc).__name__} came after the verdict was written "
+              f"({out}/result.json): the exit status is the verdict's ({status})",
+              file=sys.stderr)
+        return status
     except outputs.OutputError as exc:
         print(f"rig run: {exc}", file=sys.stderr)
         return runner.EXIT_ENV
     _print_verdict(result)
     print(f"  -> {out}/report.md", file=sys.stderr)
     return runner.exit_code(result.passed, result.status)
+
+
+def written_verdict(out: Path, since: float) -> int | None:
+    """The exit status of the verdict this run wrote into ``out`` (``result.json`` written at
+    or after ``since`` that is a whole verdict: not an interrupted run or suite), or None."""
+    from rig.run import runner
+
+    result = out / "result.json"
+    try:
+        if result.stat().st_mtime < since:
+            return None
+        data = json.loads(result.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict):
+        return None
+    if data.get("schema") == "hil-suite/1":
+        entries = data.get("scenarios") or []
+        if not data.get("complete") or not isinstance(entries, list):
+            return None
+        if data.get("passed"):
+            return runner.EXIT_PASS
+        worst = max((runner.exit_code(bool(e.get("passed")), str(e.get("status")))
+                     for e in entries if isinstance(e, dict)), default=runner.EXIT_FAIL)
+        return max(worst, runner.EXIT_FAIL)
+    if data.get("status") in (None, "interrupted"):
+        return None
+    return runner.exit_code(bool(data.get("passed")), str(data.get("status")))
 
 
 def _write_junit(dest: Path, out: Path, name: str, status: int) -> int:
