@@ -189,13 +189,16 @@ def _remove(target: Path) -> None:
 
 def program_files() -> tuple[str, ...]:
     """The files the programs of a run on the bus write into its folder by name (their logs,
-    ``rig.supervisor``; their ready files, ``rig.bench.virtual``): opened for writing by
-    name, so whatever stands there (a link above all) goes before a program starts."""
+    ``rig.supervisor``; their ready files, ``rig.bench.virtual``; the rig's live log of the
+    bus, ``rig.bus.can_log``): opened for writing by name, so whatever stands there (a link
+    above all) goes before a program starts."""
     from rig.bench import virtual
+    from rig.bus import can_log
     from rig.supervisor import log_names
 
     programs = (virtual.PLANT, virtual.FIRMWARE, virtual.LOADBENCH)
-    return (*(n for p in programs for n in log_names(p)), *virtual.READY_FILES.values())
+    return (*(n for p in programs for n in log_names(p)), *virtual.READY_FILES.values(),
+            *(f"bus{suffix}" for suffix in can_log.FORMATS.values()))
 
 
 def _matches_run_pattern(name: str) -> bool:

@@ -75,7 +75,8 @@ class BenchPrograms:
             out[LOADBENCH] = [sys.executable, "-m", "rig", "loadbench", "serve", "--bus",
                               transport, "--channel", channel, "--host", m.host, "--port",
                               str(m.port), "--watchdog-ms", str(m.watchdog_timeout_ms),
-                              "--ready-file", str(folder / READY_FILES[LOADBENCH])]
+                              "--ready-file", str(folder / READY_FILES[LOADBENCH]),
+                              *(["--lossless"] if self.lockstep else [])]
         return out
 
     def _trace(self, folder: Path, name: str) -> list[str]:

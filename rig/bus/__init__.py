@@ -85,12 +85,15 @@ def _can_create_vcan(channel: str) -> bool:
     return True
 
 
-def open_bus(bus: str | None = None, channel: str | None = None, **kwargs: Any) -> can.BusABC:
-    """A python-can bus on the selected transport, CAN FD enabled."""
+def open_bus(bus: str | None = None, channel: str | None = None, *, lossless: bool = False,
+             **kwargs: Any) -> can.BusABC:
+    """A python-can bus on the selected transport, CAN FD enabled. ``lossless``: on unixcan a
+    node every sender waits for rather than drop a frame (the nodes of a lockstep run);
+    SocketCAN's kernel decides for itself."""
     transport, chan = select_transport(bus, channel)
     if transport == "socketcan":
         return can.Bus(interface="socketcan", channel=chan, fd=True, **kwargs)
-    return can.Bus(interface="unixcan", channel=chan, **kwargs)
+    return can.Bus(interface="unixcan", channel=chan, lossless=lossless, **kwargs)
 
 
 _max_peers: list[int] = []

@@ -296,6 +296,28 @@ def live_nodes(channel: str, exclude: set[str] | frozenset[str] = frozenset()) -
     return alive
 
 
+def node_pid(socket_name: str) -> int | None:
+    """The pid a node's socket name starts with (protocols/unixcan.toml [socket])."""
+    head = os.path.basename(socket_name).split("-", 1)[0]
+    return int(head) if head.isdigit() else None
+
+
+def node_label(socket_name: str) -> str:
+    """A node in words: its pid and the command line of that process (``pid 4242: python3 -m
+    can.logger -i unixcan -c vcan0 --fd``), or what is known of it."""
+    pid = node_pid(socket_name)
+    if pid is None:
+        return f"socket {os.path.basename(socket_name)}"
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            words = [w.decode(errors="replace") for w in fh.read().split(b"\0") if w]
+    except OSError:
+        return f"pid {pid} (gone)"
+    words[:1] = [os.path.basename(words[0])] if words else []
+    text = " ".join(words)
+    return f"pid {pid}: {text[:157] + '...' if len(text) > 160 else text}"
+
+
 class UnixCanBus(can.BusABC):
     """A node on a unixcan channel (the userspace stand-in for a SocketCAN interface)."""
 
@@ -342,8 +364,8 @@ class UnixCanBus(can.BusABC):
                       "rx_overflows": 0, "rx_filtered": 0, "peers_removed": 0,
                       "rx_malformed": 0, "foreign_entries": 0, "tx_stalls": 0,
                       "tx_stall_failures": 0}
-        self.stall_s_total = 0.0  # waits for lossless peers: in all, the longest
-        self.stall_s_max = 0.0
+        # the waits for lossless peers: in all, the longest (ms)
+        self.stall_ms: dict[str, float] = {"tx_stall_ms_total": 0.0, "tx_stall_ms_max": 0.0}
         # frames dropped for each listener, by its socket's name
         self.listener_drops: collections.Counter[str] = collections.Counter()
         # by the id word (flags included) | FD_KEY for a CAN FD frame (rig.bus.identity)
@@ -488,9 +510,9 @@ class UnixCanBus(can.BusABC):
                     raise TimeoutError(peer)
                 poller.poll(min(left, 0.1) * 1e3)
         finally:
-            waited = time.monotonic() - start
-            self.stall_s_total += waited
-            self.stall_s_max = max(self.stall_s_max, waited)
+            waited = (time.monotonic() - start) * 1e3
+            self.stall_ms["tx_stall_ms_total"] += waited
+            self.stall_ms["tx_stall_ms_max"] = max(self.stall_ms["tx_stall_ms_max"], waited)
 
     # -- receiving --------------------------------------------------------------------
     def _read_loop(self) -> None:

@@ -87,6 +87,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    "without one fails, off: the limits only")
     p.add_argument("--fail-fast", action="store_true",
                    help="a suite: start no further scenario once one did not pass")
+    p.add_argument("--can-log", choices=("asc", "blf", "log"), default=None, metavar="FORMAT",
+                   help="on a bus: also log every frame that crosses the run's channel, live, "
+                   "by a node of the rig's own (lossless on unixcan in lockstep), into "
+                   "DIR/bus.asc, bus.blf or bus.log (candump -L); the file says it is a live "
+                   "capture where its format allows (`rig export --can-log` rebuilds one "
+                   "from the traces instead)")
     p.add_argument("--junit", type=Path, default=None, metavar="FILE",
                    help="also write the verdicts as JUnit XML for CI systems: a testcase per "
                    "criterion (metric, value, limit as properties, the report attached) and "
@@ -163,6 +169,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         print("rig run: --jobs runs a suite on the in-process bench (--bus inproc); on a bus "
               "the scenarios share its channel one at a time", file=sys.stderr)
         return runner.EXIT_USAGE
+    if args.can_log is not None and _bus_of(args) == "inproc":
+        print("rig run: --can-log logs a bus; in process there is none (`rig export DIR "
+              "--can-log FILE` rebuilds a log from a run's traces)", file=sys.stderr)
+        return runner.EXIT_USAGE
     if args.realtime and args.bus == "inproc":
         print("rig run: --realtime needs a bus (the in-process bench runs in lockstep only)",
               file=sys.stderr)
@@ -236,6 +246,7 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
         record=not args.no_record, figures=not args.no_figures,
         keep="all" if args.keep_all else "failing",
         jobs=args.jobs, fail_fast=args.fail_fast, baseline=args.baseline,
+        can_log=args.can_log,
     )
     started = time.time()
     try:

@@ -97,7 +97,9 @@ class BenchSession:
                          f"{transport} {channel}")
                 self.endpoints = self.virtual.start(transport, channel,
                                                     ready_timeout_s=d.virtual.ready_timeout_s)
-        self._link = BusLink.open(transport, channel, record=self.recording)
+        # in lockstep the rig's node loses no frame, as the programs' do (unixcan)
+        self._link = BusLink.open(transport, channel, record=self.recording,
+                                  lossless=d.lockstep)
         if d.lockstep:
             clock: BenchClock = LockstepClock(self._link, grant_s=d.clock.grant_s)
         else:

@@ -121,6 +121,7 @@ class BusLink:
         self.foreign: list[str] = []  # what arrived that only the rig sends
         self.on_foreign: Callable[[str], None] | None = None
         self.listeners_at_start: int | None = None  # other nodes on a unixcan channel
+        self.others_at_start: dict[str, str] = {}  # their socket names, in words
         self.latest: dict[str, Signals] = {}
         self.latest_wall: dict[str, float] = {}
         self._undecoded: dict[str, can.Message] = {}
@@ -139,11 +140,14 @@ class BusLink:
     @classmethod
     def open(cls, transport: str | None, channel: str | None, *, record: Path | None = None,
              frame_faults: FrameFaults | None = None,
-             trace: Path | None = None) -> BusLink:
-        """A link on a bus channel (``rig.bus.select_transport`` resolves ``auto``)."""
+             trace: Path | None = None, lossless: bool = False) -> BusLink:
+        """A link on a bus channel (``rig.bus.select_transport`` resolves ``auto``);
+        ``lossless`` in lockstep: on unixcan the rig's node loses no frame (its senders wait
+        for it, as it waits for the programs)."""
         transport, channel = rigbus.select_transport(transport, channel)
         try:
-            bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
+            bus = rigbus.open_bus(transport, channel, can_filters=listen_filters(),
+                                  lossless=lossless)
         except (can.CanError, OSError, ValueError) as exc:
             raise LinkError(f"cannot open {transport} bus {channel!r}: {exc}") from exc
         return cls(bus, transport=transport, channel=channel, record=record,
@@ -335,6 +339,7 @@ class BusLink:
                     f"unixcan node reaches (HILBUS_MAX_PEERS = {max_peers}, hilbus.h); "
                     "use --channel NAME")
             self.listeners_at_start = len(others)
+            self.others_at_start = {Path(p).name: unixcan.node_label(p) for p in others}
         seen: collections.Counter[int] = collections.Counter()
         before = collections.Counter(getattr(self.bus, "rx_ids", {}))
         deadline = time.monotonic() + FOREIGN_LISTEN_S
