@@ -75,8 +75,7 @@ class BenchPrograms:
             out[LOADBENCH] = [sys.executable, "-m", "rig", "loadbench", "serve", "--bus",
                               transport, "--channel", channel, "--host", m.host, "--port",
                               str(m.port), "--watchdog-ms", str(m.watchdog_timeout_ms),
-                              "--ready-file", str(folder / READY_FILES[LOADBENCH]),
-                              *(["--lossless"] if self.lockstep else [])]
+                              "--ready-file", str(folder / READY_FILES[LOADBENCH])]
         return out
 
     def _trace(self, folder: Path, name: str) -> list[str]:

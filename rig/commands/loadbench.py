@@ -38,8 +38,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="initial watchdog time-out (default: the map's)")
     s.add_argument("--ready-file", type=Path, default=None,
                    help="written (JSON: host, port, pid) once the server listens")
-    s.add_argument("--lossless", action="store_true",
-                   help="a node of a lockstep bench: on unixcan no sender drops a frame for it")
     cliargs.command(s, cmd_serve)
     r = ls.add_parser("read", help="print every holding and input register of a load bench")
     cliargs.add_shared(r, "bench", required=True, help="bench description")
@@ -58,8 +56,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     try:
         return serve(ServeOptions(host=args.host, port=args.port, bus=args.bus,
                                   channel=args.channel, ready_file=args.ready_file,
-                                  watchdog_timeout_ms=args.watchdog_ms,
-                                  lossless=args.lossless))
+                                  watchdog_timeout_ms=args.watchdog_ms))
     except (OSError, ValueError) as exc:
         print(f"rig loadbench serve: {exc}", file=sys.stderr)
         return EXIT_ERR

@@ -222,12 +222,11 @@ class LoadBenchModel:
 class BusSide:
     """LOAD_CMD out, BENCH_TRUTH in (validated by rig.bus.frames)."""
 
-    def __init__(self, model: LoadBenchModel, transport: str | None, channel: str | None,
-                 lossless: bool = False) -> None:
+    def __init__(self, model: LoadBenchModel, transport: str | None, channel: str | None) -> None:
         self.model = model
         self.decoder = FrameDecoder(databases=("bench",))
         truth = protocols.database("bench").get_message_by_name("BENCH_TRUTH")
-        self.bus = rigbus.open_bus(transport, channel, lossless=lossless,
+        self.bus = rigbus.open_bus(transport, channel,
                                    can_filters=[{"can_id": truth.frame_id, "can_mask": 0x7FF}])
         self._mode_values = protocols.choices("bench", "LOAD_CMD", "mode")
         self._stop = threading.Event()
@@ -349,7 +348,6 @@ class ServeOptions:
     channel: str | None = None
     ready_file: Path | None = None
     watchdog_timeout_ms: int | None = None
-    lossless: bool = False  # a node of a lockstep bench: no sender drops a frame for it
 
 
 async def _serve(opts: ServeOptions, stop: asyncio.Event) -> None:
@@ -359,7 +357,7 @@ async def _serve(opts: ServeOptions, stop: asyncio.Event) -> None:
         if f.problem(opts.watchdog_timeout_ms):
             raise ValueError(f.problem(opts.watchdog_timeout_ms))
         model.values["watchdog_timeout_ms"] = float(opts.watchdog_timeout_ms)
-    side = BusSide(model, opts.bus, opts.channel, lossless=opts.lossless)
+    side = BusSide(model, opts.bus, opts.channel)
     try:
         side.send(model.command())  # the load machine starts in the state the registers show
         server = ModbusTcpServer(device(model, side.send), address=(opts.host, opts.port))
