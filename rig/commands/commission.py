@@ -8,7 +8,7 @@ from pathlib import Path
 
 from rig import cliargs
 
-EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ENV, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
 EPILOG = """\
 steps (in the order 'all' runs them; each starts and ends with the drive disabled and the
@@ -27,7 +27,13 @@ output: RUN/commissioning.md (report), RUN/commissioning.json, RUN/bus.log (reco
 on a virtual bench RUN/logs/ and the console pty. Any failure, time-out, lost link or Ctrl-C
 disables the drive (DRIVE_CMD enable 0 and console 'disable') and zeroes the load first.
 
-exit status: 0 every step passed; 1 a check failed or a step stopped; 2 usage; 130
+channel: on the virtual bench a session that names none (--set can.channel=NAME) gets a
+unixcan channel of its own (commission-<pid>, in the report); the channel is held for the
+session and must be quiet before anything starts (a node sending there, or another run of
+the rig on it, is refused: exit 3). A real bench uses its description's channel.
+
+exit status: 0 every step passed; 1 a check failed or a step stopped; 2 usage; 3 the
+channel is in use (foreign traffic, another run of the rig): nothing was started; 130
 interrupted.
 """
 
@@ -97,6 +103,8 @@ def cmd_commission(args: argparse.Namespace) -> int:
             print(f"rig commission: step {s.step} stopped: {s.error}", file=sys.stderr)
     verdict = "PASSED" if run.passed else "FAILED"
     print(f"commissioning {verdict}: {run.report_path}")
+    if run.data.get("refused"):
+        return EXIT_ENV
     if args.save_params is not None:
         if not _save_params(args.save_params, run.data, desc):
             return EXIT_FAIL

@@ -42,9 +42,13 @@ from rig.scenario import Scenario
 if TYPE_CHECKING:  # the live view (rerun) is imported only for --live
     from rig.run.live import LiveFeed
 
+OWN = "run"  # a run's own unixcan channel: run-<pid> (rig.bus.own_channel)
 # the bus reader thread (unixcan) must get the GIL within a sender's patience (2 ms)
 SWITCH_INTERVAL_S = 0.0005
 LOCKSTEP_DRAIN_S = 0.05  # the firmware finishes the last period before the stop signal
+
+
+_said: set[str] = set()  # the channels chosen for the runs of this process, said once
 
 
 @contextmanager
@@ -52,9 +56,33 @@ def virtual_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: Ru
                   result: RunResult, run: Execution) -> Iterator[PacedBench]:
     """The virtual bench configured as ``config`` on the bus, its programs started and ready
     to be paced through the plan (in lockstep or real time); they are stopped, and what the
-    rig and the bus counted goes into ``run``, when it closes."""
+    rig and the bus counted goes into ``run``, when it closes. A run that names no channel
+    gets one of its own on unixcan (``rig.bus.own_channel``); the channel is held for the run
+    (a second run of the rig on it is refused at once: exit 3)."""
     try:
-        transport, channel = rigbus.select_transport(opts.bus, opts.channel)
+        transport, channel = rigbus.select_transport(opts.bus, opts.channel, own=OWN)
+        claim = rigbus.claim_channel(transport, channel)
+    except rigbus.ChannelInUse as exc:
+        raise EnvironmentProblem(str(exc)) from exc
+    except OSError as exc:
+        raise EnvironmentProblem(f"cannot hold the run's channel: {exc}") from exc
+    if opts.progress and rigbus.is_own_channel(channel) and channel not in _said:
+        _said.add(channel)
+        print(f"rig run: {transport} channel {channel}, the run's own (--channel NAME or "
+              "HIL_CHANNEL to name one)", file=sys.stderr)
+    try:
+        with _on_channel(sc, plan, config, opts, result, run, transport, channel) as paced:
+            yield paced
+    finally:
+        claim.release()
+        rigbus.release_own_channel(channel)
+
+
+@contextmanager
+def _on_channel(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
+                result: RunResult, run: Execution, transport: str, channel: str
+                ) -> Iterator[PacedBench]:
+    try:
         # traces always, paired from period 0 in lockstep (the plant's first ADC frame is its
         # start-up period 0, so stray frames on the channel cannot become the firmware's
         # first period)
