@@ -573,18 +573,24 @@ class UnixCanBus(can.BusABC):
         if not filters:
             self._accept = None
             return
-        rules = []
+        # the rules grouped by (mask, extended): one set lookup per group and frame (a node
+        # listening to a few ids must keep up with the 10 kHz traffic it ignores)
+        groups: dict[tuple[int, bool | None], set[int]] = {}
         for f in filters:
             mask = int(f["can_mask"])
-            can_id = int(f["can_id"])
             ext = f.get("extended")
-            rules.append((can_id & mask, mask, ext))
+            groups.setdefault((mask, None if ext is None else bool(ext)), set()).add(
+                int(f["can_id"]) & mask)
+        rules = [(mask, ext, frozenset(wants)) for (mask, ext), wants in groups.items()]
+        eff_mask, eff_flag = WIRE.eff_mask, WIRE.eff_flag
 
         def accept(raw_id: int) -> bool:
-            ident = raw_id & WIRE.eff_mask
-            is_ext = bool(raw_id & WIRE.eff_flag)
-            return any((ident & mask) == want and (ext is None or ext == is_ext)
-                       for want, mask, ext in rules)
+            ident = raw_id & eff_mask
+            is_ext = bool(raw_id & eff_flag)
+            for mask, ext, wants in rules:
+                if (ident & mask) in wants and (ext is None or ext == is_ext):
+                    return True
+            return False
 
         self._accept = accept
 

@@ -113,6 +113,7 @@ def _over_seeds(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Clai
         counters=first.counters if first else {},
         capture_loss=first.capture_loss if first else None,
         recording=first.recording if first else None,
+        bus_report=first.bus_report if first else None,  # (as the counters: the first seed's)
         timing=Timing(sim_s=sc.duration * len(results),
                       wall_s=sum((r.timing.wall_s or 0.0) for r in results if r.timing)),
         seeds=[{"seed": s, "dir": seed_folder(s), "status": r.status}
