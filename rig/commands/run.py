@@ -27,7 +27,8 @@ DIR/figure.png and a DIR/criterion-N.png per criterion that did not pass),
 DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture
 column a criterion read at the full 10 kHz over the rows it read) and the programs' logs.
 A scenario that does not pass also keeps DIR/*.trace (every frame) and DIR/capture/ (the
-merged full-rate columns); --keep-all keeps them for every scenario. A suite writes one
+merged full-rate columns); --keep-all keeps them for every scenario. --can-log FORMAT adds
+DIR/bus.asc, bus.blf or bus.log: every frame on the channel, live. A suite writes one
 sub-folder per scenario plus a summary result.json and report.md in DIR. Without --out:
 $HIL_OUT or ./out, plus name and time; `rig clean` lists and removes old runs.
 """
@@ -50,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                        "available); inproc: plant and firmware core in this process, no bus "
                        "(rig.bench.sil; lockstep only)")
     cliargs.add_shared(p, "channel", env="HIL_CHANNEL",
-                       help="bus channel (default: $HIL_CHANNEL, else vcan0)")
+                       help="bus channel (default: $HIL_CHANNEL, else on unixcan one of the "
+                       "run's own, run-<pid>, and on SocketCAN vcan0)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the plant on the wall clock instead of lockstep")
     p.add_argument("--live", action="store_true",

@@ -342,11 +342,20 @@ class BusLink:
             self.others_at_start = {Path(p).name: unixcan.node_label(p) for p in others}
         seen: collections.Counter[int] = collections.Counter()
         before = collections.Counter(getattr(self.bus, "rx_ids", {}))
-        deadline = time.monotonic() + FOREIGN_LISTEN_S
-        while (left := deadline - time.monotonic()) > 0:
-            msg = self.bus.recv(timeout=left)
-            if msg is not None and not msg.is_error_frame:
-                seen[identity.of_message(msg)] += 1
+        # SocketCAN filters in the kernel: for the check the link takes every frame (a node
+        # sending only ids the rig does not listen to would pass unseen otherwise)
+        widen = transport != "unixcan"
+        if widen:
+            self.bus.set_filters(None)  # type: ignore[attr-defined]
+        try:
+            deadline = time.monotonic() + FOREIGN_LISTEN_S
+            while (left := deadline - time.monotonic()) > 0:
+                msg = self.bus.recv(timeout=left)
+                if msg is not None and not msg.is_error_frame:
+                    seen[identity.of_message(msg)] += 1
+        finally:
+            if widen:
+                self.bus.set_filters(listen_filters())  # type: ignore[attr-defined]
         # unixcan counts what its filters let through too (a node sending only the 10 kHz
         # virtual I/O would pass unseen otherwise), by the same identity
         seen |= collections.Counter(getattr(self.bus, "rx_ids", {})) - before
