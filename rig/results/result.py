@@ -111,6 +111,9 @@ class RunResult:
     # criteria of the scenario this run does not judge, each with why (the ISR's cost on the
     # target, measured on the in-process bench only, on a run on a bus)
     left_out: list[dict[str, str]] | None = None
+    # unixcan: the other nodes on the channel and what each missed, the lockstep's waits, the
+    # rig's own live log of the bus (rig.run.bus_report)
+    bus_report: dict[str, Any] | None = None
     capture: capture.Capture | None = field(default=None, compare=False, repr=False)
 
     @classmethod
@@ -152,6 +155,8 @@ class RunResult:
             out["figures"] = self.figures
         if self.left_out:
             out["left_out"] = self.left_out
+        if self.bus_report is not None:
+            out["bus_report"] = self.bus_report
         return out
 
     @classmethod
@@ -174,7 +179,8 @@ class RunResult:
             versions=dict(data.get("versions") or {}), command_lines=data.get("command_lines"),
             finished=str(data.get("finished", "")), kept=_from_json(Kept, data.get("kept")),
             baseline=data.get("baseline"), seeds=data.get("seeds"),
-            figures=data.get("figures"), left_out=data.get("left_out"), capture=cap,
+            figures=data.get("figures"), left_out=data.get("left_out"),
+            bus_report=data.get("bus_report"), capture=cap,
         )
 
     @classmethod

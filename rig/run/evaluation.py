@@ -14,7 +14,7 @@ from rig.data import capture, metrics
 from rig.link.drive_master import accel_max
 from rig.results.result import Failure, RunResult
 from rig.results.verdict import AGAINST, Coverage, evaluate_one, outcome
-from rig.run import traffic
+from rig.run import bus_report, traffic
 from rig.run.execution import TS, Execution
 from rig.run.options import RunOptions
 from rig.run.plan import Plan
@@ -43,6 +43,13 @@ def evaluate(found: Evaluated, result: RunResult, sc: Scenario, plan: Plan, run:
     if loss is not None:
         result.capture_loss = {**loss.to_json(), "summary": loss.summary()}
     result.counters = run.counters
+    if run.bus_nodes is not None:
+        result.bus_report = bus_report.report(run.bus_nodes, run.counters)
+    if run.can_log is not None:
+        log = dict(run.can_log)
+        if run.bus_nodes is not None and log.get("missed") is not None:
+            log["missed"] = int(log["missed"]) + bus_report.can_log_missed(run.bus_nodes)
+        result.bus_report = {**(result.bus_report or {}), "can_log": log}
     cov = coverage(plan, found.capture, loss, run.periods_done, opts.realtime, interrupted,
                    found.failure)
     on_bench = opts.bus == sil.INPROC
@@ -103,7 +110,9 @@ def program_failure(run: Execution, failure: Failure | None, on_bus: bool) -> Fa
             node = "plant" if rep.name == "plant_rt" else "firmware"
             frames.add_program(node, rep.counters)
             run.add_counters(node, {k: v for k, v in rep.counters.items()
-                                    if k not in ("tx_ids", "rx_ids")})
+                                    if k not in ("tx_ids", "rx_ids", "listener_drops")})
+            if run.bus_nodes is not None:
+                run.bus_nodes.add_drops(node, rep.counters.get("listener_drops"))
         if failure is None and not rep.clean:
             what = ("did not stop within the grace period (killed)" if rep.killed
                     else f"stopped with exit status {rep.returncode}")
