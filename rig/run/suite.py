@@ -74,7 +74,7 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
                                      for sc in suite.scenarios])
     try:
         with display:
-            if opts.jobs > 1 and opts.bus == sil.INPROC:
+            if (opts.jobs > 1 or opts.cluster) and opts.bus == sil.INPROC:
                 _run_parallel(suite, opts, out, results, entries, display)
             else:
                 for sc in suite.scenarios:
@@ -145,11 +145,12 @@ def _stops(r: RunResult) -> bool:
 
 def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunResult],
                   entries: list[dict[str, Any]], display: progress.Display) -> None:
-    """The suite's scenarios on ``opts.jobs`` worker processes (in process only: each run has
-    its own bench); ``results`` and ``entries`` in the suite's order, up to the first run
-    missing when interrupted. ``opts.fail_fast``: no new run starts after one failed in a way
-    the seeds confirm (``_stops``)."""
-    jobs = [parallel.Job(sc, replace(opts, out=out / sc.name, progress=False, jobs=1))
+    """The suite's scenarios on ``opts.jobs`` worker processes or on ``opts.cluster`` (in
+    process only: each run has its own bench); ``results`` and ``entries`` in the suite's
+    order, up to the first run missing when interrupted. ``opts.fail_fast``: no new run
+    starts after one failed in a way the seeds confirm (``_stops``)."""
+    jobs = [parallel.Job(sc, replace(opts, out=out / sc.name, progress=False, jobs=1,
+                                     cluster=None))
             for sc in suite.scenarios]
 
     def done(job: parallel.Job, r: RunResult | None) -> None:
@@ -162,7 +163,8 @@ def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunRe
 
     got: list[RunResult | None] = [None] * len(jobs)
     try:
-        parallel.run_jobs(jobs, opts.jobs, got, on_done=done, stop=stop)
+        parallel.run_jobs(jobs, opts.jobs, got, on_done=done, stop=stop,
+                          cluster=opts.cluster, no_worker_timeout_s=opts.no_worker_timeout_s)
     finally:
         for sc, r in zip(suite.scenarios, got, strict=True):
             if r is not None:
