@@ -56,13 +56,16 @@ def _files(root: Path, suffixes: Iterable[str]) -> list[Path]:
 @functools.lru_cache(maxsize=1)
 def fingerprint() -> str:
     """A digest of what makes this rig's results: its package's Python and data files, the
-    wire definitions, the plant profiles and the in-process bench library (by content, so two
-    checkouts of the same commit and build agree wherever they live)."""
+    baselines it judges against (``$HIL_BASELINE_DIR`` too), the wire definitions, the plant
+    profiles and the in-process bench library (by content, so two checkouts of the same
+    commit and build agree wherever they live)."""
     from rig.bench import sil
+    from rig.regression import baseline
 
     h = hashlib.sha256()
     pkg = Path(__file__).resolve().parent.parent
-    roots = [(pkg, FINGERPRINT_SUFFIXES), (_paths.data_dir("protocols"), (".dbc", ".csv")),
+    roots = [(pkg, FINGERPRINT_SUFFIXES), (baseline.folder_of(), (".toml",)),
+             (_paths.data_dir("protocols"), (".dbc", ".csv")),
              (_paths.data_dir("profiles"), (".toml",))]
     for root, suffixes in roots:
         for f in _files(root, suffixes):
@@ -183,5 +186,5 @@ def say_outcome(outcome: Any) -> None:
 
     if outcome.workers_lost or outcome.rerun or outcome.gave_up:
         print(f"rig: the cluster lost {len(outcome.workers_lost)} workers; {outcome.rerun} "
-              "runs were run again on another worker"
+              "runs went to another worker"
               + (f"; {outcome.gave_up}" if outcome.gave_up else ""), file=sys.stderr)

@@ -70,7 +70,7 @@ class Outcome:
 
     workers_seen: set[str] = field(default_factory=set)
     workers_lost: set[str] = field(default_factory=set)
-    rerun: int = 0  # points run again after their worker was lost
+    rerun: int = 0  # tasks given to another worker after theirs was lost
     gave_up: str | None = None  # why the sweep ended before every point finished
 
     def to_json(self) -> dict[str, Any]:
@@ -103,7 +103,8 @@ class NoWorkers(RuntimeError):
 
 def map_tasks(c: Any, items: Sequence[Any], fn: Callable[[Any], Any], *, keys: Sequence[str],
               on_result: Callable[[int, Any, BaseException | None], bool],
-              retries: int = 2, priorities: Sequence[float] | None = None,
+              args: Sequence[Any] = (), retries: int = 2,
+              priorities: Sequence[float] | None = None,
               no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S,
               outcome: Outcome | None = None) -> None:
     """Runs ``fn`` on every item on the cluster and hands each outcome to ``on_result`` as it
@@ -111,6 +112,7 @@ def map_tasks(c: Any, items: Sequence[Any], fn: Callable[[Any], Any], *, keys: S
     once the workers running it kept dying, a task error, :class:`NoWorkers` when the cluster
     was left without a worker for ``no_worker_timeout_s``). ``on_result`` returning True
     cancels the items not yet ended (each still gets its ``on_result``: ``CancelledError``).
+    ``args``: more arguments of every call (a scattered Future is resolved on the worker).
     ``priorities``: higher starts first (the longest runs first balance the workers).
     ``outcome`` gets what the cluster went through. The sweeps', suites' and mutation
     campaigns' one loop over a cluster."""
@@ -120,12 +122,12 @@ def map_tasks(c: Any, items: Sequence[Any], fn: Callable[[Any], Any], *, keys: S
 
     seen = outcome if outcome is not None else Outcome()
     prio = list(priorities) if priorities is not None else [0.0] * len(items)
-    futures = [c.submit(fn, item, key=key, retries=retries, pure=False, priority=p)
+    seen.workers_seen |= _workers(c)  # before the first task can start (and its worker die)
+    futures = [c.submit(fn, item, *args, key=key, retries=retries, pure=False, priority=p)
                for item, key, p in zip(items, keys, prio, strict=True)]
     index = {f.key: i for i, f in enumerate(futures)}
     pending = set(futures)
     alone_since: float | None = None
-    seen.workers_seen |= _workers(c)
     try:
         while pending:
             try:

@@ -264,7 +264,7 @@ def summary_lines(s: Score) -> list[str]:
     return out
 
 
-def _say_one(v: Verdict, i: int, total: int, progress: Callable[[str], None]) -> None:
+def say_one(v: Verdict, i: int, total: int, progress: Callable[[str], None]) -> None:
     why = f" by {v.killed_by[0]}" if v.killed_by else (f": {v.note[:80]}" if v.note else "")
     what = v.status.upper() + (f" ({v.kill})" if v.kill else "")
     if v.benign and v.status == KILLED:
@@ -286,14 +286,14 @@ def run(mutants: Sequence[Mutant], tree: MutationTree, gate: Gate, out: Path, *,
             verdicts.append(v)
             write(out, verdicts, gate, detectors)
             if progress is not None:
-                _say_one(v, i, total, progress)
+                say_one(v, i, total, progress)
     for m in mutants:
         i += 1
         v = judge(m, tree, gate, out, both, detectors)
         verdicts.append(v)
         write(out, verdicts, gate, detectors)
         if progress is not None:
-            _say_one(v, i, total, progress)
+            say_one(v, i, total, progress)
     return verdicts
 
 
