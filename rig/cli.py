@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -48,7 +49,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else 2
     interruptible()
     try:
-        return int(args.func(args) or 0)
+        status = int(args.func(args) or 0)
+        if argv is None:  # the process's own command: its status is decided, exit with it
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                signal.signal(sig, signal.SIG_IGN)
+        return status
     except KeyboardInterrupt:
         print("rig: interrupted", file=sys.stderr)
         return 130

@@ -170,10 +170,13 @@ class Option:
     metavar: str | None = None
     type: Callable[[str], Any] | None = None
     flag: bool = False  # store_true
+    # the environment variable that stands in for it on every command that takes it (checked
+    # by that command's rules: HIL_BUS=bogus is a usage error, not a traceback later)
+    env: str | None = None
 
 
 SHARED: dict[str, Option] = {o.dest: o for o in (
-    Option(("--bus",), "bus", metavar="BUS"),
+    Option(("--bus",), "bus", metavar="BUS", env="HIL_BUS"),
     Option(("--channel",), "channel", metavar="NAME", type=channel),
     Option(("--bench",), "bench", metavar="FILE"),
     Option(("--out",), "out", metavar="DIR"),
@@ -215,7 +218,7 @@ def add_shared(parser: argparse.ArgumentParser, dest: str, *, help: str | None =
     (container or parser).add_argument(*opt.flags, **kwargs)
     taken: dict[str, Shared] = dict(parser.get_default(SHARED_KEY) or {})
     taken[dest] = Shared(default, tuple(choices) if choices is not None else None,
-                         type or opt.type, env, required)
+                         type or opt.type, env or opt.env, required)
     parser.set_defaults(**{SHARED_KEY: taken, PARSER_KEY: parser})
 
 

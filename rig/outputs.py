@@ -13,13 +13,18 @@ Taking a folder: checked before any program starts (a path through a file, a fol
 traceback at the end). A run may write over only a new or empty folder, or one an earlier
 run of the rig wrote (``is_run_folder``), and there only the files a run writes
 (``RUN_FILES`` and the programs' logs); a folder holding anything else is refused before
-anything starts. No symbolic link is followed there: a link in place of a run's file is
-removed, not its target. A result file is either complete or not there: written to a
-temporary name and renamed into place, never left truncated by a full disk. A run that need
-not keep its full-rate data has it removed at the end (``prune``).
+anything starts. Only the files of the earlier run go: its fixed ones, and those it wrote
+under names it chose as it ran (the criteria's pictures), which its marker lists; a file of
+the user's that merely matches such a name stays. A run locks its folder while it runs: a
+second run into it at the same time is refused at once. No symbolic link is followed there:
+a link in place of a run's file is removed, not its target. A result file is either
+complete or not there: written to a temporary name and renamed into place, never left
+truncated by a full disk. A run that need not keep its full-rate data has it removed at the
+end (``prune``).
 
 ``rig clean`` never removes what a user asked to keep: a folder holding a file named ``KEEP``
-(anywhere inside it, a suite's scenario folder too),
+(anywhere inside it, a suite's scenario folder too) or lying in a folder that holds one (up
+to the output root),
 a folder outside the output root, and (unless ``--all``) a folder the user named with
 ``--out``. It removes nothing without ``--yes``.
 """
@@ -28,6 +33,8 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import fcntl
+import fnmatch
 import itertools
 import json
 import os
@@ -130,12 +137,12 @@ def write_text(path: Path, text: str) -> None:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
 
 
-FULL_RATE_FILES = ("plant.trace", "fw.trace", "rig.trace", "capture")
+FULL_RATE_FILES = ("plant.trace", "fw.trace", "rig.trace", "capture", "isr.journal")
 RUN_FILES = ("capture", "recording.rrd", "result.json", "report.md", "plant.trace", "fw.trace",
              "rig.trace", "figure.png", "scenario.toml", "confirm")
 FIGURE_GLOB = "criterion-*.png"  # rig.results.figures: a picture per criterion that did not pass
-# the programs' logs and ready files (rig.supervisor, rig.bench.virtual): opened for writing by
-# name, so a link there must go before a program follows it; the criteria's pictures
+# what a run may write under names it does not know in advance (the criteria's pictures, the
+# logs of a program): the marker lists those it wrote (``Claim.record``), and only they go
 RUN_PATTERNS = ("*.stdout.log", "*.stderr.log", "*.ready", FIGURE_GLOB)
 SHOWN_ENTRIES = 6
 
@@ -180,31 +187,131 @@ def _remove(target: Path) -> None:
         target.unlink()
 
 
-def claim(out: Path, periods: int, scenario_file: Path | None = None) -> None:
-    """Makes ``out`` this run's: checked (``check_claim``), checked for room (``prepare``),
-    the files of an earlier run in it removed, marked as a run's folder (``RUN_MARKER``), and
-    the scenario file copied in (when given)."""
-    check_claim(out)
-    prepare(out, periods)
+def program_files() -> tuple[str, ...]:
+    """The files the programs of a run on the bus write into its folder by name (their logs,
+    ``rig.supervisor``; their ready files, ``rig.bench.virtual``; the rig's live log of the
+    bus, ``rig.bus.can_log``): opened for writing by name, so whatever stands there (a link
+    above all) goes before a program starts."""
+    from rig.bench import virtual
+    from rig.bus import can_log
+    from rig.supervisor import log_names
+
+    programs = (virtual.PLANT, virtual.FIRMWARE, virtual.LOADBENCH)
+    return (*(n for p in programs for n in log_names(p)), *virtual.READY_FILES.values(),
+            *(f"bus{suffix}" for suffix in can_log.FORMATS.values()))
+
+
+def _matches_run_pattern(name: str) -> bool:
+    return "/" not in name and name not in (".", "..") and any(
+        fnmatch.fnmatchcase(name, pattern) for pattern in RUN_PATTERNS)
+
+
+def _marker(out: Path) -> dict[str, Any]:
+    """What the marker of a run's folder says (``Claim``): {} when it says nothing (an older
+    rig's empty marker), is missing, is not a regular file or not the rig's."""
+    marker = out / RUN_MARKER
     try:
-        for name in RUN_FILES:
-            _remove(out / name)
-        for pattern in RUN_PATTERNS:
-            for target in out.glob(pattern):
-                _remove(target)
-        marker = out / RUN_MARKER
         if marker.is_symlink() or not marker.is_file():
-            _remove(marker)
-            marker.touch()
+            return {}
+        data = json.loads(marker.read_text(encoding="utf-8") or "{}")
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+class FolderInUse(OutputError):
+    """Another run holds the folder (``claim``'s lock)."""
+
+
+@dataclass
+class Claim:
+    """A folder a run has made its own: locked against a second run into it at once (an
+    advisory lock on the folder, released by ``release`` or when the process ends), and what
+    the run found there that matches the names it writes (``RUN_PATTERNS``: the user's,
+    never removed) so that ``record`` lists in the marker only what this run wrote."""
+
+    folder: Path
+    found: frozenset[str]
+    _fd: int | None = None
+
+    def record(self) -> None:
+        """Lists in the marker the files of ``RUN_PATTERNS`` this run wrote (the next run into
+        the folder removes those and no others)."""
+        try:
+            names = os.listdir(self.folder)
+        except OSError:
+            return
+        wrote = sorted(n for n in names if _matches_run_pattern(n) and n not in self.found)
+        with contextlib.suppress(OutputError):
+            write_text(self.folder / RUN_MARKER,
+                       json.dumps({"pid": os.getpid(), "wrote": wrote}) + "\n")
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+def _lock(out: Path) -> int:
+    """An exclusive lock on the folder (flock on the folder itself), or FolderInUse."""
+    try:
+        fd = os.open(out, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC | os.O_NOFOLLOW)
     except OSError as exc:
-        raise OutputError(f"cannot clear the earlier run's files in {out}: "
-                          f"{exc.strerror or exc}") from exc
+        raise OutputError(f"cannot open the output folder {out}: {exc.strerror or exc}") from exc
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        pid = _marker(out).get("pid")
+        who = f" (pid {pid})" if isinstance(pid, int) else ""
+        raise FolderInUse(
+            f"the output folder {out} is in use by another run of the rig{who}; refused, "
+            "nothing was changed: give --out another folder, or wait for that run") from None
+    except OSError as exc:
+        os.close(fd)
+        raise OutputError(f"cannot lock the output folder {out}: {exc.strerror or exc}") from exc
+    return fd
+
+
+def claim(out: Path, periods: int, scenario_file: Path | None = None) -> Claim:
+    """Makes ``out`` this run's: checked (``check_claim``), locked (a second run into it at the
+    same time is refused at once: ``FolderInUse``), checked for room (``prepare``), the files
+    of an earlier run in it removed (its fixed ones, ``RUN_FILES`` and ``program_files``, and
+    those its marker lists: never a file of the user's that merely matches a run's name
+    pattern), marked as a run's folder (``RUN_MARKER``: this process, nothing written yet),
+    and the scenario file copied in (when given). Release the claim when the run is done."""
+    check_claim(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        prepare(out, periods)  # says why
+    fd = _lock(out)
+    try:
+        prepare(out, periods)
+        earlier = _marker(out).get("wrote")
+        listed = [n for n in earlier if isinstance(n, str) and _matches_run_pattern(n)] \
+            if isinstance(earlier, list) else []
+        try:
+            for name in (*RUN_FILES, *program_files(), *listed):
+                _remove(out / name)
+            marker = out / RUN_MARKER
+            if marker.is_symlink() or (marker.exists() and not marker.is_file()):
+                _remove(marker)
+            write_text(marker, json.dumps({"pid": os.getpid(), "wrote": []}) + "\n")
+            found = frozenset(n for n in os.listdir(out) if _matches_run_pattern(n))
+        except OSError as exc:
+            raise OutputError(f"cannot clear the earlier run's files in {out}: "
+                              f"{exc.strerror or exc}") from exc
+    except BaseException:
+        os.close(fd)
+        raise
     if scenario_file is not None:
         with contextlib.suppress(OSError):
             shutil.copyfile(scenario_file, out / "scenario.toml")
+    return Claim(out, found, fd)
 
 
-def claim_suite(out: Path, names: Sequence[str], periods: int) -> None:
+def claim_suite(out: Path, names: Sequence[str], periods: int) -> Claim:
     """A suite's folder claimed like a run's (its summary files replaced) and each scenario's
     folder in it checked before the first scenario starts: a refusal never comes half-way
     through a suite. A scenario's folder may not be a symbolic link."""
@@ -215,7 +322,7 @@ def claim_suite(out: Path, names: Sequence[str], periods: int) -> None:
             raise OutputError(f"the scenario folder {sub} is a symbolic link; refused "
                                      "(a run never writes through a link)")
         check_claim(sub, "scenario folder")
-    claim(out, periods)
+    return claim(out, periods)
 
 
 def dir_size(path: Path) -> int:
@@ -313,7 +420,7 @@ def is_run_folder(path: Path) -> bool:
         _run_schema(path / "result.json") is not None)
 
 
-def _describe(path: Path) -> RunDir | None:
+def _describe(path: Path, root: Path | None = None) -> RunDir | None:
     result, sweep = path / "result.json", path / "sweep.json"
     kind, name, passed = "", path.name, None
     if result.is_file():
@@ -335,14 +442,31 @@ def _describe(path: Path) -> RunDir | None:
     when = dt.datetime.fromtimestamp(marker.stat().st_mtime)
     full = any(path.rglob("*.trace")) or any(path.rglob("capture/meta.json"))
     return RunDir(path=path, kind=kind, name=name, when=when, bytes=_size(path), passed=passed,
-                  auto_named=m is not None, keep=holds_keep(path), full_rate=full)
+                  auto_named=m is not None, keep=holds_keep(path, root), full_rate=full)
 
 
-def holds_keep(path: Path) -> bool:
-    """A ``KEEP`` file in the folder or in any folder below it (a suite's scenario folder: the
-    suite is removed as one, so a KEEP inside keeps all of it). Symbolic links are not
-    followed (``Path.rglob``)."""
-    return (path / KEEP_MARKER).exists() or any(path.rglob(KEEP_MARKER))
+def holds_keep(path: Path, root: Path | None = None) -> bool:
+    """A ``KEEP`` file in the folder, in any folder below it (a suite's scenario folder: the
+    suite is removed as one, so a KEEP inside keeps all of it) or, with ``root``, in any
+    folder above it up to and including ``root`` (``touch out/archive/KEEP`` keeps every run
+    filed under ``out/archive``). Symbolic links are not followed (``Path.rglob``)."""
+    if (path / KEEP_MARKER).exists() or any(path.rglob(KEEP_MARKER)):
+        return True
+    return root is not None and any(
+        (above / KEEP_MARKER).exists() for above in _folders_above(path, root))
+
+
+def _folders_above(path: Path, root: Path) -> list[Path]:
+    """The folders from ``path``'s parent up to ``root`` (both as given; none when ``path``
+    is not below ``root``)."""
+    if root not in path.parents:
+        return []
+    out = []
+    for above in path.parents:
+        out.append(above)
+        if above == root:
+            break
+    return out
 
 
 def find_runs(root: Path) -> Iterator[RunDir]:
@@ -352,7 +476,7 @@ def find_runs(root: Path) -> Iterator[RunDir]:
     stack = [root]
     while stack:
         folder = stack.pop()
-        run = _describe(folder) if folder != root else None
+        run = _describe(folder, root) if folder != root else None
         if run is not None:
             yield run
             continue
@@ -381,6 +505,6 @@ def remove(run: RunDir, root: Path) -> None:
     path, base = run.path.resolve(), root.resolve()
     if base not in path.parents:
         raise ValueError(f"{run.path} is not inside {root}")
-    if holds_keep(path):
-        raise ValueError(f"{run.path} holds a {KEEP_MARKER} file")
+    if holds_keep(path, base):
+        raise ValueError(f"{run.path} holds a {KEEP_MARKER} file, or a folder above it does")
     shutil.rmtree(path)

@@ -86,6 +86,11 @@ def last_json_line(path: Path) -> dict[str, Any] | None:
     return None
 
 
+def log_names(child: str) -> tuple[str, str]:
+    """The names of a child's stdout and stderr logs in the log folder."""
+    return f"{child}.stdout.log", f"{child}.stderr.log"
+
+
 def describe_status(code: int | None) -> str:
     if code is None:
         return "still running"
@@ -174,8 +179,8 @@ class Supervisor:
             raise ValueError(f"a child named {name!r} is already running")
         if ready_file is not None:
             Path(ready_file).unlink(missing_ok=True)
-        out_log = self.log_dir / f"{name}.stdout.log"
-        err_log = self.log_dir / f"{name}.stderr.log"
+        out_name, err_name = log_names(name)
+        out_log, err_log = self.log_dir / out_name, self.log_dir / err_name
         full_env = dict(os.environ)
         if env:
             full_env.update(env)
@@ -354,6 +359,36 @@ def signals_deferred() -> Iterator[None]:
         for signum in dict.fromkeys(got):
             if previous.get(signum) not in (signal.SIG_IGN, None):
                 signal.raise_signal(signum)
+
+
+class VerdictGuard:
+    """Once a command's verdict is decided and written, a signal no longer changes its exit
+    status: ``hold`` makes SIGINT, SIGTERM and SIGHUP only noted (the little that is left,
+    printing and reports of the written result, finishes and the command exits with the
+    verdict's status), ``release`` puts back the handlers that were in force. In the main
+    thread only (elsewhere nothing changes)."""
+
+    def __init__(self) -> None:
+        self.noted: list[int] = []
+        self._previous: dict[int, Any] = {}
+
+    def hold(self) -> None:
+        if self._previous:
+            return
+
+        def note(signum: int, frame: FrameType | None) -> None:
+            self.noted.append(signum)
+
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            try:
+                self._previous[sig] = signal.signal(sig, note)
+            except ValueError:  # not the main thread
+                pass
+
+    def release(self) -> None:
+        for signum, h in self._previous.items():
+            signal.signal(signum, h)
+        self._previous = {}
 
 
 @contextlib.contextmanager

@@ -25,11 +25,21 @@
 static fwh_t app; /* the core object is large: static storage, as on the DSP */
 static hilbus_t *bus;
 
-/* The frame handlers' sink: the bus (failures and drops are counted by hilbus). */
+static int bus_failed; /* a node that loses no frame stayed full past the bus's stall limit */
+
+/* The frame handlers' sink: the bus (failures and drops are counted by hilbus). A node of the
+ * run (lossless) that took no frame within the stall limit ends the program: the lockstep
+ * cannot go on. */
 static int send_on_bus(void *ctx, const struct canfd_frame *f, int fd)
 {
     (void)ctx;
-    return hilbus_send(bus, f, fd);
+    const int rc = hilbus_send(bus, f, fd);
+    if (rc != 0 && errno == ETIMEDOUT && !bus_failed) {
+        fprintf(stderr, "fw_host: %s\n", hilbus_last_error(bus));
+        bus_failed = 1;
+        app.stop = 1;
+    }
+    return rc;
 }
 static fwh_param_list_t start_list;
 
@@ -397,14 +407,15 @@ static int run(int tfd)
             p[n].revents = 0;
             i_pty = n++;
         }
-        if (poll(p, (nfds_t)n, -1) < 0) {
+        /* frames a send's wait took off the socket are there already: no sleeping then */
+        if (poll(p, (nfds_t)n, hilbus_pending(bus) > 0 ? 0 : -1) < 0) {
             if (errno == EINTR) {
                 continue;
             }
             fprintf(stderr, "fw_host: poll: %s\n", strerror(errno));
             return 1;
         }
-        if (p[i_bus].revents & (POLLIN | POLLERR)) {
+        if ((p[i_bus].revents & (POLLIN | POLLERR)) || hilbus_pending(bus) > 0) {
             if (drain_bus() != 0) {
                 return 1;
             }
@@ -568,7 +579,7 @@ int main(int argc, char **argv)
         rc = run(tfd);
     }
     fwh_drive_send_status(&app);
-    if (hil_node_close_trace(&app.opt.node, app.trace) != 0) {
+    if (hil_node_close_trace(&app.opt.node, app.trace) != 0 || bus_failed) {
         rc = 1;
     }
     if (app.pty_open) {

@@ -1,4 +1,4 @@
-/* startup.c - reset of the Cortex-M4F image: the vector table, .data/.bss, the FPU.
+/* startup.c - reset of the Cortex-M images: the vector table, .data/.bss, the FPU (M4F).
  *
  * A product's reset handler would go on to configure the clocks, the PWM timer and its
  * interrupt and enter the background loop; here the image is only run under emulation, which
@@ -30,6 +30,8 @@ void m4_reset_handler(void)
     for (dst = &_sbss; dst < &_ebss; dst++) {
         *dst = 0u;
     }
+#ifdef __ARM_FP
     SCB_CPACR |= (0xFu << 20); /* CP10, CP11 full access: the single-precision FPU */
     __asm volatile("dsb\n\tisb" ::: "memory");
+#endif
 }

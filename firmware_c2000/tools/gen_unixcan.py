@@ -103,8 +103,14 @@ def read(path: Path) -> dict[str, Any]:
             not all(c.isascii() and c.isalpha() for c in t) for t in tags):
         raise ValueError("[socket] suffix starts with '.'; c_tag and python_tag are distinct "
                          "letters (or empty), so that no C node's name is a Python node's")
+    mark = _str(sock, "socket", "lossless_mark")
+    if (len(mark) < 2 or not mark.startswith(".") or not mark[1:].isascii()
+            or not mark[1:].isalpha() or mark == suffix):
+        raise ValueError("[socket] lossless_mark: '.' and ASCII letters, not the suffix")
     _int(desc["timing"], "timing", "rescan_interval_ms", 1)
-    _int(desc["timing"], "timing", "full_peer_grace_ms", 1)
+    grace = _int(desc["timing"], "timing", "full_peer_grace_ms", 1)
+    if _int(desc["timing"], "timing", "lossless_stall_ms", 1) <= grace:
+        raise ValueError("[timing] lossless_stall_ms must be longer than full_peer_grace_ms")
     return desc
 
 
@@ -182,13 +188,16 @@ def header(desc: dict[str, Any]) -> str:
         f"#define HIL_UNIXCAN_GROUP_FOLDER_MODE 0{directory['group_folder_mode']:o}",
         f"#define HIL_UNIXCAN_SOCKET_MODE 0{directory['socket_mode']:o}",
         f"#define HIL_UNIXCAN_GROUP_SOCKET_MODE 0{directory['group_socket_mode']:o}",
-        "/* a node's socket: <pid>-<C_TAG><serial><SUFFIX>; every <...>SUFFIX is a peer */",
+        "/* a node's socket: <pid>-<C_TAG><serial>[LOSSLESS_MARK]<SUFFIX>; every <...>SUFFIX is",
+        " * a peer, one with LOSSLESS_MARK before the suffix a node no sender drops a frame for */",
         f"#define HIL_UNIXCAN_SOCKET_SUFFIX {cs(sock['suffix'])}",
         f"#define HIL_UNIXCAN_C_TAG {cs(sock['c_tag'])}",
+        f"#define HIL_UNIXCAN_LOSSLESS_MARK {cs(sock['lossless_mark'])}",
         "",
         "/* what a node promises the others (protocols/unixcan.toml [timing]) */",
         f"#define HIL_UNIXCAN_RESCAN_INTERVAL_NS {timing['rescan_interval_ms'] * 1_000_000}LL",
         f"#define HIL_UNIXCAN_FULL_PEER_GRACE_NS {timing['full_peer_grace_ms'] * 1_000_000}LL",
+        f"#define HIL_UNIXCAN_LOSSLESS_STALL_NS {timing['lossless_stall_ms'] * 1_000_000}LL",
         "",
         "/* The wire is the kernel's structs: the build stops where linux/can.h disagrees. */",
         "#define HIL_UNIXCAN_CHECK(name, cond) "

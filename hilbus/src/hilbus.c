@@ -28,6 +28,12 @@ static int valid_frame(const struct canfd_frame *frame, int fd)
 
 hilbus_t *hilbus_open(const char *transport, const char *channel, char *err, size_t errlen)
 {
+    return hilbus_open_flags(transport, channel, 0u, err, errlen);
+}
+
+hilbus_t *hilbus_open_flags(const char *transport, const char *channel, unsigned flags, char *err,
+                            size_t errlen)
+{
     if (!hilbus_channel_name_ok(channel)) {
         snprintf(err, errlen, "invalid channel name '%.80s': %s", channel ? channel : "",
                  HIL_UNIXCAN_CHANNEL_RULE);
@@ -39,6 +45,7 @@ hilbus_t *hilbus_open(const char *transport, const char *channel, char *err, siz
         return NULL;
     }
     bus->sock = -1;
+    bus->flags = flags & HILBUS_LOSSLESS;
     const char *spin = getenv("HILBUS_SPIN_US");
     if (spin != NULL) bus->spin_us = (int32_t)strtol(spin, NULL, 10);
     if (bus->spin_us < 0) bus->spin_us = 0;
@@ -68,7 +75,29 @@ void hilbus_close(hilbus_t *bus)
     if (bus == NULL) return;
     if (bus->kind == HILBUS_UNIXCAN) hilbus_unixcan_close(bus);
     if (bus->sock >= 0) close(bus->sock);
+    free(bus->pending);
     free(bus);
+}
+
+const char *hilbus_last_error(const hilbus_t *bus) { return bus->last_error; }
+
+void hilbus_set_stop(hilbus_t *bus, const volatile sig_atomic_t *stop) { bus->stop = stop; }
+
+int hilbus_pending(const hilbus_t *bus) { return (int)bus->pend_count; }
+
+int hilbus_listener_drops(const hilbus_t *bus, int i, const char **name, uint64_t *drops)
+{
+    if (i >= 0 && i < bus->n_listeners) {
+        *name = bus->listeners[i].name;
+        *drops = bus->listeners[i].drops;
+        return 1;
+    }
+    if (i == bus->n_listeners && bus->listener_drops_other > 0) {
+        *name = "other";
+        *drops = bus->listener_drops_other;
+        return 1;
+    }
+    return 0;
 }
 
 const char *hilbus_transport(const hilbus_t *bus)
@@ -151,6 +180,10 @@ static int recv_once(hilbus_t *bus, struct canfd_frame *frame, int *fd)
 
 int hilbus_recv(hilbus_t *bus, struct canfd_frame *frame, int *fd, int64_t timeout_us)
 {
+    while (bus->pend_count > 0) { /* what a send's wait took off the socket comes first */
+        int got = recv_once(bus, frame, fd);
+        if (got != 0) return got;
+    }
     const int64_t start = now_us();
     const int64_t deadline = timeout_us > 0 ? start + timeout_us : 0;
     if (bus->spin_us > 0 && timeout_us != 0) {

@@ -10,6 +10,20 @@
 #include "hilbus.h"
 
 #define HILBUS_MAX_FILTERS 32
+/* unixcan: frames a node keeps off its socket while it waits for a lossless peer, at most
+ * (a wait with more coming in stops taking them; the stall then ends as a stall does) */
+#define HILBUS_MAX_PENDING 65536
+
+/* A datagram as it came off the socket: its bytes and its size (any size: checked later). */
+struct hilbus_datagram {
+    struct canfd_frame frame;
+    int size;
+};
+
+struct hilbus_listener_drops {
+    char name[64];
+    uint64_t drops;
+};
 
 enum hilbus_kind { HILBUS_SOCKETCAN = 1, HILBUS_UNIXCAN = 2 };
 
@@ -22,7 +36,15 @@ struct hilbus {
     int32_t spin_us;
     /* socketcan: last SO_RXQ_OVFL value the kernel reported */
     uint32_t kernel_overflows;
+    char last_error[256];
     /* unixcan */
+    unsigned flags; /* HILBUS_LOSSLESS */
+    const volatile sig_atomic_t *stop;
+    struct hilbus_datagram *pending; /* a ring of pend_cap: frames taken while waiting */
+    size_t pend_head, pend_count, pend_cap;
+    int n_listeners;
+    struct hilbus_listener_drops listeners[HILBUS_MAX_LISTENERS];
+    uint64_t listener_drops_other;
     int n_filters;
     struct can_filter filters[HILBUS_MAX_FILTERS];
     char dir[sizeof(((struct sockaddr_un *)0)->sun_path)];
@@ -32,6 +54,7 @@ struct hilbus {
     int n_peers;
     struct sockaddr_un peers[HILBUS_MAX_PEERS];
     unsigned char congested[HILBUS_MAX_PEERS]; /* peer was still full after the grace wait */
+    unsigned char lossless[HILBUS_MAX_PEERS];  /* peer's name carries the lossless mark */
     int peer_fd[HILBUS_MAX_PEERS];             /* a socket connected to each peer: no path lookup per frame */
     struct timespec dir_mtime;
     struct timespec last_scan;

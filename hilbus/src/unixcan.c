@@ -1,13 +1,18 @@
 /* hilbus over the userspace fallback bus "unixcan" (docs/interfaces.md).
  *
  * Every node of a channel binds a Unix datagram socket in the channel's directory and
- * sends each frame to every other socket there. Sends never block: a receiver whose queue
- * is full costs a counted drop, a socket nobody reads any more (a killed node) is removed.
+ * sends each frame to every other socket there. A node whose name carries the lossless mark
+ * (the nodes of a lockstep run) is never dropped: a sender waits while its queue is full,
+ * taking its own deliveries meanwhile (kept for hilbus_recv: two nodes waiting on each other
+ * both go on), up to a bounded stall that ends in an error naming it. Any other node is a
+ * listener: one whose queue is full costs a counted drop (per listener, by name); a socket
+ * nobody reads any more (a killed node) is removed.
  * The wire (datagram layout, channel names, folder and socket naming and modes, the timing
  * nodes promise each other) is protocols/unixcan.toml, generated into hil_unixcan.h; the
  * rest of this file is hilbus's own way of being a node. */
 #define _GNU_SOURCE
 #include <dirent.h>
+#include <poll.h>
 #include <sched.h>
 #include <errno.h>
 #include <grp.h>
@@ -28,6 +33,10 @@
  * more than every CHECK_INTERVAL_NS (stat() is a system call with a path lookup). */
 #define RECENT_CHANGE_NS 100000000LL
 #define CHECK_INTERVAL_NS 2000000LL
+/* a wait for a lossless peer looks at the stop flag at least this often (a signal that sets
+ * it also interrupts the wait) */
+#define STOP_CHECK_MS 100
+#define PENDING_FIRST 256
 
 static int serial_counter;
 
@@ -249,6 +258,21 @@ static int peer_entry_ok(const struct hilbus *bus, const char *path)
     return bus->have_group && st.st_gid == bus->group;
 }
 
+/* Whether a socket's file name says its node loses no frame (HIL_UNIXCAN_LOSSLESS_MARK
+ * before the suffix). */
+static int lossless_name(const char *path)
+{
+    static const char tail[] = HIL_UNIXCAN_LOSSLESS_MARK HIL_UNIXCAN_SOCKET_SUFFIX;
+    const size_t len = strlen(path), n = sizeof tail - 1;
+    return len > n && strcmp(path + len - n, tail) == 0;
+}
+
+static const char *base_name(const char *path)
+{
+    const char *slash = strrchr(path, '/');
+    return slash != NULL ? slash + 1 : path;
+}
+
 static int connect_peer(const struct sockaddr_un *addr)
 {
     int s = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
@@ -297,6 +321,7 @@ static void scan_peers(struct hilbus *bus)
     /* Keep the connected sockets of peers still present; connect to new ones. */
     int fds[HILBUS_MAX_PEERS];
     unsigned char congested[HILBUS_MAX_PEERS];
+    unsigned char lossless[HILBUS_MAX_PEERS];
     int m = 0;
     for (int i = 0; i < n; i++) {
         int fd = -1;
@@ -321,6 +346,7 @@ static void scan_peers(struct hilbus *bus)
         found[m] = found[i];
         fds[m] = fd;
         congested[m] = cong;
+        lossless[m] = (unsigned char)lossless_name(found[i].sun_path);
         m++;
     }
     for (int j = 0; j < bus->n_peers; j++)
@@ -328,6 +354,7 @@ static void scan_peers(struct hilbus *bus)
     memcpy(bus->peers, found, (size_t)m * sizeof found[0]);
     memcpy(bus->peer_fd, fds, (size_t)m * sizeof fds[0]);
     memcpy(bus->congested, congested, (size_t)m);
+    memcpy(bus->lossless, lossless, (size_t)m);
     bus->n_peers = m;
 }
 
@@ -383,10 +410,9 @@ int hilbus_unixcan_open(struct hilbus *bus, const char *channel, char *err, size
     (void)setsockopt(s, SOL_SOCKET, SO_RCVBUF, &buf, sizeof buf);
     memset(&bus->self, 0, sizeof bus->self);
     bus->self.sun_family = AF_UNIX;
-    char name[40];
-    snprintf(name, sizeof name, "/%ld-" HIL_UNIXCAN_C_TAG "%d" HIL_UNIXCAN_SOCKET_SUFFIX, (long)getpid(),
-             serial_counter++);
-    /* bus->dir leaves at least 24 bytes of sun_path (checked above); name is at most 30. */
+    char name[64];
+    snprintf(name, sizeof name, "/%ld-" HIL_UNIXCAN_C_TAG "%d%s" HIL_UNIXCAN_SOCKET_SUFFIX, (long)getpid(),
+             serial_counter++, (bus->flags & HILBUS_LOSSLESS) ? HIL_UNIXCAN_LOSSLESS_MARK : "");
     size_t dlen = strlen(bus->dir), nlen = strlen(name);
     if (dlen + nlen + 1 > sizeof bus->self.sun_path) {
         snprintf(err, errlen, "unixcan: socket path in %s too long", bus->dir);
@@ -433,14 +459,82 @@ static void remove_peer(struct hilbus *bus, int i)
     bus->peers[i] = bus->peers[bus->n_peers - 1];
     bus->peer_fd[i] = bus->peer_fd[bus->n_peers - 1];
     bus->congested[i] = bus->congested[bus->n_peers - 1];
+    bus->lossless[i] = bus->lossless[bus->n_peers - 1];
     bus->n_peers--;
     bus->stats.peers_removed++;
+}
+
+/* Room for one more frame taken off the socket during a wait (grown on demand, at most
+ * HILBUS_MAX_PENDING). */
+static int pending_room(struct hilbus *bus)
+{
+    if (bus->pend_count < bus->pend_cap) return 1;
+    if (bus->pend_cap >= HILBUS_MAX_PENDING) return 0;
+    size_t cap = bus->pend_cap ? bus->pend_cap * 2 : PENDING_FIRST;
+    struct hilbus_datagram *grown = malloc(cap * sizeof *grown);
+    if (grown == NULL) return 0;
+    for (size_t k = 0; k < bus->pend_count; k++)
+        grown[k] = bus->pending[(bus->pend_head + k) % bus->pend_cap];
+    free(bus->pending);
+    bus->pending = grown;
+    bus->pend_cap = cap;
+    bus->pend_head = 0;
+    return 1;
+}
+
+/* Takes what waits on this node's socket into the pending ring (while there is room). */
+static void take_into_pending(struct hilbus *bus)
+{
+    while (pending_room(bus)) {
+        struct hilbus_datagram *d = &bus->pending[(bus->pend_head + bus->pend_count) % bus->pend_cap];
+        ssize_t n = recv(bus->sock, &d->frame, sizeof d->frame, MSG_DONTWAIT | MSG_TRUNC);
+        if (n < 0) return;
+        d->size = n > (ssize_t)INT_MAX ? INT_MAX : (int)n;
+        bus->pend_count++;
+        if (bus->pend_count > bus->stats.rx_pending_max) bus->stats.rx_pending_max = bus->pend_count;
+    }
+}
+
+/* A frame to a lossless peer whose queue was full: wait (taking this node's own deliveries
+ * meanwhile) until it goes, the stop flag is set (EINTR) or HIL_UNIXCAN_LOSSLESS_STALL_NS
+ * have passed (ETIMEDOUT). */
+static ssize_t wait_for_lossless(struct hilbus *bus, int i, const struct canfd_frame *out, size_t size)
+{
+    const int64_t start = mono_ns(), give_up = start + HIL_UNIXCAN_LOSSLESS_STALL_NS;
+    ssize_t n = -1;
+    bus->stats.tx_stalls++;
+    for (;;) {
+        const int64_t now = mono_ns();
+        if (bus->stop != NULL && *bus->stop) {
+            errno = EINTR;
+            break;
+        }
+        if (now >= give_up) {
+            errno = ETIMEDOUT;
+            break;
+        }
+        struct pollfd p[2] = {{.fd = bus->peer_fd[i], .events = POLLOUT, .revents = 0},
+                              {.fd = bus->sock, .events = POLLIN, .revents = 0}};
+        int64_t wait_ms = (give_up - now + 999999) / 1000000;
+        if (wait_ms > STOP_CHECK_MS) wait_ms = STOP_CHECK_MS;
+        const int np = pending_room(bus) ? 2 : 1;
+        if (poll(p, (nfds_t)np, (int)wait_ms) > 0 && np == 2 && (p[1].revents & POLLIN))
+            take_into_pending(bus);
+        n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
+        if (n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK)) break;
+    }
+    const uint64_t waited = (uint64_t)(mono_ns() - start);
+    bus->stats.tx_stall_ns_total += waited;
+    if (waited > bus->stats.tx_stall_ns_max) bus->stats.tx_stall_ns_max = waited;
+    return n;
 }
 
 static ssize_t send_to_peer(struct hilbus *bus, int i, const struct canfd_frame *out, size_t size)
 {
     ssize_t n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
-    if (n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK) || bus->congested[i]) return n;
+    if (n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK)) return n;
+    if (bus->lossless[i]) return wait_for_lossless(bus, i, out, size);
+    if (bus->congested[i]) return n;
     const int64_t give_up = mono_ns() + HIL_UNIXCAN_FULL_PEER_GRACE_NS;
     do {
         sched_yield();
@@ -449,27 +543,68 @@ static ssize_t send_to_peer(struct hilbus *bus, int i, const struct canfd_frame 
     return n;
 }
 
+/* One more frame a listener missed, under its socket's name. */
+static void note_listener_drop(struct hilbus *bus, int i)
+{
+    const char *name = base_name(bus->peers[i].sun_path);
+    for (int k = 0; k < bus->n_listeners; k++) {
+        if (strcmp(bus->listeners[k].name, name) == 0) {
+            bus->listeners[k].drops++;
+            return;
+        }
+    }
+    if (bus->n_listeners < HILBUS_MAX_LISTENERS && strlen(name) < sizeof bus->listeners[0].name) {
+        struct hilbus_listener_drops *l = &bus->listeners[bus->n_listeners++];
+        memcpy(l->name, name, strlen(name) + 1);
+        l->drops = 1;
+        return;
+    }
+    bus->listener_drops_other++;
+}
+
 int hilbus_unixcan_send(struct hilbus *bus, const struct canfd_frame *frame, int fd)
 {
     struct canfd_frame out = *frame;
     out.flags = fd ? (uint8_t)(out.flags | HIL_UNIXCAN_FDF) : 0; /* the wire's flags byte */
     size_t size = fd ? HIL_UNIXCAN_FD_SIZE : HIL_UNIXCAN_CLASSIC_SIZE;
+    int failed = 0;
     refresh_peers(bus);
     for (int i = 0; i < bus->n_peers;) {
         ssize_t n = send_to_peer(bus, i, &out, size);
         if (n == (ssize_t)size) {
             bus->congested[i] = 0;
             i++;
-        } else if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+        } else if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK) && !bus->lossless[i]) {
             bus->stats.tx_drops++;
+            note_listener_drop(bus, i);
             bus->congested[i] = 1;
             i++;
         } else if (n < 0 && (errno == ECONNREFUSED || errno == ENOENT || errno == ENOTCONN)) {
             remove_peer(bus, i); /* the slot now holds another peer: do not advance */
+        } else if (n < 0 && bus->lossless[i] && (errno == ETIMEDOUT || errno == EINTR)) {
+            const char *dir = base_name(bus->dir), *peer = base_name(bus->peers[i].sun_path);
+            if (errno == ETIMEDOUT) {
+                bus->stats.tx_stall_failures++;
+                snprintf(bus->last_error, sizeof bus->last_error,
+                         "unixcan channel %s: node %s (pid %ld), which loses no frame, took none for "
+                         "%lld ms (its queue stayed full): frame 0x%X not delivered to it",
+                         dir, peer, strtol(peer, NULL, 10),
+                         (long long)(HIL_UNIXCAN_LOSSLESS_STALL_NS / 1000000), (unsigned)frame->can_id);
+                failed = ETIMEDOUT;
+            } else {
+                snprintf(bus->last_error, sizeof bus->last_error,
+                         "unixcan channel %s: stopped while waiting for node %s", dir, peer);
+                if (failed == 0) failed = EINTR;
+            }
+            i++;
         } else {
             bus->stats.tx_errors++;
             i++;
         }
+    }
+    if (failed != 0) {
+        errno = failed;
+        return -1;
     }
     return 0;
 }
@@ -484,10 +619,23 @@ static int filters_pass(const struct hilbus *bus, canid_t id)
     return 0;
 }
 
+/* The next datagram: one a send's wait took off the socket, else the socket's. */
+static ssize_t next_datagram(struct hilbus *bus, struct canfd_frame *frame)
+{
+    if (bus->pend_count > 0) {
+        const struct hilbus_datagram *d = &bus->pending[bus->pend_head];
+        *frame = d->frame;
+        bus->pend_head = (bus->pend_head + 1) % bus->pend_cap;
+        bus->pend_count--;
+        return d->size;
+    }
+    return recv(bus->sock, frame, sizeof *frame, MSG_DONTWAIT | MSG_TRUNC);
+}
+
 int hilbus_unixcan_recv(struct hilbus *bus, struct canfd_frame *frame, int *fd)
 {
     /* MSG_TRUNC: the datagram's real size, so a longer one is not taken for a frame */
-    ssize_t n = recv(bus->sock, frame, sizeof *frame, MSG_DONTWAIT | MSG_TRUNC);
+    ssize_t n = next_datagram(bus, frame);
     if (n < 0) return (errno == EAGAIN || errno == EINTR) ? 0 : -1;
     if (n == HIL_UNIXCAN_FD_SIZE) {
         *fd = 1;

@@ -31,6 +31,7 @@ static void usage(FILE *out)
             "         bytes, and its verdict on each channel name read from stdin (hex, one a line)\n"
             "common:  --bus socketcan|unixcan|auto (default auto)  --channel NAME (default vcan0)\n"
             "         --ready-file PATH (written once the bus is open)\n"
+            "         --lossless (unixcan: a node every sender waits for, as a lockstep run's)\n"
             "Output: one JSON object per line on stdout; errors on stderr, exit 1.\n");
 }
 
@@ -68,12 +69,21 @@ static void print_stats(const hilbus_t *bus)
     hilbus_get_stats(bus, &s);
     printf("{\"stats\": {\"transport\": \"%s\", \"tx_frames\": %llu, \"tx_drops\": %llu, \"tx_errors\": %llu, "
            "\"rx_frames\": %llu, \"rx_overflows\": %llu, \"rx_filtered\": %llu, \"peers_removed\": %llu, "
-           "\"rx_malformed\": %llu, \"foreign_entries\": %llu, \"peers_beyond_limit\": %llu}}\n",
+           "\"rx_malformed\": %llu, \"foreign_entries\": %llu, \"peers_beyond_limit\": %llu, "
+           "\"tx_stalls\": %llu, \"tx_stall_ms_max\": %.3f, \"tx_stall_ms_total\": %.3f, "
+           "\"tx_stall_failures\": %llu, \"rx_pending_max\": %llu, \"listener_drops\": {",
            hilbus_transport(bus), (unsigned long long)s.tx_frames, (unsigned long long)s.tx_drops,
            (unsigned long long)s.tx_errors, (unsigned long long)s.rx_frames, (unsigned long long)s.rx_overflows,
            (unsigned long long)s.rx_filtered, (unsigned long long)s.peers_removed,
            (unsigned long long)s.rx_malformed, (unsigned long long)s.foreign_entries,
-           (unsigned long long)s.peers_beyond_limit);
+           (unsigned long long)s.peers_beyond_limit, (unsigned long long)s.tx_stalls,
+           (double)s.tx_stall_ns_max * 1e-6, (double)s.tx_stall_ns_total * 1e-6,
+           (unsigned long long)s.tx_stall_failures, (unsigned long long)s.rx_pending_max);
+    const char *name;
+    uint64_t drops;
+    for (int i = 0; hilbus_listener_drops(bus, i, &name, &drops); i++)
+        printf("%s\"%s\": %llu", i ? ", " : "", name, (unsigned long long)drops);
+    printf("}}}\n");
     fflush(stdout);
 }
 
@@ -166,6 +176,8 @@ static int wire_mode(void)
            (unsigned long)HIL_UNIXCAN_EFF_FLAG, (unsigned long)HIL_UNIXCAN_RTR_FLAG,
            (unsigned long)HIL_UNIXCAN_ERR_FLAG, (unsigned long)HIL_UNIXCAN_SFF_MASK,
            (unsigned long)HIL_UNIXCAN_EFF_MASK, HIL_UNIXCAN_BRS, HIL_UNIXCAN_ESI, HIL_UNIXCAN_FDF);
+    printf("\"lossless_mark\": \"%s\", \"lossless_stall_ns\": %lld, ", HIL_UNIXCAN_LOSSLESS_MARK,
+           HIL_UNIXCAN_LOSSLESS_STALL_NS);
     printf("\"channel_rule\": \"%s\", \"socket_suffix\": \"%s\", \"c_tag\": \"%s\", "
            "\"folder_mode\": %d, \"group_folder_mode\": %d, \"socket_mode\": %d, "
            "\"group_socket_mode\": %d, \"rescan_interval_ns\": %lld, \"full_peer_grace_ns\": %lld, ",
@@ -203,12 +215,14 @@ int main(int argc, char **argv)
     long count = 1, interval_us = 0, timeout_ms = 1000;
     unsigned long id = 0;
     int fd = 0, brs = 0, window = 1, n_filters = 0;
+    unsigned flags = 0;
     struct can_filter filters[16];
     for (int i = 2; i < argc; i++) {
         const char *a = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(a, "--fd") == 0) { fd = 1; continue; }
         if (strcmp(a, "--brs") == 0) { brs = 1; continue; }
+        if (strcmp(a, "--lossless") == 0) { flags |= HILBUS_LOSSLESS; continue; }
         if (strcmp(a, "--help") == 0) { usage(stdout); return 0; }
         if (v == NULL) { fprintf(stderr, "hilbus_tool: %s needs a value\n", a); return 2; }
         i++;
@@ -244,11 +258,12 @@ int main(int argc, char **argv)
     sigaction(SIGINT, &sa, NULL);
 
     char err[256];
-    hilbus_t *bus = hilbus_open(transport, channel, err, sizeof err);
+    hilbus_t *bus = hilbus_open_flags(transport, channel, flags, err, sizeof err);
     if (bus == NULL) {
         fprintf(stderr, "hilbus_tool: %s\n", err);
         return 1;
     }
+    hilbus_set_stop(bus, &stop_requested);
     if (n_filters > 0 && hilbus_set_filters(bus, filters, n_filters) != 0) {
         fprintf(stderr, "hilbus_tool: filters: %s\n", strerror(errno));
         return 1;
@@ -283,7 +298,8 @@ int main(int argc, char **argv)
         if (brs) f.flags |= CANFD_BRS;
         for (long i = 0; i < count && !stop_requested; i++) {
             if (hilbus_send(bus, &f, fd) != 0) {
-                fprintf(stderr, "hilbus_tool: send: %s\n", strerror(errno));
+                fprintf(stderr, "hilbus_tool: send: %s\n",
+                        hilbus_last_error(bus)[0] ? hilbus_last_error(bus) : strerror(errno));
                 rc = 1;
                 break;
             }

@@ -143,9 +143,13 @@ const char *hil_node_realtime(const hil_node_opts_t *o)
 hilbus_t *hil_node_open_bus(const hil_node_opts_t *o)
 {
     char err[256];
-    hilbus_t *bus = hilbus_open(o->bus, o->channel, err, sizeof(err));
+    /* in lockstep the run's nodes lose no frame: every sender waits for them (unixcan) */
+    hilbus_t *bus = hilbus_open_flags(o->bus, o->channel, o->realtime ? 0u : HILBUS_LOSSLESS, err,
+                                      sizeof(err));
     if (bus == NULL) {
         fprintf(stderr, "%s: cannot open bus %s/%s: %s\n", o->prog, o->bus, o->channel, err);
+    } else if (g_stop != NULL) {
+        hilbus_set_stop(bus, g_stop); /* a stop signal ends a wait for a full peer at once */
     }
     return bus;
 }
@@ -237,7 +241,21 @@ void hil_node_json_bus(hil_json_t *j, const hilbus_t *bus, uint64_t non_data_fra
     hil_json_u64(j, "non_data_frames", non_data_frames);
     hil_json_u64(j, "foreign_entries", bs.foreign_entries);
     hil_json_u64(j, "peers_beyond_limit", bs.peers_beyond_limit);
+    hil_json_u64(j, "tx_stalls", bs.tx_stalls);
+    hil_json_fmt(j, "tx_stall_ms_total", "%.3f", (double)bs.tx_stall_ns_total * 1e-6);
+    hil_json_fmt(j, "tx_stall_ms_max", "%.3f", (double)bs.tx_stall_ns_max * 1e-6);
+    hil_json_u64(j, "tx_stall_failures", bs.tx_stall_failures);
+    hil_json_u64(j, "rx_pending_max", bs.rx_pending_max);
     if (bus != NULL) {
+        const char *name;
+        uint64_t drops;
+        int i;
+        /* socket names: the pid and a serial, the C tag and marks (no quote, no backslash) */
+        hil_json_open(j, "listener_drops");
+        for (i = 0; hilbus_listener_drops(bus, i, &name, &drops); i++) {
+            hil_json_u64(j, name, drops);
+        }
+        hil_json_close(j);
         id_counts(j, "tx_ids", bus, hilbus_id_sent);
         id_counts(j, "rx_ids", bus, hilbus_id_received);
     }

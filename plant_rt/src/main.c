@@ -75,6 +75,7 @@ typedef struct app {
     /* what went out for the last period (the lockstep re-send repeats it) */
     struct canfd_frame adc_frames[PLANT_VIO_ADC_FRAMES_MAX + PLANT_LINK_HELD_MAX];
     int n_adc_frames;
+    int bus_failed; /* a node that loses no frame stayed full past the bus's stall limit */
 } app_t;
 
 /* ------------------------------------------------------------------ logging */
@@ -108,8 +109,12 @@ static void send_frame(app_t *a, uint32_t id, const uint8_t *data, uint8_t len, 
     f.can_id = id;
     f.len = len;
     memcpy(f.data, data, len);
-    if (hilbus_send(a->bus, &f, 1) != 0) {
-        /* counted by hilbus (tx_errors); the period goes on */
+    if (hilbus_send(a->bus, &f, 1) != 0 && errno == ETIMEDOUT && !a->bus_failed) {
+        /* a node of the run (lossless) took no frame within the stall limit: the lockstep
+         * cannot go on; other failures are counted by hilbus (tx_errors) and it goes on */
+        fprintf(stderr, "plant_rt: %s\n", hilbus_last_error(a->bus));
+        a->bus_failed = 1;
+        g_stop = 1;
     }
     if (to_trace && a->trace) {
         hiltrace_write(a->trace, &f);
@@ -952,7 +957,7 @@ int main(int argc, char **argv)
         rc = a.opt.node.realtime ? realtime(&a) : lockstep(&a);
     }
     send_housekeeping(&a, 2);
-    if (hil_node_close_trace(&a.opt.node, a.trace) != 0) {
+    if (hil_node_close_trace(&a.opt.node, a.trace) != 0 || a.bus_failed) {
         rc = 1;
     }
     print_counters(&a);

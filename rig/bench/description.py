@@ -7,7 +7,9 @@ One file describes one bench, virtual or real, so the same commissioning scripts
 
     [can]                               # the drive protocol (protocols/drive.dbc)
     transport = "socketcan"             # auto | socketcan | unixcan
-    channel = "can0"
+    channel = "can0"                    # default: none named (the virtual bench: a unixcan
+                                        # channel of the session's own; else $HIL_CHANNEL,
+                                        # else vcan0)
 
     [console]                           # the drive's SCI console (protocols/console.md)
     port = "/dev/ttyUSB0"               # device, pty path or pyserial URL (rfc2217://, socket://)
@@ -69,7 +71,9 @@ class BenchDescriptionError(ValueError):
 @dataclass(frozen=True)
 class CanSpec:
     transport: str = "auto"
-    channel: str = "vcan0"
+    # "" names none: the virtual bench's session then gets a unixcan channel of its own
+    # (rig.bus.own_channel), a real bench $HIL_CHANNEL, else vcan0
+    channel: str = ""
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,9 @@ HELP = "C-to-C ping-pong round trip and frame rate per transport"
 def add_arguments(b: argparse.ArgumentParser) -> None:
     b.add_argument("--count", type=cliargs.number(int, minimum=1), default=20000,
                    help="pings per measurement")
-    cliargs.add_shared(b, "channel", default="benchbus", help="channel name to use")
+    cliargs.add_shared(b, "channel", default=None,
+                       help="channel name to use (default: on unixcan one of its own, "
+                       "bench-bus-<pid>; on SocketCAN vcanbench)")
     b.add_argument("--spin-us", type=cliargs.number(int, minimum=0), default=100,
                    help="busy-poll budget of the 'spin' measurement (HILBUS_SPIN_US)")
 
@@ -71,10 +73,11 @@ def ping_pong(transport: str, channel: str, count: int, fd: bool, window: int,
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
-    if args.channel.startswith("vcan") is False and rigbus.kernel_has_can():
+    named = args.channel
+    if (named is None or not named.startswith("vcan")) and rigbus.kernel_has_can():
         channel = "vcanbench"
     else:
-        channel = args.channel
+        channel = named or rigbus.own_channel("bench-bus")
     report: dict[str, Any] = {"benchmark": "bus", "host_cpus": os.cpu_count(),
                               "in_vm": os.environ.get("HIL_IN_VM") == "1", "transports": {}}
     for transport in _available_transports(channel):

@@ -27,13 +27,20 @@ def add_arguments(i: argparse.ArgumentParser) -> None:
                    help="RUN-state periods under callgrind (0: skip callgrind)")
     i.add_argument("--profile", default="paper", choices=PROFILES,
                    help="plant fidelity profile")
-    i.add_argument("--target", choices=("host", "cortex-m4f"), default="host",
-                   help="cortex-m4f: instructions per call on the emulated Cortex-M4F by path "
+    i.add_argument("--target", choices=("host", "cortex-m4f", "cortex-m3"), default="host",
+                   help="cortex-m4f (single-precision FPU) or cortex-m3 (no FPU, soft float): "
+                   "instructions per call on the emulated part by path and by ISR step "
                    "(rig.benchmarks.isr_m4), beside the host's callgrind figure")
-    i.add_argument("--scale", type=cliargs.number(above=0.0), default=4.0,
-                   help="cortex-m4f: each measured stretch this many times the CI test's")
+    i.add_argument("--scale", type=cliargs.number(above=0.0), default=None,
+                   help="cortex-m*: each measured stretch this many times the CI test's "
+                   "(default 4 on the M4F, 1 on the M3: its soft float is ten times the "
+                   "instructions)")
+    i.add_argument("--coverage", metavar="SUITE", nargs="?", const="gate", default=None,
+                   help="cortex-m4f: instead of the budget, which basic blocks of the ISR the "
+                   "gate's cost windows execute of those the event windows of every scenario "
+                   "of SUITE (default gate) execute (rig.target_m4.coverage; minutes)")
     i.add_argument("--whole-runs", action="store_true",
-                   help="cortex-m4f: the cases' whole runs (minutes)")
+                   help="cortex-m*: the cases' whole runs (minutes; hours on the M3)")
 
 
 def sil_bench_argv(profile: str, periods: int) -> list[str]:
@@ -43,13 +50,20 @@ def sil_bench_argv(profile: str, periods: int) -> list[str]:
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
-    if args.target == "cortex-m4f":
-        # the emulator (unicorn, 70 ms to import) only for this target, not on every rig start
+    if args.coverage is not None:
+        from rig.target_m4 import coverage
+
+        return {"benchmark": "isr", "target": "cortex-m4f",
+                "coverage": coverage.measure(args.coverage)}
+    if args.target != "host":
+        # the emulator (unicorn, 70 ms to import) only for these targets, not on every start
         from rig.benchmarks import isr_m4
 
         cg = (callgrind_isr(sil_bench_argv(args.profile, args.callgrind_periods),
                             args.callgrind_periods) if args.callgrind_periods > 0 else None)
-        return isr_m4.measure(args.scale, args.whole_runs, cg)
+        scale = args.scale if args.scale is not None else (
+            4.0 if args.target == "cortex-m4f" else 1.0)
+        return isr_m4.measure(scale, args.whole_runs, cg, args.target)
     argv = sil_bench_argv(args.profile, args.periods)
     timed = subprocess.run([*argv, "--time-isr"], capture_output=True, text=True, check=True)
     report: dict[str, Any] = {"benchmark": "isr", "host_timing": json.loads(timed.stdout)}

@@ -203,5 +203,5 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _channel(transport: str, channel: str) -> str:
-    # unixcan runs in a private folder, any name will do; SocketCAN needs the interface
-    return channel if transport == "socketcan" else "benchplant"
+    # SocketCAN needs the interface; on unixcan a channel of the benchmark's own
+    return channel if transport == "socketcan" else rigbus.own_channel("bench-plant")

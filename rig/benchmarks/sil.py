@@ -32,6 +32,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from rig import bus as rigbus
 from rig import cliargs, scenario
 from rig.benchmarks import machine
 from rig.benchmarks.bus import ping_pong
@@ -48,14 +49,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"scenario to run on both paths (default {DEFAULT_SCENARIO})")
     cliargs.add_shared(p, "bus", choices=cliargs.BUS_TRANSPORTS,
                        help="transport of the bus path (default: auto)")
-    cliargs.add_shared(p, "channel", default="benchsil", help="bus channel of the bus path")
+    cliargs.add_shared(p, "channel", default=None,
+                       help="bus channel of the bus path (default: on unixcan one of its "
+                       "own, run-<pid>; else $HIL_CHANNEL, else vcan0)")
     p.add_argument("--repeat", type=cliargs.number(int, minimum=1), default=1,
                    help="runs per path; the fastest counts (default 1)")
     p.add_argument("--count", type=cliargs.number(int, minimum=1), default=5000,
                    help="pings for the bus round trip")
 
 
-def _run(sc: scenario.Scenario, out: Path, bus: str | None, channel: str) -> dict[str, Any]:
+def _run(sc: scenario.Scenario, out: Path, bus: str | None, channel: str | None
+         ) -> dict[str, Any]:
     r = runner.run_scenario(sc, runner.RunOptions(out=out, bus=bus, channel=channel,
                                                   progress=False, record=False,
                                                   figures=False))
@@ -104,7 +108,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     report["speedup_inproc_over_bus"] = round(bus["wall_s"] / inproc["wall_s"], 2)
     report["bus_overhead_us_per_period"] = round(
         bus["wall_us_per_period"] - inproc["wall_us_per_period"], 3)
-    rtt = ping_pong(bus["bus"], args.channel, args.count, fd=True, window=1)
+    rtt = ping_pong(bus["bus"], args.channel or rigbus.own_channel("bench-sil"), args.count,
+                    fd=True, window=1)
     report["bus_round_trip_us"] = rtt.get("rtt_us", {}).get("median")
     if report["bus_round_trip_us"]:
         report["bus_overhead_over_round_trip"] = round(

@@ -3,13 +3,26 @@
 Selection order: an explicit argument, then ``HIL_BUS`` / ``HIL_CHANNEL``, then ``auto``:
 SocketCAN when the kernel supports CAN and the interface exists (or, as root, can be
 created), else unixcan.
+
+Apart by default: what starts its own nodes (a run, a suite, a commissioning session on the
+virtual bench, a benchmark) and names no channel gets a channel of its own on unixcan
+(``own_channel``: ``run-<pid>``, ``commission-<pid>``, ...), so two of them on one machine
+never meet. A command that talks to nodes already there (``rig param``, ``rig bus``, ``rig
+loadbench serve``, plant_rt and fw_host started by hand) keeps ``vcan0``: that is where the
+user's own bench is. SocketCAN interfaces are the kernel's (vcan0, can0): a run there holds
+the interface (``claim_channel``), and a second run on it is refused at once, as a node that
+sends there is (``rig.link.bus``).
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import hashlib
 import json
 import os
 import socket
+import struct
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -61,10 +74,14 @@ def _ip(*args: str) -> None:
         raise RuntimeError(f"ip {' '.join(args)} failed: {done.stderr.strip()}")
 
 
-def select_transport(bus: str | None = None, channel: str | None = None) -> tuple[str, str]:
-    """The (transport, channel) to use, resolving ``auto`` and the environment."""
+def select_transport(bus: str | None = None, channel: str | None = None,
+                     own: str | None = None) -> tuple[str, str]:
+    """The (transport, channel) to use, resolving ``auto`` and the environment. With ``own``
+    (what is run: ``run``, ``commission``, ...), a channel nobody named (no argument, no
+    ``HIL_CHANNEL``) is, on unixcan, one of this process's own (``own_channel``)."""
     choice = bus or os.environ.get("HIL_BUS") or "auto"
-    chan = channel or os.environ.get("HIL_CHANNEL") or DEFAULT_CHANNEL
+    named = channel or os.environ.get("HIL_CHANNEL")
+    chan = named or DEFAULT_CHANNEL
     if choice not in TRANSPORTS:
         raise ValueError(f"unknown bus {choice!r}; choose one of {', '.join(TRANSPORTS)}")
     if choice == "auto":
@@ -72,7 +89,88 @@ def select_transport(bus: str | None = None, channel: str | None = None) -> tupl
             choice = "socketcan"
         else:
             choice = "unixcan"
+    if choice == "unixcan" and not named and own is not None:
+        chan = own_channel(own)
     return choice, chan
+
+
+def own_channel(what: str) -> str:
+    """A unixcan channel of this process's own, named for what it runs and its pid
+    (``run-4242``): readable, and apart from every other process's."""
+    return f"{what}-{os.getpid()}"
+
+
+def is_own_channel(channel: str) -> bool:
+    """Whether ``channel`` is one ``own_channel`` gave this process."""
+    return channel.endswith(f"-{os.getpid()}")
+
+
+def release_own_channel(channel: str) -> None:
+    """Removes the folder of an own unixcan channel once nobody is on it (``rmdir``: a
+    folder that still holds a socket stays)."""
+    from rig.bus import unixcan
+
+    if is_own_channel(channel):
+        with contextlib.suppress(OSError):
+            (unixcan.base_dir() / channel).rmdir()
+
+
+class ChannelInUse(RuntimeError):
+    """Another run of the rig holds the channel (``claim_channel``)."""
+
+
+class ChannelClaim:
+    """A run's hold on its channel, until ``release`` (or the process ends): an abstract
+    Unix socket named for the channel (its unixcan folder, or the SocketCAN interface), which
+    a second process cannot bind while this one holds it. It names the holder's pid."""
+
+    def __init__(self, transport: str, channel: str) -> None:
+        from rig.bus import unixcan
+
+        where = (str(unixcan.base_dir() / channel) if transport == "unixcan"
+                 else f"socketcan:{channel}")
+        digest = hashlib.sha256(where.encode()).hexdigest()[:32]
+        self.address = f"\0hil-channel-{digest}"
+        self.what = f"{transport} channel {channel!r}"
+        self._sock: socket.socket | None = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            self._sock.bind(self.address)
+            self._sock.listen(8)
+        except OSError as exc:
+            self._sock.close()
+            self._sock = None
+            if exc.errno != errno.EADDRINUSE:
+                raise
+            raise ChannelInUse(
+                f"{self.what} is in use by another run of the rig{_holder(self.address)}; "
+                "refused, nothing started: name another channel (--channel NAME), or leave "
+                "the channel unnamed on the fallback bus (each run gets its own)") from None
+
+    def release(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+
+def claim_channel(transport: str, channel: str) -> ChannelClaim:
+    """Holds ``channel`` for this run (ChannelInUse when another run of the rig does)."""
+    return ChannelClaim(transport, channel)
+
+
+def _holder(address: str) -> str:
+    """`` (pid N)`` of the process holding an abstract socket, when it can be asked."""
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(1.0)
+        probe.connect(address)
+        creds = probe.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED,
+                                 struct.calcsize("3i"))
+        pid = struct.unpack("3i", creds)[0]
+        return f" (pid {pid})"
+    except OSError:
+        return ""
+    finally:
+        probe.close()
 
 
 def _can_create_vcan(channel: str) -> bool:
@@ -85,12 +183,15 @@ def _can_create_vcan(channel: str) -> bool:
     return True
 
 
-def open_bus(bus: str | None = None, channel: str | None = None, **kwargs: Any) -> can.BusABC:
-    """A python-can bus on the selected transport, CAN FD enabled."""
+def open_bus(bus: str | None = None, channel: str | None = None, *, lossless: bool = False,
+             **kwargs: Any) -> can.BusABC:
+    """A python-can bus on the selected transport, CAN FD enabled. ``lossless``: on unixcan a
+    node every sender waits for rather than drop a frame (the nodes of a lockstep run);
+    SocketCAN's kernel decides for itself."""
     transport, chan = select_transport(bus, channel)
     if transport == "socketcan":
         return can.Bus(interface="socketcan", channel=chan, fd=True, **kwargs)
-    return can.Bus(interface="unixcan", channel=chan, **kwargs)
+    return can.Bus(interface="unixcan", channel=chan, lossless=lossless, **kwargs)
 
 
 _max_peers: list[int] = []

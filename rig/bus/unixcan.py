@@ -7,14 +7,20 @@ other sockets of the channel. Registered as the python-can interface ``unixcan``
 work on it.
 
 The kernel queues only a few datagrams per receiving socket (``net.unix.max_dgram_qlen``), so
-a reader thread drains the socket into a bounded buffer at once; a frame that finds the
-buffer full is counted in ``stats["rx_overflows"]``, and a frame a peer could not deliver to
-us is counted by that peer as a transmit drop. Nothing is lost silently: ``shutdown`` logs a
-warning (logger ``can.unixcan``, on stderr by default, also under ``can.player`` and
-``can.logger``) with the drops and overflows of the node's life.
+a reader thread drains the socket into a bounded buffer at once. A node opened with
+``lossless=True`` (the nodes of a lockstep run; the rig's own ``--can-log`` listener) loses no
+frame: its name says so (protocols/unixcan.toml [socket] lossless_mark), every sender waits
+for it while its queue is full (``stats["tx_stalls"]``, a bounded stall that ends in a
+``CanOperationError`` naming it), and its reader waits for room in its buffer rather than
+drop. Any other node is a listener: a frame that finds its buffer full is counted in
+``stats["rx_overflows"]``, and a frame a sender could not deliver to it is counted by that
+sender as a transmit drop, per listener (``listener_drops``, by socket name). Nothing is lost
+silently: ``shutdown`` logs a warning (logger ``can.unixcan``, on stderr by default, also
+under ``can.player`` and ``can.logger``) with the drops and overflows of the node's life.
 
-``rx_ids`` counts every frame that reached the node by identifier, the filtered ones too (the
-rig compares what nodes received with what the run's nodes sent: ``rig.run.traffic``).
+``rx_ids`` counts every frame that reached the node by its whole identity (the id word with
+its flags, and ``FD_KEY`` for a CAN FD frame: ``rig.bus.identity``), the filtered ones too
+(the rig compares what nodes received with what the run's nodes sent: ``rig.run.traffic``).
 """
 
 from __future__ import annotations
@@ -39,7 +45,7 @@ import can
 from can.bus import CanProtocol
 from can.typechecking import AutoDetectedConfig, CanFilters
 
-from rig.bus.unixcan_wire import WIRE
+from rig.bus.unixcan_wire import FD_KEY, WIRE
 
 # The wire (datagram layout, flag bits, FD lengths, channel names, folder and socket naming
 # and modes, the timing nodes promise each other) is protocols/unixcan.toml: WIRE.
@@ -290,6 +296,28 @@ def live_nodes(channel: str, exclude: set[str] | frozenset[str] = frozenset()) -
     return alive
 
 
+def node_pid(socket_name: str) -> int | None:
+    """The pid a node's socket name starts with (protocols/unixcan.toml [socket])."""
+    head = os.path.basename(socket_name).split("-", 1)[0]
+    return int(head) if head.isdigit() else None
+
+
+def node_label(socket_name: str) -> str:
+    """A node in words: its pid and the command line of that process (``pid 4242: python3 -m
+    can.logger -i unixcan -c vcan0 --fd``), or what is known of it."""
+    pid = node_pid(socket_name)
+    if pid is None:
+        return f"socket {os.path.basename(socket_name)}"
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            words = [w.decode(errors="replace") for w in fh.read().split(b"\0") if w]
+    except OSError:
+        return f"pid {pid} (gone)"
+    words[:1] = [os.path.basename(words[0])] if words else []
+    text = " ".join(words)
+    return f"pid {pid}: {text[:157] + '...' if len(text) > 160 else text}"
+
+
 class UnixCanBus(can.BusABC):
     """A node on a unixcan channel (the userspace stand-in for a SocketCAN interface)."""
 
@@ -299,16 +327,19 @@ class UnixCanBus(can.BusABC):
         can_filters: CanFilters | None = None,
         fd: bool = True,
         receive_buffer: int = 1_000_000,
+        lossless: bool = False,
         **kwargs: Any,
     ) -> None:
         self.channel = str(channel)
+        self.lossless = bool(lossless)
         self.channel_info = f"unixcan channel {self.channel}"
         try:
             self._group = bus_group()
             self._dir = channel_dir(self.channel)
         except OSError as exc:
             raise can.CanInitializationError(str(exc)) from exc
-        name = f"{os.getpid()}-{WIRE.python_tag}{next(_serial)}{WIRE.socket_suffix}"
+        mark = WIRE.lossless_mark if self.lossless else ""
+        name = f"{os.getpid()}-{WIRE.python_tag}{next(_serial)}{mark}{WIRE.socket_suffix}"
         self._path = self._dir / name
         if len(os.fsencode(self._path)) >= 108:
             raise can.CanInitializationError(f"unixcan: socket path {self._path} is too long")
@@ -325,17 +356,25 @@ class UnixCanBus(can.BusABC):
         self._sock.setblocking(False)
         self._peers: list[str] = []
         self._congested: set[str] = set()
+        self._connected: dict[str, socket.socket] = {}  # lossless peers waited for
         self._dir_mtime = 0.0
         self._last_scan = 0.0
         self._lock = threading.Lock()
         self.stats = {"tx_frames": 0, "tx_drops": 0, "tx_errors": 0, "rx_frames": 0,
                       "rx_overflows": 0, "rx_filtered": 0, "peers_removed": 0,
-                      "rx_malformed": 0, "foreign_entries": 0}
-        self.rx_ids: collections.Counter[int] = collections.Counter()  # by raw can_id
+                      "rx_malformed": 0, "foreign_entries": 0, "tx_stalls": 0,
+                      "tx_stall_failures": 0}
+        # the waits for lossless peers: in all, the longest (ms)
+        self.stall_ms: dict[str, float] = {"tx_stall_ms_total": 0.0, "tx_stall_ms_max": 0.0}
+        # frames dropped for each listener, by its socket's name
+        self.listener_drops: collections.Counter[str] = collections.Counter()
+        # by the id word (flags included) | FD_KEY for a CAN FD frame (rig.bus.identity)
+        self.rx_ids: collections.Counter[int] = collections.Counter()
         self._accept: Callable[[int], bool] | None = None
         self._rx: collections.deque[can.Message] = collections.deque()
         self._rx_limit = receive_buffer
         self._rx_ready = threading.Condition()
+        self._reader_waits = False  # lossless: the reader waits for room in _rx
         self._closing = False
         self._wake_r, self._wake_w = os.pipe()
         self._scan_peers()
@@ -366,6 +405,8 @@ class UnixCanBus(can.BusABC):
                 self.stats["foreign_entries"] += 1
         self._peers = peers
         self._congested.intersection_update(self._peers)
+        for gone in set(self._connected) - set(peers):
+            self._connected.pop(gone).close()
 
     def _refresh_peers(self) -> None:
         now = time.time()
@@ -388,6 +429,7 @@ class UnixCanBus(can.BusABC):
             datagram = pack_frame(msg)
         except ValueError as exc:
             raise can.CanOperationError(str(exc)) from exc
+        failed: list[str] = []
         with self._lock:
             self._refresh_peers()
             for peer in list(self._peers):
@@ -396,7 +438,11 @@ class UnixCanBus(can.BusABC):
                     self._congested.discard(peer)
                 except BlockingIOError:
                     self.stats["tx_drops"] += 1
+                    self.listener_drops[os.path.basename(peer)] += 1
                     self._congested.add(peer)
+                except TimeoutError:
+                    self.stats["tx_stall_failures"] += 1
+                    failed.append(peer)
                 except (ConnectionRefusedError, FileNotFoundError):
                     # Nobody reads that socket any more: its node died without cleaning up.
                     self._peers.remove(peer)
@@ -410,12 +456,21 @@ class UnixCanBus(can.BusABC):
                     if exc.errno not in (errno.ENOBUFS,):
                         raise can.CanOperationError(f"unixcan send to {peer}: {exc}") from exc
             self.stats["tx_frames"] += 1
+        if failed:
+            name = os.path.basename(failed[0])
+            raise can.CanOperationError(
+                f"unixcan channel {self.channel}: node {name} (pid {name.split('-', 1)[0]}), "
+                f"which loses no frame, took none for {WIRE.lossless_stall_s * 1e3:.0f} ms "
+                f"(its queue stayed full): frame 0x{msg.arbitration_id:X} not delivered to it")
 
     def _send_to(self, datagram: bytes, peer: str) -> None:
         try:
             self._sock.sendto(datagram, peer)
             return
         except BlockingIOError:
+            if WIRE.is_lossless(os.path.basename(peer)):
+                self._wait_for_lossless(datagram, peer)
+                return
             if peer in self._congested:
                 raise
         give_up = time.monotonic() + WIRE.full_peer_grace_s
@@ -427,6 +482,37 @@ class UnixCanBus(can.BusABC):
             except BlockingIOError:
                 if time.monotonic() >= give_up:
                     raise
+
+    def _wait_for_lossless(self, datagram: bytes, peer: str) -> None:
+        """A frame to a lossless peer whose queue is full: wait until it takes it (this
+        node's reader thread goes on taking its own frames meanwhile), at most
+        ``lossless_stall_s`` (then TimeoutError)."""
+        start = time.monotonic()
+        give_up = start + WIRE.lossless_stall_s
+        self.stats["tx_stalls"] += 1
+        try:
+            conn = self._connected.get(peer)
+            if conn is None:  # a socket connected to it: poll() says when its queue has room
+                conn = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+                conn.setblocking(False)
+                conn.connect(peer)
+                self._connected[peer] = conn
+            poller = select.poll()
+            poller.register(conn, select.POLLOUT)
+            while True:
+                try:
+                    conn.send(datagram)
+                    return
+                except BlockingIOError:
+                    pass
+                left = give_up - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(peer)
+                poller.poll(min(left, 0.1) * 1e3)
+        finally:
+            waited = (time.monotonic() - start) * 1e3
+            self.stall_ms["tx_stall_ms_total"] += waited
+            self.stall_ms["tx_stall_ms_max"] = max(self.stall_ms["tx_stall_ms_max"], waited)
 
     # -- receiving --------------------------------------------------------------------
     def _read_loop(self) -> None:
@@ -443,6 +529,8 @@ class UnixCanBus(can.BusABC):
             batch: list[can.Message] = []
             accept = self._accept
             while True:
+                if self.lossless and len(self._rx) + len(batch) >= self._rx_limit:
+                    break  # no room: what waits stays on the socket (its senders wait)
                 try:
                     # one byte more than a frame: a longer datagram shows as malformed
                     datagram = self._sock.recv(WIRE.fd_size + 1)
@@ -457,7 +545,7 @@ class UnixCanBus(can.BusABC):
                 # few IDs must not pay for every frame of the bus (it has to keep up with
                 # the 10 kHz virtual I/O traffic it ignores).
                 (raw_id,) = _ID.unpack_from(datagram)
-                self.rx_ids[raw_id] += 1
+                self.rx_ids[raw_id | (FD_KEY if len(datagram) == WIRE.fd_size else 0)] += 1
                 if accept is not None:
                     if not accept(raw_id):
                         self.stats["rx_filtered"] += 1
@@ -467,32 +555,42 @@ class UnixCanBus(can.BusABC):
                     self.stats["rx_malformed"] += 1
                 else:
                     batch.append(msg)
-            if batch:
-                with self._rx_ready:
-                    room = self._rx_limit - len(self._rx)
-                    if len(batch) > room:
-                        self.stats["rx_overflows"] += len(batch) - max(room, 0)
-                        batch = batch[: max(room, 0)]
-                    self._rx.extend(batch)
+            with self._rx_ready:
+                room = self._rx_limit - len(self._rx)
+                if len(batch) > room:
+                    self.stats["rx_overflows"] += len(batch) - max(room, 0)
+                    batch = batch[: max(room, 0)]
+                self._rx.extend(batch)
+                if batch:
                     self._rx_ready.notify_all()
+                while self.lossless and len(self._rx) >= self._rx_limit and not self._closing:
+                    self._reader_waits = True  # until the owner takes frames
+                    self._rx_ready.wait(0.1)
+                self._reader_waits = False
 
     def _apply_filters(self, filters: CanFilters | None) -> None:
         """Filters run in the reader thread on the raw id (SocketCAN semantics)."""
         if not filters:
             self._accept = None
             return
-        rules = []
+        # the rules grouped by (mask, extended): one set lookup per group and frame (a node
+        # listening to a few ids must keep up with the 10 kHz traffic it ignores)
+        groups: dict[tuple[int, bool | None], set[int]] = {}
         for f in filters:
             mask = int(f["can_mask"])
-            can_id = int(f["can_id"])
             ext = f.get("extended")
-            rules.append((can_id & mask, mask, ext))
+            groups.setdefault((mask, None if ext is None else bool(ext)), set()).add(
+                int(f["can_id"]) & mask)
+        rules = [(mask, ext, frozenset(wants)) for (mask, ext), wants in groups.items()]
+        eff_mask, eff_flag = WIRE.eff_mask, WIRE.eff_flag
 
         def accept(raw_id: int) -> bool:
-            ident = raw_id & WIRE.eff_mask
-            is_ext = bool(raw_id & WIRE.eff_flag)
-            return any((ident & mask) == want and (ext is None or ext == is_ext)
-                       for want, mask, ext in rules)
+            ident = raw_id & eff_mask
+            is_ext = bool(raw_id & eff_flag)
+            for mask, ext, wants in rules:
+                if (ident & mask) in wants and (ext is None or ext == is_ext):
+                    return True
+            return False
 
         self._accept = accept
 
@@ -503,6 +601,8 @@ class UnixCanBus(can.BusABC):
             if not self._rx:
                 return None, self._accept is not None
             self.stats["rx_frames"] += 1
+            if self._reader_waits:
+                self._rx_ready.notify_all()
             return self._rx.popleft(), self._accept is not None
 
     @property
@@ -524,16 +624,20 @@ class UnixCanBus(can.BusABC):
         with self._rx_ready:
             self._rx_ready.notify_all()
         self._sock.close()
+        for conn in self._connected.values():
+            conn.close()
         os.close(self._wake_r)
         os.close(self._wake_w)
         self._path.unlink(missing_ok=True)
         st = self.stats
         if st["tx_drops"] or st["rx_overflows"]:
             # a replay (can.player) or a log (can.logger) must not lose frames without a word
+            who = ", ".join(f"{n} for {name}" for name, n in self.listener_drops.most_common(4))
             log.warning("unixcan channel %s: %d deliveries of the %d frames sent were "
-                        "dropped (a receiver's queue stayed full for %g ms), %d received "
+                        "dropped (a listener's queue stayed full for %g ms: %s), %d received "
                         "frames overflowed this node's buffer", self.channel, st["tx_drops"],
-                        st["tx_frames"], WIRE.full_peer_grace_s * 1e3, st["rx_overflows"])
+                        st["tx_frames"], WIRE.full_peer_grace_s * 1e3, who or "none",
+                        st["rx_overflows"])
         super().shutdown()
 
     @staticmethod

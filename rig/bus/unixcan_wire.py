@@ -64,8 +64,10 @@ class UnixCanWire:
     group_socket_mode: int
     socket_suffix: str
     python_tag: str
+    lossless_mark: str
     rescan_interval_s: float
     full_peer_grace_s: float
+    lossless_stall_s: float
 
     def frame_struct(self) -> struct.Struct:
         """The CAN FD datagram as a struct: id, len, flags, the reserved bytes, data."""
@@ -80,6 +82,10 @@ class UnixCanWire:
         return (f"a plain name of 1 to {self.channel_max_length} of "
                 f"{_runs(self.channel_chars_text)}, not starting with "
                 f"{' or '.join(self.channel_not_first_text)}")
+
+    def is_lossless(self, socket_name: str) -> bool:
+        """Whether a node's socket name says it must lose no frame ([socket] lossless_mark)."""
+        return socket_name.endswith(self.lossless_mark + self.socket_suffix)
 
     def fallback_base_path(self) -> str:
         return self.fallback_base.replace("{uid}", str(os.geteuid()))
@@ -120,9 +126,15 @@ def load(text: str) -> UnixCanWire:
         socket_mode=int(directory["socket_mode"]),
         group_socket_mode=int(directory["group_socket_mode"]),
         socket_suffix=str(sock["suffix"]), python_tag=str(sock["python_tag"]),
+        lossless_mark=str(sock["lossless_mark"]),
         rescan_interval_s=int(timing["rescan_interval_ms"]) / 1000.0,
         full_peer_grace_s=int(timing["full_peer_grace_ms"]) / 1000.0,
+        lossless_stall_s=int(timing["lossless_stall_ms"]) / 1000.0,
     )
 
+
+# Not on the wire: the bit above the 32-bit id word that the rig's counts by identity set for
+# a CAN FD frame (rig.bus.identity; the datagram's size says it on the wire).
+FD_KEY = 1 << 32
 
 WIRE = load((data_dir("protocols") / "unixcan.toml").read_text(encoding="utf-8"))

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rig import cliargs
-from rig.benchmarks import bus, cluster, gate, isr, plant, sil, startup
+from rig.benchmarks import apart, bus, cluster, gate, isr, overload, plant, sil, startup
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -44,6 +44,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         description=startup.__doc__, formatter_class=raw)
     startup.add_arguments(su)
     cliargs.command(su, _printed(startup.measure))
+
+    ov = bsub.add_parser(
+        "overload", help="a suite on the fallback bus with every core saturated, against it "
+        "in process: identical values, no lockstep drop (stall and drop figures)",
+        description=overload.__doc__, formatter_class=raw)
+    overload.add_arguments(ov)
+    cliargs.command(ov, _printed(overload.measure))
+
+    ap = bsub.add_parser(
+        "apart", help="two suites and a commissioning session started together with no "
+        "channel named: each its own channel, all green, values as in process",
+        description=apart.__doc__, formatter_class=raw)
+    apart.add_arguments(ap)
+    cliargs.command(ap, _printed(apart.measure))
 
     ga = bsub.add_parser(
         "gate", help="the regression gate's wall and CPU time (target: 30 s on 2 cores)",

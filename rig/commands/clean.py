@@ -14,7 +14,8 @@ $HIL_OUT (else ./out) each time; those pile up. rig clean lists every run folder
 root and marks for removal the auto-named ones beyond the newest --keep-last (default 5),
 or with --older-than only those older than that. --all also takes folders named with --out
 (./hil main's out/paper, ./hil test's out/ci/...). A folder holding a file named KEEP
-(`touch DIR/KEEP`) is never removed. Nothing is removed without --yes.
+(`touch DIR/KEEP`), or lying in a folder that holds one (up to the root), is never removed.
+Nothing is removed without --yes.
 
 exit status: 0 done (or nothing to do); 2 usage; 3 the root is not a folder.
 """

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from rig import cliargs
 
-EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ENV, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
 EPILOG = """\
 steps (in the order 'all' runs them; each starts and ends with the drive disabled and the
@@ -27,7 +27,13 @@ output: RUN/commissioning.md (report), RUN/commissioning.json, RUN/bus.log (reco
 on a virtual bench RUN/logs/ and the console pty. Any failure, time-out, lost link or Ctrl-C
 disables the drive (DRIVE_CMD enable 0 and console 'disable') and zeroes the load first.
 
-exit status: 0 every step passed; 1 a check failed or a step stopped; 2 usage; 130
+channel: on the virtual bench a session that names none (--set can.channel=NAME) gets a
+unixcan channel of its own (commission-<pid>, in the report); the channel is held for the
+session and must be quiet before anything starts (a node sending there, or another run of
+the rig on it, is refused: exit 3). A real bench uses its description's channel.
+
+exit status: 0 every step passed; 1 a check failed or a step stopped; 2 usage; 3 the
+channel is in use (foreign traffic, another run of the rig): nothing was started; 130
 interrupted.
 """
 
@@ -53,7 +59,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    "(rs_ohm, ld_h, lq_h, lambda_m_wb, xsat_ldq_per_a) or wrote to the drive "
                    "as a TOML [firmware] table, whole or not at all; rig/commissioned/"
                    "PROFILE.toml is what scenario runs on that virtual bench use. FILE is "
-                   "checked before the run: it may not be a symbolic link, and an existing "
+                   "checked before the run: neither it nor a folder on the way to it may be a "
+                   "symbolic link, and an existing "
                    "FILE is replaced only if --save-params wrote it")
     cliargs.command(p, cmd_commission)
 
@@ -96,6 +103,8 @@ def cmd_commission(args: argparse.Namespace) -> int:
             print(f"rig commission: step {s.step} stopped: {s.error}", file=sys.stderr)
     verdict = "PASSED" if run.passed else "FAILED"
     print(f"commissioning {verdict}: {run.report_path}")
+    if run.data.get("refused"):
+        return EXIT_ENV
     if args.save_params is not None:
         if not _save_params(args.save_params, run.data, desc):
             return EXIT_FAIL
@@ -109,6 +118,10 @@ def _save_target_problem(path: Path) -> str | None:
 
     if path.is_symlink():
         return f"{path} is a symbolic link; refused (nothing is written through a link)"
+    link = _link_above(path)
+    if link is not None:
+        return (f"{path} lies in {link}, which is a symbolic link; refused (nothing is "
+                "written through a link: name the folder it points to)")
     if path.exists():
         if not path.is_file():
             return f"{path} is not a regular file"
@@ -117,6 +130,18 @@ def _save_target_problem(path: Path) -> str | None:
                     "or choose another FILE)")
     if not path.parent.is_dir():
         return f"{path.parent} is not a folder"
+    return None
+
+
+def _link_above(path: Path) -> Path | None:
+    """The first folder on the way to ``path`` (as given, from the current folder, whose own
+    path holds no link) that is a symbolic link, or None."""
+    import os
+
+    folder = Path(os.path.abspath(path)).parent
+    for above in (*reversed(folder.parents), folder):
+        if above.is_symlink():
+            return above
     return None
 
 

@@ -67,7 +67,10 @@ def cmd_export(args: argparse.Namespace) -> int:
         if args.can_log is not None:
             info = export.write_can_log(run_dir, args.can_log)
             print(f"rig export: {info['frames']} frames -> {args.can_log} "
-                  f"({info['bytes'] / 1e6:.1f} MB)")
+                  f"({info['bytes'] / 1e6:.1f} MB), {info['kind']} (not a live capture: "
+                  "rig run --can-log" + ("" if info["kind_in_file"] else
+                                         "; the candump format cannot say so in the file")
+                  + ")")
     except export.ExportError as exc:
         print(f"rig export: {exc}", file=sys.stderr)
         return 2

@@ -29,7 +29,8 @@ DIR/figure.png and a DIR/criterion-N.png per criterion that did not pass),
 DIR/recording.rrd (open with `rig view DIR`: display series at <= 1 kHz, and every capture
 column a criterion read at the full 10 kHz over the rows it read) and the programs' logs.
 A scenario that does not pass also keeps DIR/*.trace (every frame) and DIR/capture/ (the
-merged full-rate columns); --keep-all keeps them for every scenario. A suite writes one
+merged full-rate columns); --keep-all keeps them for every scenario. --can-log FORMAT adds
+DIR/bus.asc, bus.blf or bus.log: every frame on the channel, live. A suite writes one
 sub-folder per scenario plus a summary result.json and report.md in DIR. Without --out:
 $HIL_OUT or ./out, plus name and time; `rig clean` lists and removes old runs.
 """
@@ -52,7 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                        "available); inproc: plant and firmware core in this process, no bus "
                        "(rig.bench.sil; lockstep only)")
     cliargs.add_shared(p, "channel", env="HIL_CHANNEL",
-                       help="bus channel (default: $HIL_CHANNEL, else vcan0)")
+                       help="bus channel (default: $HIL_CHANNEL, else on unixcan one of the "
+                       "run's own, run-<pid>, and on SocketCAN vcan0)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the plant on the wall clock instead of lockstep")
     p.add_argument("--live", action="store_true",
@@ -104,6 +106,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    "issue 35)")
     p.add_argument("--fail-fast", action="store_true",
                    help="a suite: start no further scenario once one did not pass")
+    p.add_argument("--can-log", choices=("asc", "blf", "log"), default=None, metavar="FORMAT",
+                   help="on a bus: also log every frame that crosses the run's channel, live, "
+                   "by a node of the rig's own (lossless on unixcan in lockstep), into "
+                   "DIR/bus.asc, bus.blf or bus.log (candump -L); the file says it is a live "
+                   "capture where its format allows (`rig export --can-log` rebuilds one "
+                   "from the traces instead)")
     p.add_argument("--junit", type=Path, default=None, metavar="FILE",
                    help="also write the verdicts as JUnit XML for CI systems: a testcase per "
                    "criterion (metric, value, limit as properties, the report attached) and "
@@ -172,13 +180,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     said: list[str] = []  # what stopped a run that wrote nothing (for the JUnit file)
     where: list[Path] = []
     started = time.time()
-    status = _cmd_run(args, said, where)
-    if args.junit is not None:
-        name = Path(str(args.target)).stem if str(args.target).endswith(".toml") \
-            else str(args.target)
-        status = _write_junit(args.junit, where[0] if where else None, name, status,
-                              started, said[-1] if said else "")
-    return status
+    from rig.supervisor import VerdictGuard
+
+    guard = VerdictGuard()  # held once the verdict is written: a signal then changes nothing
+    try:
+        status = _cmd_run(args, said, where, guard)
+        if args.junit is not None:
+            name = Path(str(args.target)).stem if str(args.target).endswith(".toml") \
+                else str(args.target)
+            status = _write_junit(args.junit, where[0] if where else None, name, status,
+                                  started, said[-1] if said else "")
+        return status
+    finally:
+        guard.release()
 
 
 def _refuse(said: list[str], message: str, status: int) -> int:
@@ -187,7 +201,7 @@ def _refuse(said: list[str], message: str, status: int) -> int:
     return status
 
 
-def _cmd_run(args: argparse.Namespace, said: list[str], where: list[Path]) -> int:
+def _cmd_run(args: argparse.Namespace, said: list[str], where: list[Path], guard: Any) -> int:
     from rig import scenario
     from rig.run import runner
 
@@ -213,6 +227,9 @@ def _cmd_run(args: argparse.Namespace, said: list[str], where: list[Path]) -> in
                                      or not isinstance(target, scenario.Suite)):
         return _refuse(said, "--cluster runs a suite on the in-process bench (--bus inproc "
                        "and a suite)", runner.EXIT_USAGE)
+    if args.can_log is not None and _bus_of(args) == "inproc":
+        return _refuse(said, "--can-log logs a bus; in process there is none (`rig export DIR "
+                       "--can-log FILE` rebuilds a log from a run's traces)", runner.EXIT_USAGE)
     if args.realtime and args.bus == "inproc":
         return _refuse(said, "--realtime needs a bus (the in-process bench runs in lockstep "
                        "only)", runner.EXIT_USAGE)
@@ -224,7 +241,7 @@ def _cmd_run(args: argparse.Namespace, said: list[str], where: list[Path]) -> in
     out = args.out or runner.default_out(target.name)
     where.append(out)
     try:
-        return _run(args, target, out)
+        return _run(args, target, out, guard)
     finally:
         if args.out is None:  # runs named by time pile up: say so when they have
             from rig.commands.clean import notice
@@ -266,7 +283,7 @@ def junit_target_problem(dest: Path, out: Path | None) -> str | None:
     return None
 
 
-def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
+def _run(args: argparse.Namespace, target: Any, out: Path, guard: Any) -> int:
     from rig.results import webview
     from rig.run import runner
 
@@ -279,7 +296,7 @@ def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
               file=sys.stderr)
         args.web = True
     if not args.web:
-        return _run_with(args, target, out, None)
+        return _run_with(args, target, out, None, guard)
     try:
         viewer = webview.start(web_port=args.web_port or webview.DEFAULT_WEB_PORT,
                                grpc_port=args.grpc_port or webview.DEFAULT_GRPC_PORT)
@@ -289,10 +306,13 @@ def _run(args: argparse.Namespace, target: Any, out: Path) -> int:
     with viewer:
         print(f"rig run: live view in the web viewer at {viewer.url()} (until the run ends)",
               file=sys.stderr)
-        return _run_with(args, target, out, viewer.grpc_url)
+        return _run_with(args, target, out, viewer.grpc_url, guard)
 
 
-def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | None) -> int:
+def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | None,
+              guard: Any) -> int:
+    import time
+
     from rig import outputs, scenario
     from rig.run import runner
     from rig.run.cluster import ClusterError
@@ -308,11 +328,14 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
         jobs=args.jobs, fail_fast=args.fail_fast, baseline=args.baseline,
         confirm=not args.no_confirm, cluster=args.cluster,
         no_worker_timeout_s=args.no_worker_timeout,
+        can_log=args.can_log,
     )
+    started = time.time()
     try:
         with terminate_as_exception():
             if isinstance(target, scenario.Suite):
                 suite = run_suite(target, opts)
+                guard.hold()
                 for r in suite.results:
                     _print_verdict(r)
                 ok = suite.passed
@@ -323,15 +346,51 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
                             default=runner.EXIT_FAIL)
                 return runner.EXIT_PASS if ok else max(worst, runner.EXIT_FAIL)
             result = runner.run_scenario(target, opts)
-    except (KeyboardInterrupt, Terminated):
-        print(f"rig run: interrupted; partial results in {out}", file=sys.stderr)
-        return runner.EXIT_INTERRUPTED
+            guard.hold()
+    except (KeyboardInterrupt, Terminated) as exc:
+        status = written_verdict(out, started)
+        if status is None:
+            print(f"rig run: interrupted; partial results in {out}", file=sys.stderr)
+            return runner.EXIT_INTERRUPTED
+        guard.hold()
+        print(f"rig run: {type(exc).__name__} came after the verdict was written "
+              f"({out}/result.json): the exit status is the verdict's ({status})",
+              file=sys.stderr)
+        return status
     except (outputs.OutputError, ClusterError) as exc:
         print(f"rig run: {exc}", file=sys.stderr)
         return runner.EXIT_ENV
     _print_verdict(result)
     print(f"  -> {out}/report.md", file=sys.stderr)
     return runner.exit_code(result.passed, result.status)
+
+
+def written_verdict(out: Path, since: float) -> int | None:
+    """The exit status of the verdict this run wrote into ``out`` (``result.json`` written at
+    or after ``since`` that is a whole verdict: not an interrupted run or suite), or None."""
+    from rig.run import runner
+
+    result = out / "result.json"
+    try:
+        if result.stat().st_mtime < since:
+            return None
+        data = json.loads(result.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict):
+        return None
+    if data.get("schema") == "hil-suite/1":
+        entries = data.get("scenarios") or []
+        if not data.get("complete") or not isinstance(entries, list):
+            return None
+        if data.get("passed"):
+            return runner.EXIT_PASS
+        worst = max((runner.exit_code(bool(e.get("passed")), str(e.get("status")))
+                     for e in entries if isinstance(e, dict)), default=runner.EXIT_FAIL)
+        return max(worst, runner.EXIT_FAIL)
+    if data.get("status") in (None, "interrupted"):
+        return None
+    return runner.exit_code(bool(data.get("passed")), str(data.get("status")))
 
 
 def _write_junit(dest: Path, out: Path | None, name: str, status: int, started: float,

@@ -20,7 +20,7 @@ from typing import Any
 from rig.bench.description import BenchDescription
 from rig.commissioning import report
 from rig.commissioning.results import StepResult
-from rig.commissioning.session import BenchSession
+from rig.commissioning.session import BenchSession, ChannelRefused
 from rig.commissioning.steps import ALL, STEPS
 from rig.supervisor import Terminated, terminate_as_exception
 
@@ -88,7 +88,7 @@ def commission(desc: BenchDescription, steps: Sequence[str], run_dir: Path,
         "console": desc.console.port or None, "modbus": desc.modbus.endpoint(),
         "recording": str(session.recording), "results": str(run_dir / RESULTS),
         "started": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        "passed": False, "interrupted": False, "error": None,
+        "passed": False, "interrupted": False, "error": None, "refused": False,
     }
     if desc.virtual is not None:
         data["virtual_profile"] = desc.virtual.profile
@@ -99,7 +99,9 @@ def commission(desc: BenchDescription, steps: Sequence[str], run_dir: Path,
         try:
             try:
                 session.start()
-                data["can"] = session.link.where
+                data["can"] = session.link.where + (
+                    " (the session's own channel; name one with --set can.channel=NAME)"
+                    if session.channel_own else "")
                 data["console"] = desc.console.port or session.endpoints.console_port
                 if session.endpoints.modbus_port is not None:
                     data["modbus"] = (f"modbus tcp {desc.modbus.host}:"
@@ -128,6 +130,9 @@ def commission(desc: BenchDescription, steps: Sequence[str], run_dir: Path,
                 data["error"] = f"interrupted ({type(exc).__name__})"
                 if results and results[-1].error is None and not results[-1].passed:
                     results[-1].error = data["error"]
+            except ChannelRefused as exc:
+                data["refused"] = True  # nothing was started (exit 3)
+                data["error"] = str(exc)
             except Exception as exc:
                 data["error"] = f"{type(exc).__name__}: {exc}"
             finally:

@@ -24,13 +24,19 @@ from rig.commissioning.config import CommissioningConfig
 from rig.commissioning.truth import plant_truth
 from rig.drive.console import ConsoleClient
 from rig.drive.params import ParamClient
-from rig.link.bus import BusLink
+from rig.link.bus import BusLink, ForeignNodes, LinkError
 from rig.link.clock import BenchClock, LockstepClock, WallClock
 from rig.link.drive_master import DriveMaster
 from rig.loadbench.client import LoadBench
 
 Log = Callable[[str], None]
 SAFE_STOP_STALL_S = 2.0  # a dead plant must not hold the safe stop for the full stall time
+OWN = "commission"  # a virtual bench session's own unixcan channel: commission-<pid>
+
+
+class ChannelRefused(RuntimeError):
+    """The channel of a virtual bench session is not its own: another run of the rig holds
+    it, or a node sends there (the session starts nothing: exit 3)."""
 
 
 class BenchSession:
@@ -48,6 +54,9 @@ class BenchSession:
         self.console: ConsoleClient | None = None
         self.load: LoadBench | None = None
         self.identified: dict[str, float] = {}
+        self.channel_own = False  # the session's own unixcan channel (none was named)
+        self._claim: rigbus.ChannelClaim | None = None
+        self._channel = ""
         # drive parameters a step wrote as its result (``rig commission --save-params``)
         self.written: dict[str, float] = {}
         self.safety: list[str] = []
@@ -84,20 +93,52 @@ class BenchSession:
 
     # -- opening -----------------------------------------------------------------------
     def start(self) -> None:
-        """Programs of a virtual bench, the CAN link, the clock, parameters, drive master."""
+        """Programs of a virtual bench, the CAN link, the clock, parameters, drive master.
+        A virtual bench session that names no channel gets a unixcan channel of its own; its
+        channel is held for the session and checked for foreign traffic before anything
+        starts, as a run's is (ChannelRefused). A real bench's drive is there already: its
+        channel is the description's (else $HIL_CHANNEL, else vcan0)."""
         self.dir.mkdir(parents=True, exist_ok=True)
         d = self.desc
-        transport, channel = rigbus.select_transport(d.can.transport, d.can.channel)
+        starts_nodes = d.virtual is not None and bool(d.virtual.programs)
+        transport, channel = rigbus.select_transport(d.can.transport, d.can.channel or None,
+                                                     own=OWN if starts_nodes else None)
+        self._channel = channel
+        self.channel_own = starts_nodes and rigbus.is_own_channel(channel)
+        if starts_nodes:
+            try:
+                self._claim = rigbus.claim_channel(transport, channel)
+            except rigbus.ChannelInUse as exc:
+                raise ChannelRefused(str(exc)) from exc
+        try:
+            # in lockstep the rig's node loses no frame, as the programs' do (unixcan)
+            link = BusLink.open(transport, channel, record=self.recording,
+                                lossless=d.lockstep)
+        except BaseException:
+            self._release_channel()
+            raise
+        if starts_nodes:
+            try:
+                link.check_channel()
+            except BaseException as exc:
+                link.close()
+                self._release_channel()
+                if isinstance(exc, ForeignNodes):  # (ForeignTraffic too): nothing started
+                    raise ChannelRefused(f"foreign traffic: {exc}") from exc
+                if isinstance(exc, RuntimeError | FileNotFoundError | OSError):
+                    raise LinkError(str(exc)) from exc  # hilbus_tool
+                raise
+        self._link = link
         if d.virtual is not None:
             self.truth = plant_truth(d)
             if d.virtual.programs:
                 self.virtual = virtual.VirtualBench(virtual.from_description(d), self.dir,
                                                   log_dir=self.dir / "logs")
+                own = " (the session's own)" if self.channel_own else ""
                 self.log(f"starting the virtual bench ({', '.join(d.virtual.programs)}) on "
-                         f"{transport} {channel}")
+                         f"{transport} channel {channel}{own}")
                 self.endpoints = self.virtual.start(transport, channel,
                                                     ready_timeout_s=d.virtual.ready_timeout_s)
-        self._link = BusLink.open(transport, channel, record=self.recording)
         if d.lockstep:
             clock: BenchClock = LockstepClock(self._link, grant_s=d.clock.grant_s)
         else:
@@ -204,7 +245,15 @@ class BenchSession:
         if self.virtual is not None:
             stopped = {name: {"exit": rep.returncode, "clean": rep.clean}
                        for name, rep in self.virtual.stop().items()}
+        self._release_channel()
         return stopped
+
+    def _release_channel(self) -> None:
+        if self._claim is not None:
+            self._claim.release()
+            self._claim = None
+        if self.channel_own:
+            rigbus.release_own_channel(self._channel)
 
     def elapsed(self) -> Callable[[], tuple[float, float]]:
         """A stopwatch of (bench s, wall s) from now."""

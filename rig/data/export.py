@@ -43,6 +43,7 @@ import numpy as np
 from cantools.database.can import Message
 
 from rig import protocols
+from rig.bus import can_log
 from rig.bus.unixcan_wire import WIRE
 from rig.data import capture
 from rig.data.trace import CAN_EFF_FLAG, CANFD_FDF, MessageDecoder, TraceError, TraceFile, frame_ids
@@ -446,23 +447,20 @@ def write_can_log(run_dir: Path, dest: Path) -> dict[str, Any]:
         if required and not (run_dir / name).is_file():
             raise _no_full_rate(run_dir, f"trace {name}")
     _frames(run_dir, result)  # a damaged trace stops it before anything is written
-    suffix = dest.suffix.lower()
     frames = 0
     with _whole_or_nothing(dest) as tmp:
-        writer: can.io.generic.MessageWriter
-        if suffix == ".blf":
-            writer = can.BLFWriter(tmp)
-        elif suffix == ".asc":
-            writer = can.ASCWriter(tmp)
-        else:
-            writer = can.CanutilsLogWriter(tmp, channel="vcan0")
+        writer = can_log.writer(
+            tmp, can_log.REBUILT, "the frames the plant (channel 0), the firmware (1) and the "
+            "rig (2) traced, each at the run's start plus its PWM period; not a live capture "
+            "(rig run --can-log)")
         try:
             for msg in messages(run_dir):
                 writer.on_message_received(msg)
                 frames += 1
         finally:
             writer.stop()
-    return {"path": str(dest), "frames": frames, "bytes": dest.stat().st_size}
+    return {"path": str(dest), "frames": frames, "bytes": dest.stat().st_size,
+            "kind": can_log.REBUILT, "kind_in_file": can_log.says_kind_in_file(dest)}
 
 
 def checked_destination(dest: Path, suffixes: tuple[str, ...], what: str) -> Path:

@@ -193,6 +193,22 @@ class ColumnSource(Protocol):
     def __contains__(self, name: object, /) -> bool: ...
 
 
+class Overlay:
+    """A column source with columns added (the ISR's cost per period beside a capture)."""
+
+    def __init__(self, base: ColumnSource, extra: Mapping[str, np.ndarray]) -> None:
+        self.base, self.extra = base, dict(extra)
+
+    def __getitem__(self, name: str, /) -> np.ndarray:
+        return self.extra[name] if name in self.extra else self.base[name]
+
+    def __contains__(self, name: object, /) -> bool:
+        return name in self.extra or name in self.base
+
+    def names_with(self, prefix: str) -> list[str]:
+        return [n for n in self.extra if n.startswith(prefix)]
+
+
 class Window:
     """The rows of a capture in ``[t0, t1]`` plus what run-level metrics need."""
 
@@ -228,6 +244,12 @@ class Window:
     def has(self, name: str) -> bool:
         return name in self._cols
 
+    def names_with(self, prefix: str) -> list[str]:
+        """The columns whose names start with ``prefix``, for a source that lists its
+        columns (``Overlay``); none for one that does not."""
+        lister = getattr(self._cols, "names_with", None)
+        return list(lister(prefix)) if lister is not None else []
+
     def get(self, name: str) -> FloatArray:
         return self._read(name, self.i0, self.i1)
 
@@ -247,6 +269,9 @@ class Window:
 
 
 MetricFn = Callable[[Window, Mapping[str, float]], float]
+# what a metric says besides its value (result.json's "detail": numbers by name), for the
+# baseline to tell where a value moved (rig.regression.baseline: the ISR's steps)
+DetailFn = Callable[[Window, Mapping[str, float]], dict[str, float]]
 
 
 @dataclass(frozen=True)
@@ -257,6 +282,10 @@ class Metric:
     fn: MetricFn
     scope: Literal["window", "run"] = "window"
     params: Mapping[str, float] = field(default_factory=dict)
+    detail: DetailFn | None = None
+    # what the metric's data needs besides a capture: "" or "target" (the ISR's cost on the
+    # emulated target, measured on the in-process bench only: rig.target_m4.cost)
+    needs: str = ""
 
 
 METRICS: dict[str, Metric] = {}
@@ -269,9 +298,12 @@ def _register(
     description: str,
     scope: Literal["window", "run"] = "window",
     params: Mapping[str, float] | None = None,
+    detail: DetailFn | None = None,
+    needs: str = "",
 ) -> Callable[[MetricFn], MetricFn]:
     def deco(fn: MetricFn) -> MetricFn:
-        METRICS[name] = Metric(name, unit, description, fn, scope, dict(params or {}))
+        METRICS[name] = Metric(name, unit, description, fn, scope, dict(params or {}), detail,
+                               needs)
         return fn
 
     return deco
@@ -630,6 +662,59 @@ def _dups(w: Window, p: Mapping[str, float]) -> float:
     return float(w.counters.get("capture.duplicates", float("nan")))
 
 
+# The ISR's cost on the emulated Cortex-M4F (rig.target_m4.cost): the instructions of each
+# journalled period, in total and by step of fw_core_isr. A period of the window that was
+# not replayed makes the value NaN (no data), never a smaller sample.
+ISR_COLUMN = "isr.instructions"
+ISR_STEP_PREFIX = "isr.step."
+TARGET = "target"
+
+
+def _isr_column(w: Window) -> FloatArray:
+    v = w.get(ISR_COLUMN) if w.has(ISR_COLUMN) else np.empty(0)
+    return v if v.size and np.isfinite(v).all() else np.empty(0)
+
+
+def _isr_steps(w: Window) -> dict[str, FloatArray]:
+    return {name[len(ISR_STEP_PREFIX):]: w.get(name) for name in _isr_step_names(w)}
+
+
+def _isr_step_names(w: Window) -> list[str]:
+    return w.names_with(ISR_STEP_PREFIX)
+
+
+def _isr_median_detail(w: Window, p: Mapping[str, float]) -> dict[str, float]:
+    if not _isr_column(w).size:
+        return {}
+    return {k: float(np.median(v)) for k, v in _isr_steps(w).items()}
+
+
+def _isr_worst_detail(w: Window, p: Mapping[str, float]) -> dict[str, float]:
+    total = _isr_column(w)
+    if not total.size:
+        return {}
+    i = int(np.argmax(total))  # (the first of equal worst periods)
+    return {k: float(v[i]) for k, v in _isr_steps(w).items()}
+
+
+@_register("isr_instructions_median", "instructions",
+           "median instructions of fw_core_isr per period on the emulated Cortex-M4F "
+           "(in-process runs only; detail: each step's median)",
+           detail=_isr_median_detail, needs=TARGET)
+def _isr_median(w: Window, p: Mapping[str, float]) -> float:
+    v = _isr_column(w)
+    return float(np.median(v)) if v.size else math.nan
+
+
+@_register("isr_instructions_max", "instructions",
+           "largest instructions of fw_core_isr in a period on the emulated Cortex-M4F "
+           "(in-process runs only; detail: the steps of that period)",
+           detail=_isr_worst_detail, needs=TARGET)
+def _isr_max(w: Window, p: Mapping[str, float]) -> float:
+    v = _isr_column(w)
+    return float(v.max()) if v.size else math.nan
+
+
 # What an infinite value means, per metric (the criterion's note).
 INFINITE_NOTES: dict[str, str] = {
     "recovery_time_s": "never settled",
@@ -692,6 +777,20 @@ def compute(name: str, window: Window, params: Mapping[str, Any] | None = None) 
     if metric.scope == "window" and len(window) == 0:
         return float("nan")
     return float(metric.fn(window, merged))
+
+
+def detail(name: str, window: Window, params: Mapping[str, Any] | None = None
+           ) -> dict[str, float]:
+    """What metric ``name`` says besides its value over ``window`` (empty for most)."""
+    metric = METRICS.get(name)
+    if metric is None or metric.detail is None or len(window) == 0:
+        return {}
+    return metric.detail(window, dict(metric.params) | dict(params or {}))
+
+
+def needs_target(name: str) -> bool:
+    """Whether metric ``name`` is measured on the emulated target (in-process runs only)."""
+    return name in METRICS and METRICS[name].needs == TARGET
 
 
 COMPARISONS: dict[str, Callable[[float, float], bool]] = {

@@ -23,8 +23,9 @@ Foreign traffic: the link also receives the messages only the rig sends (their D
 transmitter is RIG: BENCH_STEP, LOAD_CMD, FAULT_CMD, DRIVE_CMD, DRIVE_LIMITS, PARAM_REQ): one
 arriving comes from a node outside the run; it is counted in ``foreign`` and reported to
 ``on_foreign`` (a run stops on it, ``rig.run.on_bus``). Frames are counted by identifier both
-ways (``tx_ids``, ``rx_ids``) for the run's check of what every node received against what
-the run's nodes sent (``rig.run.traffic``).
+ways by their whole identity (``tx_ids``, ``rx_ids``: ``rig.bus.identity``, so an extended or
+a remote frame is never taken for a message of the DBC) for the run's check of what every
+node received against what the run's nodes sent (``rig.run.traffic``).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from cantools.database.can import Message
 from rig import bus as rigbus
 from rig import protocols
 from rig.bench import sil
+from rig.bus import identity
 from rig.bus.frames import FrameDecoder
 from rig.data.trace import TraceWriter
 from rig.link.frame_faults import FrameFaults
@@ -83,6 +85,12 @@ def rig_messages() -> dict[int, str]:
             if "RIG" in (m.senders or [])}
 
 
+def rig_message_keys() -> dict[int, str]:
+    """The same by their whole identity (``rig.bus.identity``)."""
+    names = set(rig_messages().values())
+    return {k: n for k, n in identity.dbc_keys().items() if n in names}
+
+
 class FrameSink(Protocol):
     """Where frames go: a python-can bus, or the in-process bench's port (``rig.bench.sil``)."""
 
@@ -104,13 +112,16 @@ class BusLink:
         self.transport, self.channel = transport, channel
         self.decoder = FrameDecoder()
         self.faults = frame_faults if frame_faults is not None else FrameFaults()
-        self._names = {int(self.decoder.message(n).frame_id): n for _, n in LISTEN}
-        self._rig_only = rig_messages()
-        self.tx_ids: collections.Counter[int] = collections.Counter()  # by arbitration id
+        by_name = {n: k for k, n in identity.dbc_keys().items()}
+        self._names = {by_name[n]: n for _, n in LISTEN}
+        self._rig_only = rig_message_keys()
+        # frames by their whole identity (rig.bus.identity)
+        self.tx_ids: collections.Counter[int] = collections.Counter()
         self.rx_ids: collections.Counter[int] = collections.Counter()
         self.foreign: list[str] = []  # what arrived that only the rig sends
         self.on_foreign: Callable[[str], None] | None = None
         self.listeners_at_start: int | None = None  # other nodes on a unixcan channel
+        self.others_at_start: dict[str, str] = {}  # their socket names, in words
         self.latest: dict[str, Signals] = {}
         self.latest_wall: dict[str, float] = {}
         self._undecoded: dict[str, can.Message] = {}
@@ -129,11 +140,14 @@ class BusLink:
     @classmethod
     def open(cls, transport: str | None, channel: str | None, *, record: Path | None = None,
              frame_faults: FrameFaults | None = None,
-             trace: Path | None = None) -> BusLink:
-        """A link on a bus channel (``rig.bus.select_transport`` resolves ``auto``)."""
+             trace: Path | None = None, lossless: bool = False) -> BusLink:
+        """A link on a bus channel (``rig.bus.select_transport`` resolves ``auto``);
+        ``lossless`` in lockstep: on unixcan the rig's node loses no frame (its senders wait
+        for it, as it waits for the programs)."""
         transport, channel = rigbus.select_transport(transport, channel)
         try:
-            bus = rigbus.open_bus(transport, channel, can_filters=listen_filters())
+            bus = rigbus.open_bus(transport, channel, can_filters=listen_filters(),
+                                  lossless=lossless)
         except (can.CanError, OSError, ValueError) as exc:
             raise LinkError(f"cannot open {transport} bus {channel!r}: {exc}") from exc
         return cls(bus, transport=transport, channel=channel, record=record,
@@ -169,10 +183,10 @@ class BusLink:
             else:
                 self.bus.send(msg)
         except (can.CanError, OSError) as exc:
-            name = self._names.get(msg.arbitration_id, f"0x{msg.arbitration_id:X}")
+            name = identity.describe(identity.of_message(msg))
             raise LinkError(f"{self.where}: cannot send {name}: {exc}") from exc
         self.tx += 1
-        self.tx_ids[msg.arbitration_id] += 1
+        self.tx_ids[identity.of_message(msg)] += 1
         if self._log is not None:
             self._log(msg)
         self._traced(msg)
@@ -232,18 +246,20 @@ class BusLink:
         if msg.is_error_frame:
             return
         self.rx += 1
-        self.rx_ids[msg.arbitration_id] += 1
+        k = identity.of_message(msg)
+        self.rx_ids[k] += 1
         if self._log is not None:
             self._log(msg)
         self._traced(msg)
-        own = self._rig_only.get(msg.arbitration_id)
-        if own is not None and not msg.is_extended_id:
+        own = self._rig_only.get(k)
+        if own is not None:
             self.note_foreign(f"a {own} frame (id 0x{msg.arbitration_id:03X}), which only the "
                               "rig sends, from a node outside the run")
             return
-        name = self._names.get(msg.arbitration_id)
+        name = self._names.get(k)
         if name is None:
-            return  # not a message the rig listens to (the filters let it through)
+            return  # not a message the rig listens to (the filters let it through), or a
+            # frame with its identifier but another identity (extended, remote, format)
         if name in LAZY and not self._handlers.get(name):
             self._undecoded[name] = msg  # validated and decoded only when asked for
             self.lazy += 1
@@ -323,15 +339,25 @@ class BusLink:
                     f"unixcan node reaches (HILBUS_MAX_PEERS = {max_peers}, hilbus.h); "
                     "use --channel NAME")
             self.listeners_at_start = len(others)
+            self.others_at_start = {Path(p).name: unixcan.node_label(p) for p in others}
         seen: collections.Counter[int] = collections.Counter()
         before = collections.Counter(getattr(self.bus, "rx_ids", {}))
-        deadline = time.monotonic() + FOREIGN_LISTEN_S
-        while (left := deadline - time.monotonic()) > 0:
-            msg = self.bus.recv(timeout=left)
-            if msg is not None and not msg.is_error_frame:
-                seen[msg.arbitration_id] += 1
+        # SocketCAN filters in the kernel: for the check the link takes every frame (a node
+        # sending only ids the rig does not listen to would pass unseen otherwise)
+        widen = transport != "unixcan"
+        if widen:
+            self.bus.set_filters(None)  # type: ignore[attr-defined]
+        try:
+            deadline = time.monotonic() + FOREIGN_LISTEN_S
+            while (left := deadline - time.monotonic()) > 0:
+                msg = self.bus.recv(timeout=left)
+                if msg is not None and not msg.is_error_frame:
+                    seen[identity.of_message(msg)] += 1
+        finally:
+            if widen:
+                self.bus.set_filters(listen_filters())  # type: ignore[attr-defined]
         # unixcan counts what its filters let through too (a node sending only the 10 kHz
-        # virtual I/O would pass unseen otherwise)
+        # virtual I/O would pass unseen otherwise), by the same identity
         seen |= collections.Counter(getattr(self.bus, "rx_ids", {})) - before
         if seen:
             raise ForeignTraffic(
@@ -360,20 +386,13 @@ def listen_filters() -> list[dict[str, int]]:
     return [{"can_id": i, "can_mask": 0x7FF} for i in sorted(ids)]
 
 
-def message_names() -> dict[int, str]:
-    """Every message of the bench's protocols by frame id."""
-    return {int(m.frame_id): m.name
-            for db in ("drive", "vio", "bench") for m in protocols.database(db).messages}
-
-
 def describe_ids(counts: Mapping[int, int], limit: int = 6) -> str:
-    """``3 VIO_ADC_0 (0x011), 1 frame of id 0x123`` for frame counts by raw can_id."""
-    names = message_names()
+    """``3 VIO_ADC_0 (0x011), 2 of extended frame 0x00000011`` for frame counts by their whole
+    identity (``rig.bus.identity``)."""
     parts = []
-    for raw, n in sorted(counts.items(), key=lambda kv: -kv[1])[:limit]:
-        ident = raw & 0x1FFFFFFF
-        name = names.get(raw)
-        parts.append(f"{n} {name} (0x{ident:03X})" if name else
-                     f"{n} frame(s) of id 0x{ident:03X}")
+    for k, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))[:limit]:
+        known = identity.name(k)
+        parts.append(f"{n} {identity.describe(k)}" if known else
+                     f"{n} of {identity.describe(k)}")
     more = len(counts) - limit
-    return ", ".join(parts) + (f" and frames of {more} more id(s)" if more > 0 else "")
+    return ", ".join(parts) + (f" and frames of {more} more kind(s)" if more > 0 else "")

@@ -67,8 +67,13 @@ REL_FLOOR = 0.01
 # the smallest band half-width per unit: the resolution a value is meaningful to
 UNIT_FLOOR = {
     "deg": 0.01, "r/min": 0.01, "%": 0.01, "A": 1e-3, "N*m": 1e-3, "V": 0.01, "mH": 1e-3,
-    "Wb": 1e-5, "s": 1e-4, "periods": 1.0,
+    "Wb": 1e-5, "s": 1e-4, "periods": 1.0, "instructions": 1.0,
 }
+# units whose least half-width is a larger share of the mean than REL_FLOOR: the ISR's
+# instructions per period on the target (rig.target_m4.cost) are exact for a given build and
+# input, and what matters of them is a share of the budget; a firmware that costs 5 % more
+# in a scenario's median or worst period is a regression (issue 40), less is not
+UNIT_REL_FLOOR = {"instructions": 0.05}
 
 UNCHANGED, IMPROVED, REGRESSED, CHANGED, STALE, NEW, MISSING, EXCURSION = (
     "unchanged", "improved", "regressed", "changed", "stale", "new", "missing", "excursion")
@@ -243,7 +248,7 @@ def _scale(n: int, of_mean: bool) -> float:
 
 def floor_of(mean: float, unit: str) -> float:
     """The least half-width of a band around ``mean`` in ``unit``."""
-    return max(REL_FLOOR * abs(mean), UNIT_FLOOR.get(unit, 0.0))
+    return max(UNIT_REL_FLOOR.get(unit, REL_FLOOR) * abs(mean), UNIT_FLOOR.get(unit, 0.0))
 
 
 @dataclass(frozen=True)
@@ -261,6 +266,9 @@ class Record:
     # "value": the criterion's value; "mean": the mean of its per-seed values (a scenario
     # decided over its own seeds)
     stat: str = "value"
+    # the mean over the seeds of what the metric says besides its value (the ISR's
+    # instructions by step): where a flagged value moved (``where``)
+    detail: Mapping[str, float] = field(default_factory=dict)
 
     def statistic(self, c: Mapping[str, Any]) -> float | None:
         """What of a run's criterion is compared with the band."""
@@ -288,6 +296,24 @@ class Record:
         if self.stat == "mean":
             out["mean"] = got
         return out
+
+    def where(self, c: Mapping[str, Any]) -> str:
+        """Where a run's value moved against the recorded one, by the metric's detail (the
+        ISR's steps): the part that grew most, and any other that grew by at least half as
+        much ('' without a detail on both sides)."""
+        got = c.get("detail") or {}
+        if not self.detail or not got:
+            return ""
+        moves = sorted(((float(got[k]) - v, k, v) for k, v in self.detail.items() if k in got),
+                       reverse=self.better != HIGHER)
+        if not moves:
+            return ""
+        top = moves[0][0]
+        if top == 0:
+            return ""
+        parts = [f"{k} {v:.6g} -> {float(got[k]):.6g} ({d:+.6g})" for d, k, v in moves
+                 if d * top > 0 and abs(d) >= abs(top) / 2]
+        return "moved in " + ", ".join(parts)
 
     def matches(self, c: Mapping[str, Any]) -> str:
         """Why a criterion of a run is not this record's ('' when it is)."""
@@ -360,6 +386,9 @@ class Baseline:
                 c["baseline"] = rec.judged(rec.statistic(c), len(self.seeds))
                 if rec.stat == "mean":
                     c["baseline"].update(stat="mean", seeds=len(c.get("seeds") or []))
+                where = rec.where(c) if c["baseline"]["class"] in (REGRESSED, CHANGED) else ""
+                if where:
+                    c["baseline"]["where"] = where
             counts[c["baseline"]["class"]] += 1
         return {
             "file": _shown(self.path), "suite": self.suite,
@@ -410,6 +439,8 @@ class Baseline:
                     row["params"] = dict(r.params)
                 if r.stat != "value":
                     row["stat"] = r.stat
+                if r.detail:
+                    row["detail"] = {k: _sig(v) for k, v in r.detail.items()}
                 row["values"] = [math.nan if v is None else v for v in (b.values or ())]
                 t[name] = _inline_table(row)
             entries[key] = t
@@ -542,8 +573,14 @@ class _Checker:
         why = band_problem(band)
         if why:
             self.fail(path, f"criterion {name!r}: {why}; record the baseline again")
+        detail = row.get("detail") or {}
+        if not isinstance(detail, dict) or not all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                for x in detail.values()):
+            self.fail((*path, "detail"), "detail must be a table of finite numbers")
         return Record(name, row["metric"], (w[0], w[1]), dict(params), row["unit"],
-                      row["better"], row["outcome"], band, stat)
+                      row["better"], row["outcome"], band, stat,
+                      {str(k): float(v) for k, v in detail.items()})
 
 
 def band_problem(b: Band) -> str:
@@ -682,9 +719,18 @@ def build(suite: str, seeds: Sequence[int], scenarios: Sequence[Scenario],
                 band, stat = Band.of(values, unit), "value"
             entry.records[cr.name] = Record(
                 cr.name, cr.metric, (cr.window[0], cr.window[1]), dict(cr.params), unit,
-                cr.side(), outcomes[0], band, stat)
+                cr.side(), outcomes[0], band, stat,
+                _mean_detail([c.get("detail") if c is not None else None for c in got]))
         entries[key] = entry
     return Baseline(suite, tuple(seeds), now(), dict(source), entries), problems
+
+
+def _mean_detail(details: Sequence[Mapping[str, Any] | None]) -> dict[str, float]:
+    """The mean per name of the seeds' details (empty unless every seed has one)."""
+    if not details or any(not d for d in details):
+        return {}
+    names = [k for k in details[0] if all(k in d for d in details if d)]
+    return {k: sum(float(d[k]) for d in details if d) / len(details) for k in names}
 
 
 # --------------------------------------------------------------------------------------

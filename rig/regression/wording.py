@@ -59,6 +59,8 @@ def against_baseline(c: Mapping[str, Any]) -> str:
         d = distance(b)
         if d:
             parts.append(d)
+    if b.get("where"):
+        parts.append(str(b["where"]))
     c = confirmation(b)
     if c:
         parts.append(c)

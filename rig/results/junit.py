@@ -71,8 +71,12 @@ def criterion_properties(c: Mapping[str, Any]) -> list[tuple[str, str]]:
              if c.get(key) is not None]
     props += [(f"param.{k}", _text(v)) for k, v in (c.get("params") or {}).items()]
     b = c.get("baseline") or {}
-    props += [(f"baseline.{k}", _text(b[k])) for k in ("class", "value", "lo", "hi", "note")
+    props += [(f"baseline.{k}", _text(b[k])) for k in ("class", "value", "lo", "hi",
+                                                        "distance", "chance", "note")
               if b.get(k) is not None]
+    conf = b.get("confirmation") or {}
+    props += [(f"baseline.confirmation.{k}", _text(conf[k]))
+              for k in ("seeds", "values", "p", "alpha", "confirmed") if conf.get(k) is not None]
     return props
 
 
@@ -106,7 +110,11 @@ def criterion_verdict(c: Mapping[str, Any], baseline_file: str | None
     if cls in failing_classes():
         against = f"against {baseline_file}" if baseline_file else "against its baseline"
         if "lo" in b:
-            what = f"{shown.measured(c, DIGITS)}, {shown.baseline_band(c, DIGITS)}"
+            from rig.regression.wording import confirmation, distance
+
+            what = "; ".join(x for x in (
+                f"{shown.measured(c, DIGITS)}, {shown.baseline_band(c, DIGITS)}",
+                distance(b), confirmation(b)) if x)
         else:
             what = f"{shown.measured(c, DIGITS)}: {b.get('note') or 'no band'}"
         reasons.append((f"baseline_{cls}", f"{str(cls).upper()} {against}: {what}"))

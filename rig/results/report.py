@@ -200,9 +200,14 @@ def scenario_report(result: Mapping[str, Any]) -> str:
         else:
             lines.append("- no full-rate traces or capture")
     counters = result.get("counters") or {}
-    if "rig.listeners.start" in counters:
+    if "rig.listeners.start" in counters or result.get("bus_report"):
+        from rig.run.bus_report import in_words
+
         foreign = (result.get("failure") or {}).get("kind") == "foreign_traffic"
-        lines += ["", "## Bus", "", _listeners(counters, foreign)]
+        lines += ["", "## Bus", ""]
+        if "rig.listeners.start" in counters:
+            lines.append(_listeners(counters, foreign))
+        lines += in_words(result.get("bus_report") or {})
     if counters:
         lines += ["", "## Counters", "", "| counter | value |", "|---|---|"]
         for k in sorted(counters):

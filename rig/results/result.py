@@ -108,6 +108,12 @@ class RunResult:
     baseline: dict[str, Any] | None = None
     seeds: list[dict[str, Any]] | None = None  # a run over the scenario's own seeds: each one
     figures: dict[str, Any] | None = None  # rig.results.figures: the pictures in the run folder
+    # criteria of the scenario this run does not judge, each with why (the ISR's cost on the
+    # target, measured on the in-process bench only, on a run on a bus)
+    left_out: list[dict[str, str]] | None = None
+    # unixcan: the other nodes on the channel and what each missed, the lockstep's waits, the
+    # rig's own live log of the bus (rig.run.bus_report)
+    bus_report: dict[str, Any] | None = None
     capture: capture.Capture | None = field(default=None, compare=False, repr=False)
 
     @classmethod
@@ -147,6 +153,10 @@ class RunResult:
             out["seeds"] = self.seeds
         if self.figures is not None:
             out["figures"] = self.figures
+        if self.left_out:
+            out["left_out"] = self.left_out
+        if self.bus_report is not None:
+            out["bus_report"] = self.bus_report
         return out
 
     @classmethod
@@ -169,7 +179,8 @@ class RunResult:
             versions=dict(data.get("versions") or {}), command_lines=data.get("command_lines"),
             finished=str(data.get("finished", "")), kept=_from_json(Kept, data.get("kept")),
             baseline=data.get("baseline"), seeds=data.get("seeds"),
-            figures=data.get("figures"), capture=cap,
+            figures=data.get("figures"), left_out=data.get("left_out"),
+            bus_report=data.get("bus_report"), capture=cap,
         )
 
     @classmethod

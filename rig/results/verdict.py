@@ -96,9 +96,12 @@ def outcome(c: Mapping[str, Any]) -> str:
 
 def evaluate_one(cr: Criterion, cap: capture.Capture | None, counters: Mapping[str, float],
                  coverage: Coverage,
-                 reads: list[tuple[str, int, int]] | None = None) -> dict[str, Any]:
+                 reads: list[tuple[str, int, int]] | None = None,
+                 extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """One criterion's entry of result.json; the capture rows it read are added to
-    ``reads`` (the recording keeps them at full rate as the criterion's evidence)."""
+    ``reads`` (the recording keeps them at full rate as the criterion's evidence).
+    ``extra``: capture-aligned columns that are not in the capture (the ISR's cost per
+    period, rig.target_m4.cost); a metric's detail (numbers by name) goes into the entry."""
     entry: dict[str, Any] = {
         "name": cr.name,
         "metric": cr.metric,
@@ -125,13 +128,21 @@ def evaluate_one(cr: Criterion, cap: capture.Capture | None, counters: Mapping[s
         note = "no capture"
     else:
         cols: metrics.ColumnSource = cap if cap is not None else {}
+        if extra:
+            cols = metrics.Overlay(cols, extra)
         first = cap.first_period if cap is not None else 0
+        read: list[tuple[str, int, int]] = []
         w = metrics.Window(cols, cr.window[0], cr.window[1], ts=TS, first_period=first,
-                           counters=counters, reads=reads)
+                           counters=counters, reads=read)
         try:
             value = metrics.compute(cr.metric, w, cr.params)
+            detail = metrics.detail(cr.metric, w, cr.params)
+            if detail:
+                entry["detail"] = detail
         except KeyError as exc:
             note = f"missing data: {exc}"
+        if reads is not None:  # the capture's rows (the added columns are not recorded)
+            reads.extend(r for r in read if not extra or r[0] not in extra)
         if math.isnan(value) and not note:
             note = "no data in the window"
         elif math.isinf(value):

@@ -4,15 +4,17 @@ loss report, and the verdicts on the data the run produced (``rig.results.verdic
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from rig.bench import profiles, sil
-from rig.data import capture
+from rig.data import capture, metrics
 from rig.link.drive_master import accel_max
 from rig.results.result import Failure, RunResult
 from rig.results.verdict import AGAINST, Coverage, evaluate_one, outcome
-from rig.run import traffic
+from rig.run import bus_report, traffic
 from rig.run.execution import TS, Execution
 from rig.run.options import RunOptions
 from rig.run.plan import Plan
@@ -41,9 +43,45 @@ def evaluate(found: Evaluated, result: RunResult, sc: Scenario, plan: Plan, run:
     if loss is not None:
         result.capture_loss = {**loss.to_json(), "summary": loss.summary()}
     result.counters = run.counters
+    if run.bus_nodes is not None:
+        result.bus_report = bus_report.report(run.bus_nodes, run.counters)
+    if run.can_log is not None:
+        log = dict(run.can_log)
+        if run.bus_nodes is not None and log.get("missed") is not None:
+            log["missed"] = int(log["missed"]) + bus_report.can_log_missed(run.bus_nodes)
+        result.bus_report = {**(result.bus_report or {}), "can_log": log}
     cov = coverage(plan, found.capture, loss, run.periods_done, opts.realtime, interrupted,
                    found.failure)
-    found.reads = judge(result, sc, found.capture, cov, found.failure)
+    on_bench = opts.bus == sil.INPROC
+    extra, why = isr_cost(sc, result.out_dir, found.capture, on_bench and not interrupted
+                          and opts.core_journal is None)
+    found.reads = judge(result, sc, found.capture, cov, found.failure, on_bench=on_bench,
+                        extra=extra, extra_missing=why)
+
+
+def isr_cost(sc: Scenario, out: Path, cap: capture.Capture | None, measured: bool
+             ) -> tuple[dict[str, Any], str]:
+    """The capture-aligned columns of the ISR's cost on the target for the scenario's
+    criteria of it (rig.target_m4.cost: the run's journal replayed, or the cache's counts
+    for this build and journal), or why there are none."""
+    if not any(metrics.needs_target(cr.metric) for cr in sc.criteria):
+        return {}, ""
+    journal = out / "isr.journal"
+    if not measured or cap is None or not journal.is_file():
+        return {}, "the ISR's cost is measured on the in-process bench from the run's own " \
+            "journal (rig.target_m4.cost)"
+    from rig.target_m4 import cost, emulator, steps
+
+    try:
+        costs = cost.measure(journal)
+    except FileNotFoundError as exc:
+        return {}, f"no Cortex-M4F image ({emulator.ELF_NAME}: ./hil install builds it " \
+            f"with arm-none-eabi-gcc): {exc}"
+    except (cost.TargetMismatch, steps.StepMapError, ValueError, RuntimeError) as exc:
+        return {}, f"the ISR's cost could not be measured: {exc}"
+    finally:
+        journal.unlink(missing_ok=True)
+    return costs.columns(cap.first_period, cap.n), ""
 
 
 def judge_interrupted(result: RunResult, sc: Scenario, plan: Plan, run: Execution,
@@ -72,7 +110,9 @@ def program_failure(run: Execution, failure: Failure | None, on_bus: bool) -> Fa
             node = "plant" if rep.name == "plant_rt" else "firmware"
             frames.add_program(node, rep.counters)
             run.add_counters(node, {k: v for k, v in rep.counters.items()
-                                    if k not in ("tx_ids", "rx_ids")})
+                                    if k not in ("tx_ids", "rx_ids", "listener_drops")})
+            if run.bus_nodes is not None:
+                run.bus_nodes.add_drops(node, rep.counters.get("listener_drops"))
         if failure is None and not rep.clean:
             what = ("did not stop within the grace period (killed)" if rep.killed
                     else f"stopped with exit status {rep.returncode}")
@@ -178,11 +218,26 @@ def coverage(plan: Plan, cap: capture.Capture | None, loss: capture.LossReport |
 
 
 def judge(result: RunResult, sc: Scenario, cap: capture.Capture | None, cov: Coverage,
-          failure: Failure | None) -> list[tuple[str, int, int]]:
+          failure: Failure | None, on_bench: bool = True,
+          extra: Mapping[str, Any] | None = None, extra_missing: str = ""
+          ) -> list[tuple[str, int, int]]:
     """The criteria's verdicts and the run's status into ``result``; the capture rows the
-    criteria read (their evidence in the recording)."""
+    criteria read (their evidence in the recording). A criterion of the ISR's cost on the
+    target is judged on the in-process bench only (``on_bench``): a run on a bus leaves it
+    out (the bus's fw_host is the host build, its cost is not the target's), and says so."""
     reads: list[tuple[str, int, int]] = []
-    result.criteria = [evaluate_one(cr, cap, result.counters, cov, reads) for cr in sc.criteria]
+    criteria = [cr for cr in sc.criteria if on_bench or not metrics.needs_target(cr.metric)]
+    if len(criteria) < len(sc.criteria):
+        result.left_out = [{"name": cr.name, "why": "the ISR's cost on the Cortex-M4F is "
+                            "measured on the in-process bench only (--bus inproc)"}
+                           for cr in sc.criteria if cr not in criteria]
+    result.criteria = [evaluate_one(cr, cap, result.counters, cov, reads, extra)
+                       for cr in criteria]
+    if extra_missing:
+        for c in result.criteria:
+            if metrics.needs_target(str(c["metric"])) and c["outcome"] != "not_evaluated":
+                c.update(value=None, passed=False, outcome="not_evaluated",
+                         note=f"not evaluated: {extra_missing}")
     all_ok = all(outcome(c) not in AGAINST for c in result.criteria)
     if failure is None:
         result.status = "passed" if all_ok else "failed"

@@ -16,6 +16,7 @@ import numpy as np
 from rig.data import capture
 from rig.link.clock import PlantProgress
 from rig.results.result import Timing
+from rig.run.bus_report import BusNodes
 from rig.run.monitor import Monitor
 from rig.supervisor import StopReport
 
@@ -41,6 +42,9 @@ class Execution:
     rig_tx_ids: dict[int, int] | None = None
     rig_rx_ids: dict[int, int] | None = None
     where: str = ""  # "unixcan channel 'x'": for the messages
+    # unixcan: the other nodes of the channel and what the run's senders dropped for them
+    bus_nodes: BusNodes | None = None
+    can_log: dict[str, Any] | None = None  # the rig's live log of the bus (rig.bus.can_log)
     # modules the post-processing needs (rerun, matplotlib: ~0.5 s to import), imported in
     # the background once the closed loop runs: not in the start-up, not after a crash
     preload: tuple[str, ...] = ()

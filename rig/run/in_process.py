@@ -8,6 +8,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 from rig import _paths
 from rig.bench import sil
@@ -41,6 +42,18 @@ class _GrantsTraced:
         return self.bench.run_until(run_until)
 
 
+def cost_journal(sc: Scenario, out: Path) -> tuple[Path, list[tuple[int, int]]] | None:
+    """Where and over which ISRs the core is journalled for the scenario's criteria of the
+    ISR's cost on the target (rig.target_m4.cost): their windows; None without such."""
+    from rig.data import metrics
+    from rig.target_m4 import cost
+
+    spans = [cr.window for cr in sc.criteria if metrics.needs_target(cr.metric)]
+    if not spans:
+        return None
+    return out / cost.JOURNAL_NAME, cost.journal_windows(spans, sc.duration)
+
+
 @contextmanager
 def sil_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
               result: RunResult, run: Execution) -> Iterator[PacedBench]:
@@ -71,9 +84,11 @@ def sil_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOpt
                              out / "plant.trace", out / "fw.trace", trace_vio=opts.trace_bus)
     except sil.BenchError as exc:
         raise RunError("config", f"in-process bench: {exc}") from exc
-    if opts.core_journal is not None:
+    journal = (opts.core_journal, list(opts.core_journal_windows)) \
+        if opts.core_journal is not None else cost_journal(sc, out)
+    if journal is not None:
         try:
-            bench.journal(opts.core_journal, opts.core_journal_windows)
+            bench.journal(*journal)
         except sil.BenchError as exc:
             bench.close()
             raise RunError("config", f"in-process bench: {exc}") from exc

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import math
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from rig import outputs
@@ -81,7 +82,15 @@ def combine(criteria_per_seed: list[list[dict[str, Any]]], seeds: tuple[int, ...
 def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs ``sc`` once per seed of ``sc.seeds`` and writes the combined result."""
     out = opts.out
-    outputs.claim(out, sc.periods, sc.file)
+    claimed = outputs.claim(out, sc.periods, sc.file)
+    try:
+        return _over_seeds(sc, opts, out, claimed)
+    finally:
+        claimed.release()
+
+
+def _over_seeds(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Claim
+                ) -> RunResult:
     one = replace(sc, seeds=())
     results: list[RunResult] = []
     interrupted: BaseException | None = None
@@ -112,6 +121,7 @@ def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
         counters=first.counters if first else {},
         capture_loss=first.capture_loss if first else None,
         recording=first.recording if first else None,
+        bus_report=first.bus_report if first else None,  # (as the counters: the first seed's)
         timing=Timing(sim_s=sc.duration * len(results),
                       wall_s=sum((r.timing.wall_s or 0.0) for r in results if r.timing)),
         seeds=[{"seed": s, "dir": seed_folder(s), "status": r.status}
@@ -137,6 +147,7 @@ def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
         if result.failure is None:
             result.failure = Failure("interrupted", f"only {len(results)} of "
                                      f"{len(sc.seeds)} seeds ran")
+    claimed.record()
     write_result(result)
     if interrupted is not None:
         raise interrupted

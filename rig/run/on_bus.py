@@ -7,15 +7,21 @@ run as foreign traffic at once; the counts catch the rest afterwards (``rig.run.
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
+from pathlib import Path
 from typing import TYPE_CHECKING
+
+import can
 
 from rig import bus as rigbus
 from rig.bench import virtual
 from rig.bench.configuration import BenchConfiguration
+from rig.bus import can_log
+from rig.bus.can_log import LiveCapture
 from rig.link.bench_commands import BenchCommands
 from rig.link.bus import BusLink, ForeignNodes, ForeignTraffic, LinkError
 from rig.link.clock import GrantClock, LockstepClock, PlantProgress, WallClock
@@ -23,6 +29,7 @@ from rig.link.drive_master import DriveMaster
 from rig.link.frame_faults import FrameFaults
 from rig.results.result import RunResult
 from rig.run import traffic
+from rig.run.bus_report import BusNodes
 from rig.run.errors import EnvironmentProblem, RunError
 from rig.run.execution import TS, Execution
 from rig.run.monitor import Monitor
@@ -35,9 +42,13 @@ from rig.scenario import Scenario
 if TYPE_CHECKING:  # the live view (rerun) is imported only for --live
     from rig.run.live import LiveFeed
 
+OWN = "run"  # a run's own unixcan channel: run-<pid> (rig.bus.own_channel)
 # the bus reader thread (unixcan) must get the GIL within a sender's patience (2 ms)
 SWITCH_INTERVAL_S = 0.0005
 LOCKSTEP_DRAIN_S = 0.05  # the firmware finishes the last period before the stop signal
+
+
+_said: set[str] = set()  # the channels chosen for the runs of this process, said once
 
 
 @contextmanager
@@ -45,9 +56,33 @@ def virtual_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: Ru
                   result: RunResult, run: Execution) -> Iterator[PacedBench]:
     """The virtual bench configured as ``config`` on the bus, its programs started and ready
     to be paced through the plan (in lockstep or real time); they are stopped, and what the
-    rig and the bus counted goes into ``run``, when it closes."""
+    rig and the bus counted goes into ``run``, when it closes. A run that names no channel
+    gets one of its own on unixcan (``rig.bus.own_channel``); the channel is held for the run
+    (a second run of the rig on it is refused at once: exit 3)."""
     try:
-        transport, channel = rigbus.select_transport(opts.bus, opts.channel)
+        transport, channel = rigbus.select_transport(opts.bus, opts.channel, own=OWN)
+        claim = rigbus.claim_channel(transport, channel)
+    except rigbus.ChannelInUse as exc:
+        raise EnvironmentProblem(str(exc)) from exc
+    except OSError as exc:
+        raise EnvironmentProblem(f"cannot hold the run's channel: {exc}") from exc
+    if opts.progress and rigbus.is_own_channel(channel) and channel not in _said:
+        _said.add(channel)
+        print(f"rig run: {transport} channel {channel}, the run's own (--channel NAME or "
+              "HIL_CHANNEL to name one)", file=sys.stderr)
+    try:
+        with _on_channel(sc, plan, config, opts, result, run, transport, channel) as paced:
+            yield paced
+    finally:
+        claim.release()
+        rigbus.release_own_channel(channel)
+
+
+@contextmanager
+def _on_channel(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
+                result: RunResult, run: Execution, transport: str, channel: str
+                ) -> Iterator[PacedBench]:
+    try:
         # traces always, paired from period 0 in lockstep (the plant's first ADC frame is its
         # start-up period 0, so stray frames on the channel cannot become the firmware's
         # first period)
@@ -62,9 +97,11 @@ def virtual_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: Ru
     result.versions = versions(argv[virtual.PLANT][0], argv[virtual.FIRMWARE][0])
     result.command_lines = {"plant": argv[virtual.PLANT], "firmware": argv[virtual.FIRMWARE]}
     try:
+        # in lockstep the rig's node loses no frame, as the programs' do (unixcan)
         link = BusLink.open(transport, channel,
                             frame_faults=FrameFaults(plan.link_windows),
-                            trace=result.out_dir / "rig.trace" if opts.trace_bus else None)
+                            trace=result.out_dir / "rig.trace" if opts.trace_bus else None,
+                            lossless=not opts.realtime)
     except LinkError as exc:
         raise EnvironmentProblem(str(exc)) from exc
     run.where = f"{transport} channel {channel!r}"
@@ -81,6 +118,20 @@ def virtual_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: Ru
         raise EnvironmentProblem(str(exc)) from exc
     if link.listeners_at_start is not None:
         run.counters["rig.listeners.start"] = float(link.listeners_at_start)
+        run.bus_nodes = BusNodes(start=dict(link.others_at_start), lossless=not opts.realtime,
+                                 own_pids={os.getpid(): "rig"})
+    live_log: LiveCapture | None = None
+    if opts.can_log is not None:
+        try:
+            live_log = LiveCapture(transport, channel,
+                                   result.out_dir / f"bus{can_log.FORMATS[opts.can_log]}",
+                                   lossless=not opts.realtime)
+        except (can.CanError, OSError) as exc:
+            link.close()
+            raise EnvironmentProblem(f"--can-log: cannot open a node on {run.where}: "
+                                     f"{exc}") from exc
+        if run.bus_nodes is not None:
+            run.bus_nodes.can_log_node = Path(live_log.socket_path).name
     run.progress = PlantProgress(link, grants_from_start=not opts.realtime)
     run.monitor = Monitor(link)
 
@@ -105,11 +156,20 @@ def virtual_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: Ru
             from rig.bus import unixcan
 
             own = {str(getattr(link.bus, "socket_path", ""))}
-            run.counters["rig.listeners.end"] = float(len(unixcan.live_nodes(channel, own)))
+            if live_log is not None:
+                own.add(live_log.socket_path)
+            others = unixcan.live_nodes(channel, own)
+            run.counters["rig.listeners.end"] = float(len(others))
+            if run.bus_nodes is not None:
+                run.bus_nodes.end = {Path(p).name: unixcan.node_label(p) for p in others}
+                run.bus_nodes.add_drops("rig.bus", getattr(link.bus, "listener_drops", {}))
         link.close()
+        if live_log is not None:
+            run.can_log = live_log.stop()
         stats = getattr(link.bus, "stats", None)
         if isinstance(stats, Mapping):
             run.add_counters("rig.bus", stats)
+            run.add_counters("rig.bus", getattr(link.bus, "stall_ms", {}))
         run.rig_tx_ids = dict(link.tx_ids)
         # unixcan: every frame that reached the socket, the filtered ones too
         run.rig_rx_ids = dict(getattr(link.bus, "rx_ids", None) or link.rx_ids)
@@ -145,6 +205,9 @@ def _programs_running(sc: Scenario, opts: RunOptions, programs: virtual.BenchPro
         run.start_preload()  # while the programs start (the rig waits for them)
         virtual_bench.start(link.transport, link.channel, ready_timeout_s=sc.ready_timeout_s,
                             env=opts.env)
+        if run.bus_nodes is not None:
+            run.bus_nodes.own_pids.update(
+                {c.pid: name for name, c in virtual_bench.sup.children.items()})
         run.t0 = time.monotonic()
         deadline = run.t0 + timeout
         drive, bench_cmds = DriveMaster(link), BenchCommands(link)

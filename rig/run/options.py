@@ -32,6 +32,9 @@ class RunOptions:
     # every frame of the run into the traces (the plant's VIO frames, rig.trace: the rig's
     # own), so rig export --can-log holds the whole bus
     trace_bus: bool = True
+    # on a bus: a live log of every frame on the channel, by a node of the rig's own, into
+    # bus.<FORMAT> in the run's folder (rig.bus.can_log: asc, blf or log)
+    can_log: str | None = None
     # what a run keeps besides result.json, report.md and recording.rrd: "all" keeps the
     # full-rate traces (*.trace) and capture columns (capture/) of every run, "failing" only
     # of runs that did not pass (rig run's default; the API's is "all": callers read captures)

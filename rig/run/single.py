@@ -61,7 +61,15 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs one scenario at one seed into ``opts.out``; always writes result.json and
     report.md."""
     out = Path(opts.out)
-    outputs.claim(out, sc.periods, sc.file)
+    claimed = outputs.claim(out, sc.periods, sc.file)
+    try:
+        return _run_claimed(sc, opts, out, claimed)
+    finally:
+        claimed.release()
+
+
+def _run_claimed(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Claim
+                 ) -> RunResult:
     result = RunResult.of_scenario(
         sc, out, mode="realtime" if opts.realtime else "lockstep", started=_now(),
         timing=Timing(sim_s=sc.duration))
@@ -117,6 +125,7 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
         result.kept = outputs.prune(out, keep_full=opts.keep == "all" or not result.passed,
                                     keep=opts.keep)
         result.capture = cap if result.kept.full_rate else None
+        claimed.record()
         write_result(result)
     if interrupted is not None:
         raise interrupted

@@ -59,9 +59,17 @@ def entry(sc: Scenario, r: RunResult) -> dict[str, Any]:
 def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     out = Path(opts.out)
     # (each scenario checks its own room again before it starts)
-    outputs.claim_suite(out, [sc.name for sc in suite.scenarios],
-                        max((round(sc.duration / capture.TS) for sc in suite.scenarios),
-                            default=0))
+    claimed = outputs.claim_suite(out, [sc.name for sc in suite.scenarios],
+                                  max((round(sc.duration / capture.TS)
+                                       for sc in suite.scenarios), default=0))
+    try:
+        return _run_claimed(suite, opts, out, claimed)
+    finally:
+        claimed.release()
+
+
+def _run_claimed(suite: Suite, opts: RunOptions, out: Path, claimed: outputs.Claim
+                 ) -> SuiteResult:
     results: list[RunResult] = []
     entries: list[dict[str, Any]] = []
     summary: dict[str, Any] = {
@@ -95,6 +103,7 @@ def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     summary["complete"] = len(results) == len(suite.scenarios)
     summary["baseline"] = baseline_summary(entries)
     with signals_deferred():  # the summary is written whole
+        claimed.record()
         outputs.write_text(out / "result.json",
                           json.dumps(summary, indent=1, default=json_default))
         outputs.write_text(out / "report.md", report.suite_report(summary))

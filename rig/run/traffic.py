@@ -27,7 +27,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from rig import protocols
-from rig.link.bus import message_names
+from rig.bus import identity
 
 KIND = "foreign_traffic"
 NODES = {"RIG": "rig", "PLANT": "plant", "FW": "firmware", "DSP": "firmware"}
@@ -35,15 +35,18 @@ SHOWN = 6
 
 
 def senders() -> dict[int, str]:
-    """The node of the run that sends each message, by frame id."""
-    return {int(m.frame_id): NODES[m.senders[0]]
+    """The node of the run that sends each message, by the message's whole identity (its
+    id and format: ``rig.bus.identity``)."""
+    return {identity.key(int(m.frame_id), extended=bool(m.is_extended_frame),
+                         fd=bool(m.is_fd)): NODES[m.senders[0]]
             for db in ("drive", "vio", "bench") for m in protocols.database(db).messages
             if m.senders and m.senders[0] in NODES}
 
 
 @dataclass
 class Traffic:
-    """Frames per identifier, sent and received, of the nodes whose counts are known."""
+    """Frames per identity (``rig.bus.identity``), sent and received, of the nodes whose
+    counts are known."""
 
     sent: dict[str, Counter[int]] = field(default_factory=dict)
     received: dict[str, Counter[int]] = field(default_factory=dict)
@@ -51,7 +54,8 @@ class Traffic:
     unlisted: dict[str, int] = field(default_factory=dict)
 
     def add_program(self, node: str, counters: Mapping[str, object]) -> None:
-        """A C program's ``tx_ids`` / ``rx_ids`` (exit counters: {"<id>": frames, "other": n})."""
+        """A C program's ``tx_ids`` / ``rx_ids`` (exit counters: {"<id>": frames, "other": n};
+        hilbus counts standard data frames by their 11-bit identifier)."""
         for key, table in (("tx_ids", self.sent), ("rx_ids", self.received)):
             ids = counters.get(key)
             if not isinstance(ids, Mapping):
@@ -59,14 +63,15 @@ class Traffic:
             counts: Counter[int] = Counter()
             for ident, n in ids.items():
                 if str(ident).isdigit():
-                    counts[int(ident)] = int(n)  # type: ignore[call-overload]
+                    counts[identity.standard_key(int(ident))] += int(n)  # type: ignore[call-overload]
                 elif key == "rx_ids":
                     self.unlisted[node] = int(n)  # type: ignore[call-overload]
             table[node] = counts
 
     def add_rig(self, sent: Mapping[int, int], received: Mapping[int, int]) -> None:
-        """The rig's own counts, by raw can_id (extended, remote and error frames, which no
-        node of the run sends, kept apart by their flag bits)."""
+        """The rig's own counts, by the frames' whole identity (extended, remote and error
+        frames and a frame of the other format, which no node of the run sends, kept apart:
+        ``rig.bus.identity``)."""
         self.sent["rig"] = Counter(dict(sent))
         self.received["rig"] = Counter(dict(received))
 
@@ -90,24 +95,21 @@ class Traffic:
 
     def named_counters(self) -> dict[str, float]:
         """``<node>.tx.<MESSAGE>`` / ``<node>.rx.<MESSAGE>`` counters for result.json."""
-        names = message_names()
         out: dict[str, float] = {}
         for way, table in (("tx", self.sent), ("rx", self.received)):
             for node, counts in table.items():
-                for ident, n in counts.items():
-                    name = names.get(ident, f"0x{ident & 0x1FFFFFFF:X}")
-                    out[f"{node}.{way}.{name}"] = float(n)
+                for k, n in counts.items():
+                    name = identity.name(k) or _counter_name(k)
+                    out[f"{node}.{way}.{name}"] = out.get(f"{node}.{way}.{name}", 0.0) + n
         for node, n in self.unlisted.items():
             out[f"{node}.rx.other_ids"] = float(n)
         return out
 
     def problem(self, where: str) -> str | None:
         """The foreign-traffic failure message, or None when every count adds up."""
-        names = message_names()
         lines = []
         for ident, node, got, sent in self.surplus():
-            name = names.get(ident)
-            what = f"{name} (0x{ident:03X})" if name else f"id 0x{ident & 0x1FFFFFFF:X}"
+            what = identity.describe(ident)
             by = senders().get(ident)
             lines.append(f"{what}: {node} received {got}, " + (
                 "a message it sends itself" if by == node else
@@ -122,3 +124,12 @@ class Traffic:
                 + "; ".join(lines[:SHOWN]) + more + ". Another node sends on this channel "
                 "(another run, a replay): the run's data is not its own and nothing is "
                 "judged. Use a channel of its own (--channel NAME)")
+
+
+def _counter_name(k: int) -> str:
+    """A counter's name for a frame no DBC message is: ``0x11.ext.fd``, ``0x10.rtr.classic``."""
+    parts = [f"0x{k & identity.ID_MASK:X}"]
+    parts += [tag for tag, bit in (("ext", identity.EFF), ("rtr", identity.RTR),
+                                   ("err", identity.ERR)) if k & bit]
+    parts.append("fd" if k & identity.FD else "classic")
+    return ".".join(parts)

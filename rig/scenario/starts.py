@@ -228,6 +228,20 @@ def _crit(name: str, metric: str, window: tuple[float, float | str], *, limit: f
     return "\n".join(out) + "\n"
 
 
+# The ISR's cost on the emulated Cortex-M4F (rig.target_m4.cost, issue 40) over the start,
+# from the enable through the start's own test into RUN: the back-EMF test (300 r/min) and
+# the catch (1000 r/min), the two start paths no other scenario of the sample takes. Judged
+# on `paper` only (the profile's noise and timing are the same code paths).
+ISR_COST = {"start_fly_p300": "the back-EMF test", "start_fly_p1000": "the catch"}
+
+
+def _isr_cost(what: str) -> list[str]:
+    return [_crit(f"ISR instructions on the Cortex-M4F, {stat} ({what})", metric, (0.0, 0.06),
+                  comparison="report", better="lower", profiles=("paper",))
+            for stat, metric in (("median", "isr_instructions_median"),
+                                 ("worst", "isr_instructions_max"))]
+
+
 def _per_profile(name: str, metric: str, window: tuple[float, float | str],
                  limits: dict[str, float], scen: str, **kw: str) -> list[str]:
     return [_crit(name, metric, window, limit=limits[p], profiles=(p,),
@@ -392,6 +406,8 @@ torque = 0
     # reaches 5.9 deg in 1 seed of 8 with the catch long settled)
     crits += _regression(name, "position error through the ramp (regression)",
                          "pos_err_max_deg", (0.35, "end"), 1.25, 1.0, key="pos_err_max_deg@ramp")
+    if name in ISR_COST:
+        crits += _isr_cost(ISR_COST[name])
     return head + "\n".join(crits)
 
 

@@ -29,6 +29,12 @@ def record(name: str, out: Path, windows: Sequence[tuple[int, int]] = (),
         raise ValueError(f"{name} is a suite, not a scenario")
     if duration is not None and duration < sc.duration:
         sc = dataclasses.replace(sc, duration=duration)
+    return record_scenario(sc, out, windows)
+
+
+def record_scenario(sc: scenario.Scenario, out: Path,
+                    windows: Sequence[tuple[int, int]] = ()) -> RunResult:
+    """Runs ``sc`` in process into ``out`` with the core journalled over ``windows``."""
     out.mkdir(parents=True, exist_ok=True)
     opts = runner.RunOptions(out=out, bus="inproc", progress=False, record=False, keep="failing",
                              core_journal=out / "core.journal", core_journal_windows=windows)

@@ -30,6 +30,7 @@ class IsrCost:
     instructions: int
     fp: int = 0  # floating-point instructions among them
     div_sqrt: int = 0  # VDIV.F32 and VSQRT.F32 among those (14 cycles each on the M4F)
+    steps: tuple[int, ...] = ()  # the instructions by step of fw_core_isr (Comparison.steps)
 
 
 @dataclass
@@ -47,6 +48,7 @@ class Comparison:
     status_differences: int = 0
     examples: list[str] = field(default_factory=list)
     costs: list[IsrCost] = field(default_factory=list)
+    steps: tuple[str, ...] = ()  # the names of IsrCost.steps (counted replays)
 
     @property
     def identical(self) -> bool:
@@ -97,7 +99,7 @@ def replay(journal: Journal, m4: M4Core, name: str = "", max_examples: int = 5) 
                          "(fw_core_t, fw_adc_t, fw_pwm_t, fw_cmd_t, fw_status_t)")
     core_size = journal.size("fw_core_t")
     divider = protocols.timebase().speed_loop_divider
-    out = Comparison(name or journal.path.name)
+    out = Comparison(name or journal.path.name, steps=m4.step_names)
     params: list[tuple[int, float]] = []
     state = 0
 
@@ -150,7 +152,7 @@ def replay(journal: Journal, m4: M4Core, name: str = "", max_examples: int = 5) 
             count = m4.read_words("m4_isr_count", 1)[0]
             out.costs.append(IsrCost(rec.isr, STATE_NAMES.get(state, str(state)),
                                      count % divider == 0, m4.last_instructions, m4.last_fp,
-                                     m4.last_div_sqrt))
+                                     m4.last_div_sqrt, tuple(m4.last_steps)))
             state = isr.state
             host_pwm, target_pwm = Pwm.unpack(isr.pwm), Pwm.unpack(m4.read("m4_pwm"))
             if host_pwm != target_pwm:

@@ -84,7 +84,9 @@ def _gate_failures(out: Path) -> tuple[list[str], str]:
             continue
         why = [f"{c['name']} ({c.get('outcome')})" for c in e.get("criteria") or []
                if c.get("outcome") in ("fail", "not_evaluated")]
-        why += [f"{c['name']} ({c['baseline']['class']})" for c in e.get("criteria") or []
+        why += [f"{c['name']} ({c['baseline']['class']}"
+                + (f": {c['baseline']['where']}" if c["baseline"].get("where") else "") + ")"
+                for c in e.get("criteria") or []
                 if (c.get("baseline") or {}).get("class") in ("regressed", "changed", "stale",
                                                                "missing")]
         if e.get("failure"):
@@ -265,36 +267,42 @@ def summary_lines(s: Score) -> list[str]:
 
 
 def say_one(v: Verdict, i: int, total: int, progress: Callable[[str], None]) -> None:
-    why = f" by {v.killed_by[0]}" if v.killed_by else (f": {v.note[:80]}" if v.note else "")
-    what = v.status.upper() + (f" ({v.kill})" if v.kill else "")
-    if v.benign and v.status == KILLED:
-        what += " = FALSE ALARM"
-    progress(f"[{i}/{total}] {v.id}: {what}{why} ({v.seconds:.0f} s)")
+    """One verdict said as a line (a campaign on a cluster, where no display runs)."""
+    progress(_line(v, i, total))
 
 
 def run(mutants: Sequence[Mutant], tree: MutationTree, gate: Gate, out: Path, *,
         both: bool = False, detectors: Sequence[str] = ("ctest", "gate"),
         null_seeds: Sequence[int] = (),
         progress: Callable[[str], None] | None = None) -> list[Verdict]:
+    """Every run of the campaign: the unmutated gate at ``null_seeds``, then each mutant; one
+    progress display over them (k/N, elapsed, ETA), each verdict said as it comes."""
+    from rig.run.progress import Display
+
     verdicts: list[Verdict] = []
-    total = len(mutants) + (len(null_seeds) if "gate" in detectors else 0)
-    i = 0
-    if "gate" in detectors:
-        for seed in null_seeds:
-            i += 1
-            v = null_run(seed, tree, gate, out)
+    seeds = list(null_seeds) if "gate" in detectors else []
+    total = len(mutants) + len(seeds)
+    with Display("mutate", total, unit="run", enabled=progress is not None) as shown:
+        items: list[tuple[str, Callable[[], Verdict]]] = [
+            (f"seed-{s}", lambda s=s: null_run(s, tree, gate, out)) for s in seeds]
+        items += [(m.id, lambda m=m: judge(m, tree, gate, out, both, detectors))
+                  for m in mutants]
+        for i, (name, work) in enumerate(items, 1):
+            shown.start(name)
+            v = work()
             verdicts.append(v)
             write(out, verdicts, gate, detectors)
-            if progress is not None:
-                say_one(v, i, total, progress)
-    for m in mutants:
-        i += 1
-        v = judge(m, tree, gate, out, both, detectors)
-        verdicts.append(v)
-        write(out, verdicts, gate, detectors)
-        if progress is not None:
-            say_one(v, i, total, progress)
+            line = _line(v, i, total)
+            shown.done(name, v.status != KILLED if v.benign else v.status == KILLED, line)
     return verdicts
+
+
+def _line(v: Verdict, i: int, total: int) -> str:
+    why = f" by {v.killed_by[0]}" if v.killed_by else (f": {v.note[:80]}" if v.note else "")
+    what = v.status.upper() + (f" ({v.kill})" if v.kill else "")
+    if v.benign and v.status == KILLED:
+        what += " = FALSE ALARM"
+    return f"[{i}/{total}] {v.id}: {what}{why} ({v.seconds:.0f} s)"
 
 
 def write(out: Path, verdicts: Sequence[Verdict], gate: Gate, detectors: Sequence[str]) -> None:

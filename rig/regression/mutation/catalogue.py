@@ -3,9 +3,11 @@ one-line description, a file and a patch (``find`` must occur exactly once in th
 becomes ``replace``), or ``equivalent = "why"`` when no behaviour can tell it apart.
 
 Two kinds of mutant: the harmful ones (classes sign, gain, table, check, stale, unit: a bug
-the gate must catch) and the ``benign`` ones (a change of rounding only: a reassociation, a
-reciprocal multiply, an expanded product, a build with fused multiply-add; the gate must let
-them pass, and the share it fails is its false-alarm rate).
+the gate must catch; cost: work added with the same outputs, which the gate catches by the
+ISR's instructions on the target, rig.target_m4.cost) and the ``benign`` ones (a change of
+rounding only: a reassociation, a reciprocal multiply, an expanded product, a build with
+fused multiply-add; the gate must let them pass, and the share it fails is its false-alarm
+rate).
 
 A catalogue is input from a user: every field is checked for its type, an id is a plain name,
 and a mutant patches only a regular text file inside the tree (no absolute path, no ``..``,
@@ -26,7 +28,7 @@ from typing import Any
 from rig import _paths
 
 CATALOGUE = Path("tests") / "mutants" / "catalogue.toml"
-HARMFUL = ("sign", "gain", "table", "check", "stale", "unit")
+HARMFUL = ("sign", "gain", "table", "check", "stale", "unit", "cost")
 BENIGN = "benign"
 CLASSES = (*HARMFUL, BENIGN)
 KEYS = ("id", "class", "file", "description", "find", "replace", "equivalent")

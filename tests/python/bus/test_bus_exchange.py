@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -226,3 +227,127 @@ def test_python_filters(transport: str, channel: str) -> None:
     finally:
         a.shutdown()
         b.shutdown()
+
+
+def _unixcan_only(transport: str) -> None:
+    if transport != "unixcan":
+        pytest.skip("lossless nodes and per-listener drops are the fallback bus's")
+
+
+def test_a_c_sender_waits_for_a_python_lossless_node(transport: str, channel: str) -> None:
+    """A lossless Python node whose buffer is full: the C sender waits, nothing is dropped."""
+    _unixcan_only(transport)
+    n = 3000
+    py = rigbus.open_bus(transport, channel, lossless=True, receive_buffer=16)
+    try:
+        sender = subprocess.Popen([tool(), "send", "--bus", transport, "--channel", channel,
+                                   "--id", "0x42", "--fd", "--data", "11" * 64,
+                                   "--count", str(n)],
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(0.3)  # (not a wait for an event: the time the sender meets a full node)
+        got = 0
+        while got < n and py.recv(timeout=10.0) is not None:
+            got += 1
+        out, err = sender.communicate(timeout=60)
+    finally:
+        py.shutdown()
+    stats = json_lines(out)[-1]["stats"]
+    assert isinstance(stats, dict)
+    assert sender.returncode == 0, err
+    assert got == n
+    assert stats["tx_drops"] == 0 and stats["tx_stall_failures"] == 0
+    assert stats["tx_stalls"] > 0 and stats["tx_stall_ms_max"] > 0
+
+
+def test_a_python_sender_waits_for_a_c_lossless_node(transport: str, channel: str,
+                                                     tmp_path: Path) -> None:
+    _unixcan_only(transport)
+    n = 500
+    recv = start_c_node("recv", transport, channel, tmp_path, "--count", str(n),
+                        "--timeout-ms", "20000", "--lossless")
+    py = rigbus.open_bus(transport, channel)
+    recv.send_signal(signal.SIGSTOP)
+    resume = threading.Timer(0.3, recv.send_signal, (signal.SIGCONT,))
+    resume.start()
+    try:
+        for i in range(n):
+            py.send(can.Message(arbitration_id=0x43, data=i.to_bytes(2, "little"),
+                                is_extended_id=False))
+        stats = dict(py.stats)  # type: ignore[attr-defined]
+    finally:
+        resume.join()
+        recv.send_signal(signal.SIGCONT)
+        py.shutdown()
+    out, _ = recv.communicate(timeout=30)
+    frames = [ln for ln in json_lines(out) if "id" in ln]
+    assert [int(str(f["data"])[2:4] + str(f["data"])[:2], 16) for f in frames] == list(range(n))
+    assert stats["tx_drops"] == 0 and stats["tx_stalls"] > 0
+
+
+def test_a_lossless_node_that_takes_nothing_fails_the_send_naming_it(
+        transport: str, channel: str, tmp_path: Path) -> None:
+    """The wait is bounded: it ends in an error naming the node (its socket, its pid)."""
+    _unixcan_only(transport)
+    from rig.bus.unixcan_wire import WIRE
+
+    recv = start_c_node("recv", transport, channel, tmp_path, "--count", "0",
+                        "--timeout-ms", "60000", "--lossless")
+    recv.send_signal(signal.SIGSTOP)
+    py = rigbus.open_bus(transport, channel)
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(can.CanOperationError) as failed:
+            for i in range(200):
+                py.send(can.Message(arbitration_id=0x44, data=bytes([i % 256]),
+                                    is_extended_id=False))
+        waited = time.monotonic() - t0
+        stats = dict(py.stats)  # type: ignore[attr-defined]
+    finally:
+        recv.send_signal(signal.SIGCONT)
+        recv.terminate()
+        recv.communicate(timeout=10)
+        py.shutdown()
+    message = str(failed.value)
+    assert f"node {recv.pid}-0{WIRE.lossless_mark}{WIRE.socket_suffix} (pid {recv.pid})" in \
+        message and "loses no frame" in message, message
+    assert WIRE.lossless_stall_s * 0.99 <= waited < WIRE.lossless_stall_s + 10
+    assert stats["tx_stall_failures"] == 1 and stats["tx_drops"] == 0
+
+
+def test_a_listener_that_falls_behind_is_counted_by_name(transport: str, channel: str,
+                                                         tmp_path: Path) -> None:
+    """Listeners (no lossless mark) may miss frames, as on SocketCAN; each sender counts what
+    it dropped for each of them by socket name: a C listener under a Python sender, a
+    listener that never reads under a C sender."""
+    _unixcan_only(transport)
+    from rig.bus import unixcan
+
+    recv = start_c_node("recv", transport, channel, tmp_path, "--count", "0",
+                        "--timeout-ms", "60000")
+    recv.send_signal(signal.SIGSTOP)
+    py = rigbus.open_bus(transport, channel, lossless=True)
+    try:
+        for i in range(200):
+            py.send(can.Message(arbitration_id=0x45, data=bytes([i]), is_extended_id=False))
+        drops = dict(py.listener_drops)  # type: ignore[attr-defined]
+        tx_drops = py.stats["tx_drops"]  # type: ignore[attr-defined]
+    finally:
+        recv.send_signal(signal.SIGCONT)
+        recv.terminate()
+        recv.communicate(timeout=10)
+        py.shutdown()
+    assert drops == {f"{recv.pid}-0.sock": tx_drops} and tx_drops > 100
+    # a C sender and a listener that never reads (a bare socket of the channel)
+    import socket as so
+
+    deaf = so.socket(so.AF_UNIX, so.SOCK_DGRAM)
+    deaf.bind(str(unixcan.channel_dir(channel) / "deaf.sock"))
+    try:
+        out = subprocess.run([tool(), "send", "--bus", transport, "--channel", channel,
+                              "--id", "0x46", "--count", "100", "--data", "01"],
+                             capture_output=True, text=True, timeout=60, check=True)
+    finally:
+        deaf.close()
+    stats = json_lines(out.stdout)[-1]["stats"]
+    assert isinstance(stats, dict)
+    assert stats["listener_drops"] == {"deaf.sock": stats["tx_drops"]} and stats["tx_drops"] > 50

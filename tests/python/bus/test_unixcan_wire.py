@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
 import tempfile
+import time
 import tomllib
 from collections.abc import Iterator
 from pathlib import Path
@@ -113,6 +115,44 @@ def test_c_and_python_name_and_time_the_same(c_wire: dict[str, Any]) -> None:
     assert c_wire["full_peer_grace_ns"] == timing["full_peer_grace_ms"] * 1_000_000
     assert WIRE.rescan_interval_s == timing["rescan_interval_ms"] / 1000
     assert WIRE.full_peer_grace_s == timing["full_peer_grace_ms"] / 1000
+    assert c_wire["lossless_mark"] == sock["lossless_mark"] == WIRE.lossless_mark
+    assert c_wire["lossless_stall_ns"] == timing["lossless_stall_ms"] * 1_000_000
+    assert WIRE.lossless_stall_s == timing["lossless_stall_ms"] / 1000
+
+
+def test_c_and_python_nodes_say_lossless_in_their_names_alike(bus_dir: Path) -> None:
+    """A lossless node's socket is <pid>-<tag><serial><lossless_mark><suffix> on both sides;
+    a listener's carries no mark. Each side reads the other's name the same way."""
+    folder = unixcan.channel_dir("names")
+    listener = subprocess.Popen([tool(), "recv", "--bus", "unixcan", "--channel", "names",
+                                 "--count", "0", "--timeout-ms", "20000"],
+                                stdout=subprocess.PIPE, text=True, env=dict(os.environ))
+    lossless = subprocess.Popen([tool(), "recv", "--bus", "unixcan", "--channel", "names",
+                                 "--count", "0", "--timeout-ms", "20000", "--lossless"],
+                                stdout=subprocess.PIPE, text=True, env=dict(os.environ))
+    py = unixcan.UnixCanBus("names", lossless=True)
+    try:
+        deadline = time.monotonic() + 20
+        while len(list(folder.iterdir())) < 3:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        names = {p.name for p in folder.iterdir()}
+        tail = WIRE.lossless_mark + WIRE.socket_suffix
+        assert f"{listener.pid}-{sock_tag()}0{WIRE.socket_suffix}" in names
+        assert f"{lossless.pid}-{sock_tag()}0{tail}" in names
+        assert re.fullmatch(rf"{os.getpid()}-{WIRE.python_tag}\d+{re.escape(tail)}",
+                            Path(py.socket_path).name)
+        assert {n for n in names if WIRE.is_lossless(n)} == {
+            n for n in names if n.endswith(tail)} and sum(map(WIRE.is_lossless, names)) == 2
+    finally:
+        py.shutdown()
+        for p in (listener, lossless):
+            p.terminate()
+            p.communicate(timeout=10)
+
+
+def sock_tag() -> str:
+    return str(DESCRIPTION["socket"]["c_tag"])
 
 
 @pytest.fixture

@@ -20,7 +20,9 @@ def test_shipped_virtual_bench() -> None:
     assert d.lockstep and d.virtual is not None
     assert d.virtual.profile == "paper"
     assert set(d.virtual.programs) == {"plant_rt", "fw_host", "loadbench"}
-    assert (d.modbus.kind, d.modbus.host, d.modbus.port) == ("tcp", "127.0.0.1", 5020)
+    # a free port and a channel of the session's own unless one is named (issue 36.4)
+    assert (d.modbus.kind, d.modbus.host, d.modbus.port) == ("tcp", "127.0.0.1", 0)
+    assert d.can.channel == ""
     assert d.console.port == ""  # fw_host's pty
     CommissioningConfig.from_mapping(d.commissioning)
 

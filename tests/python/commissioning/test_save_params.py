@@ -43,7 +43,8 @@ def test_standstill_saves_the_parameters_it_identified(unix_channel: str, progra
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temp file
 
 
-@pytest.mark.parametrize("target", ["symlink", "users_file", "directory", "no_folder"])
+@pytest.mark.parametrize("target", ["symlink", "users_file", "directory", "no_folder",
+                                    "linked_folder"])
 def test_a_target_it_may_not_write_is_refused_before_the_run(
         target: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     mine = tmp_path / "mine.toml"
@@ -58,6 +59,12 @@ def test_a_target_it_may_not_write_is_refused_before_the_run(
     elif target == "directory":
         save.mkdir()
         why = "not a regular file"
+    elif target == "linked_folder":
+        elsewhere = tmp_path / "elsewhere"
+        elsewhere.mkdir()
+        (tmp_path / "linked").symlink_to(elsewhere, target_is_directory=True)
+        save = tmp_path / "linked" / "saved.toml"
+        why = "which is a symbolic link"
     else:
         save = tmp_path / "missing" / "saved.toml"
         why = "is not a folder"
@@ -67,6 +74,22 @@ def test_a_target_it_may_not_write_is_refused_before_the_run(
     assert why in err, err
     assert mine.read_text() == "my own notes\n"
     assert not (tmp_path / "run").exists()  # nothing started
+    assert not (tmp_path / "elsewhere").exists() or not any((tmp_path / "elsewhere").iterdir())
+
+
+def test_a_file_in_a_linked_folder_is_refused_at_the_write_too(tmp_path: Path) -> None:
+    """The check before the run and the one before the write are the same: a link put in
+    place while the run ran is refused as well."""
+    from rig.commands import commission
+
+    elsewhere = tmp_path / "elsewhere"
+    (tmp_path / "a").mkdir()
+    elsewhere.mkdir()
+    (tmp_path / "a" / "b").symlink_to(elsewhere, target_is_directory=True)
+    data = {"passed": True, "identified": {"rs_ohm": 1.93}, "written": {}}
+    desc = type("D", (), {"virtual": None, "name": "lab"})()
+    assert not commission._save_params(tmp_path / "a" / "b" / "saved.toml", data, desc)
+    assert list(elsewhere.iterdir()) == []
 
 
 WRITER = r"""

@@ -92,3 +92,21 @@ def test_rig_run_says_when_runs_pile_up(root: Path, monkeypatch: pytest.MonkeyPa
     monkeypatch.setattr(clean, "NOTICE_RUNS", 5)
     hint = clean.notice(root)
     assert hint is not None and "8 runs named by time" in hint and "rig clean" in hint
+
+
+@pytest.mark.parametrize("keep_in", ["archive", "root"])
+def test_a_keep_above_a_run_keeps_it(tmp_path: Path, keep_in: str) -> None:
+    """A KEEP file in a folder above a run (up to the root) keeps the runs filed there."""
+    root = tmp_path / "out"
+    archive = root / "archive"
+    for i in range(7):
+        _run(archive, f"smoke-2026010{i}-120000", age_days=i)
+    (archive if keep_in == "archive" else root).joinpath("KEEP").write_text("")
+    before = sorted(p.name for p in archive.iterdir())
+    assert cli.main(["clean", str(root), "--keep-last", "0", "--yes"]) == 0
+    assert sorted(p.name for p in archive.iterdir()) == before
+    # and removing one by hand through the API is refused as well
+    run = next(r for r in outputs.find_runs(root))
+    assert run.keep
+    with pytest.raises(ValueError, match="KEEP"):
+        outputs.remove(run, root)

@@ -116,6 +116,16 @@ def test_an_invalid_channel_from_the_environment_is_a_usage_error(
         ["run", "smoke", "--bus", "unixcan"], capsys)
 
 
+@pytest.mark.parametrize("argv", [["run", "smoke"], ["bus", "status"], ["param", "list"],
+                                  ["loadbench", "serve"]])
+def test_an_unknown_bus_from_the_environment_is_a_usage_error(
+        argv: list[str], monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("HIL_BUS", "bogus")
+    err = usage_error(argv, capsys)
+    assert "argument HIL_BUS: invalid choice: 'bogus'" in err and "Traceback" not in err
+
+
 def test_sweep_values_and_sizes_are_checked_before_anything_runs(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "s"

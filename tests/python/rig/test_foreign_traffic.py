@@ -149,8 +149,44 @@ def test_a_node_that_sends_before_the_run_is_refused(tmp_path: Path, channel: st
         stop.set()
         talker.join()
         bus.shutdown()
-    _foreign(code, text, data, "id 0x123")
+    _foreign(code, text, data, "classic frame 0x123")
     assert not (out / "plant.trace").exists()  # nothing was started
+
+
+def test_foreign_frames_are_named_by_their_whole_identity(tmp_path: Path, channel: str) -> None:
+    """An extended frame 0x11, a remote frame with DRIVE_STATUS's identifier and a classic
+    frame with VIO_ADC_0's (a CAN FD message) are none of those messages: the refusal names
+    each by what it is (it named them VIO_ADC_0 and DRIVE_STATUS)."""
+    status = protocols.database("drive").get_message_by_name("DRIVE_STATUS").frame_id
+    frames = [
+        can.Message(arbitration_id=0x11, is_extended_id=True, is_fd=True, data=bytes(64)),
+        can.Message(arbitration_id=status, is_extended_id=False, is_remote_frame=True, dlc=8),
+        can.Message(arbitration_id=0x11, is_extended_id=False, data=bytes(8)),
+    ]
+    stop = threading.Event()
+    bus = can.Bus(interface="unixcan", channel=channel)
+
+    def chatter() -> None:
+        while not stop.is_set():
+            for m in frames:
+                bus.send(m)
+            time.sleep(0.02)
+
+    talker = threading.Thread(target=chatter, daemon=True)
+    talker.start()
+    try:
+        out = tmp_path / "run"
+        code, text, data = _finish(_start_run(out, channel), out)
+    finally:
+        stop.set()
+        talker.join()
+        bus.shutdown()
+    message = data["failure"]["message"]
+    _foreign(code, text, data, "extended CAN FD frame 0x00000011")
+    assert f"remote (RTR) classic frame 0x{status:03X} (the identifier of DRIVE_STATUS)" in \
+        message, message
+    assert "classic frame 0x011 (VIO_ADC_0 is CAN FD)" in message, message
+    assert "VIO_ADC_0 (0x011)" not in message and "DRIVE_STATUS (0x" not in message, message
 
 
 @pytest.mark.parametrize("attack", ["fault_cmd", "bench_step_far_ahead",

@@ -170,3 +170,85 @@ def test_clean_keeps_a_suite_whose_scenario_folder_holds_keep(tmp_path: Path) ->
     assert cli.main(["clean", str(root), "--keep-last", "0", "--yes"]) == 0
     assert kept.is_file()
     assert sorted(p.name for p in root.iterdir()) == ["paper-20260100-120000"]
+
+
+def _failing_smoke(tmp_path: Path) -> Path:
+    """smoke with a position-error limit it cannot meet: it draws that criterion's picture."""
+    text = (Path(outputs.__file__).parent / "scenarios" / "smoke.toml").read_text()
+    text = text.replace("limit = 10.0", "limit = 0.001")
+    path = tmp_path / "smoke.toml"
+    path.write_text(text)
+    return path
+
+
+def test_a_rerun_removes_only_the_files_the_earlier_run_wrote(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The user's files that match the names a run gives its files (a program's log, a ready
+    file, a criterion's picture) stay; the earlier run's own pictures go."""
+    d = tmp_path / "run"
+    assert rig_main(["run", str(_failing_smoke(tmp_path)), "--bus", "inproc", "--out", str(d),
+                     "--quiet", "--no-record"]) == 1
+    assert (d / "criterion-2.png").is_file()
+    mine = {"notes.stdout.log": "my log\n", "mine.ready": "ready\n",
+            "criterion-overview.png": "my picture\n"}
+    for name, text in mine.items():
+        (d / name).write_text(text)
+    code = rig_main(["run", "smoke", "--bus", "inproc", "--out", str(d), "--quiet",
+                     "--no-record"])
+    assert code == 0, capsys.readouterr().err
+    for name, text in mine.items():
+        assert (d / name).read_text() == text, name
+    assert not (d / "criterion-2.png").exists()  # the earlier run's, gone with it
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused_at_once(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    d = tmp_path / "run"
+    held = outputs.claim(d, 100)  # a run in progress there
+    try:
+        (d / "result.json").write_text("{}")  # (a file of that run, half way)
+        code = rig_main(["run", "smoke", "--bus", "inproc", "--out", str(d), "--quiet"])
+        err = capsys.readouterr().err
+        assert code == 3, err
+        assert f"the output folder {d} is in use by another run of the rig (pid {os.getpid()})" \
+            in err, err
+        assert (d / "result.json").read_text() == "{}"  # nothing changed
+        code = rig_main(["run", "quick", "--bus", "inproc", "--out", str(d), "--quiet"])
+        assert code == 3 and "in use by another run" in capsys.readouterr().err
+    finally:
+        held.release()
+    assert rig_main(["run", "smoke", "--bus", "inproc", "--out", str(d), "--quiet",
+                     "--no-record"]) == 0
+
+
+def test_two_rig_runs_into_one_out_the_second_is_refused(tmp_path: Path) -> None:
+    """End to end: the first run (stopped once it has taken the folder, so that it is
+    surely still running) keeps the folder; the second exits 3 at once; the first passes."""
+    import signal
+    import time
+
+    d = tmp_path / "run"
+    argv = [sys.executable, "-m", "rig", "run", "smoke", "--bus", "inproc", "--out", str(d),
+            "--quiet", "--no-record"]
+    first = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while _marker_pid(d) != first.pid:
+            assert first.poll() is None and time.monotonic() < deadline
+            time.sleep(0.001)
+        first.send_signal(signal.SIGSTOP)
+        second = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    finally:
+        first.send_signal(signal.SIGCONT)
+    out, _ = first.communicate(timeout=120)
+    assert second.returncode == 3, second.stderr
+    assert f"is in use by another run of the rig (pid {first.pid})" in second.stderr
+    assert first.returncode == 0, out
+    assert json.loads((d / "result.json").read_text())["passed"]
+
+
+def _marker_pid(d: Path) -> int | None:
+    try:
+        return json.loads((d / outputs.RUN_MARKER).read_text()).get("pid")
+    except (OSError, ValueError):
+        return None

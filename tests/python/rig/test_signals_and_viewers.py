@@ -74,6 +74,32 @@ def test_sigterm_while_the_results_are_worked_out_leaves_them_whole(tmp_path: Pa
     assert not list(out.glob(".*.tmp-*"))
 
 
+@pytest.mark.parametrize("target", ["smoke", "quick"])
+def test_sigterm_after_the_verdict_is_written_keeps_the_verdict_s_exit_status(
+        tmp_path: Path, target: str) -> None:
+    """A run (or suite: ``quick``) that passed and wrote result.json, then got SIGTERM, exited
+    143 (or 130): the verdict is decided and written, the exit status is its own."""
+    delivered = 0
+    for attempt in range(5):
+        out = tmp_path / f"run{attempt}"
+        proc = _rig("run", target, "--bus", "inproc", "--out", str(out), "--quiet",
+                    "--no-record", "--no-figures", env=_env())
+        deadline = time.monotonic() + 300
+        while not (out / "result.json").exists():  # renamed into place whole
+            assert proc.poll() is None, proc.communicate()[0]
+            assert time.monotonic() < deadline
+            time.sleep(0.0002)
+        if proc.poll() is not None:  # done before the signal: try again
+            proc.communicate()
+            continue
+        proc.send_signal(signal.SIGTERM)
+        delivered += 1
+        text, _ = proc.communicate(timeout=120)
+        assert json.loads((out / "result.json").read_text())["passed"], text
+        assert proc.returncode == 0, text
+    assert delivered >= 3
+
+
 def test_live_without_a_display_uses_the_web_viewer_and_ends(tmp_path: Path,
                                                             channel: str) -> None:
     web, grpc = webview.free_port(), webview.free_port()

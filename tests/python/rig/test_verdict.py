@@ -83,3 +83,54 @@ def test_report_shows_not_evaluated_as_its_own_outcome() -> None:
     md = report.suite_report({"suite": "x", "passed": False, "scenarios": [
         {"name": "s", "dir": "s", "passed": False, "status": "interrupted", "criteria": [c]}]})
     assert "1 not evaluated" in md
+
+
+def _cost_columns(n: int, first: int, journalled: range) -> dict[str, np.ndarray]:
+    """The ISR's cost columns of rig.target_m4.cost: period k costs 1000 + k instructions,
+    of which `estimate` 600 + k, NaN where the period was not journalled."""
+    from rig.target_m4 import cost
+
+    periods = np.array(list(journalled))
+    inst = 1000 + periods
+    steps = np.stack([400 + 0 * periods, 600 + periods], axis=1)
+    return cost.IsrCosts(periods, inst, steps, ("entry", "estimate")).columns(first, n)
+
+
+def test_the_isr_cost_is_read_from_its_columns_with_its_steps(tmp_path: Path) -> None:
+    """Median and worst over the window's periods, each with its steps (the worst: the
+    steps of the worst period); a period of the window that was not replayed is no data."""
+    cap = _capture(tmp_path, 800)
+    cov = verdict.Coverage(PLANNED, 0, 799, reached_end=True)
+    extra = _cost_columns(cap.n, cap.first_period, range(100, 300))
+    med = verdict.evaluate_one(_crit((0.01, 0.02), "isr_instructions_median", 1e9), cap, {},
+                               cov, extra=extra)
+    assert med["value"] == 1150 and med["unit"] == "instructions"
+    assert med["detail"] == {"entry": 400, "estimate": 750}
+    worst = verdict.evaluate_one(_crit((0.01, 0.02), "isr_instructions_max", 1e9), cap, {},
+                                 cov, extra=extra)
+    assert worst["value"] == 1200 and worst["detail"] == {"entry": 400, "estimate": 800}
+    short = verdict.evaluate_one(_crit((0.01, 0.035), "isr_instructions_max", 1e9), cap, {},
+                                 cov, extra=extra)
+    assert short["value"] is None and short["outcome"] == "fail"  # (period 300 missing)
+
+
+def test_a_run_on_a_bus_leaves_the_isr_cost_out(tmp_path: Path) -> None:
+    from rig.results.result import RunResult
+    from rig.run import evaluation
+
+    cap = _capture(tmp_path, 800)
+    cov = verdict.Coverage(800, 0, 799, reached_end=True)
+    s = sc.Scenario("x", tmp_path / "x.toml", "x", "paper", 0.08, criteria=(
+        _crit((0.0, 0.05)), sc.Criterion("cost", "isr_instructions_max", (0.01, 0.02),
+                                         float("nan"), "report", better="lower")))
+    on_bus = RunResult(tmp_path)
+    evaluation.judge(on_bus, s, cap, cov, None, on_bench=False)
+    assert [c["name"] for c in on_bus.criteria] == ["c"]
+    assert on_bus.left_out and on_bus.left_out[0]["name"] == "cost"
+    assert on_bus.passed and "left_out" in on_bus.to_json()
+    # on the bench without the image: not evaluated, which fails the run, and says why
+    on_bench = RunResult(tmp_path)
+    evaluation.judge(on_bench, s, cap, cov, None, extra_missing="no Cortex-M4F image")
+    c = on_bench.criteria[1]
+    assert c["outcome"] == "not_evaluated" and "no Cortex-M4F image" in c["note"]
+    assert not on_bench.passed
