@@ -193,7 +193,7 @@ def confirm(sc: Any, result: RunResult, opts: Any) -> None:
     per_seed: list[list[dict[str, Any]]] = []
     base_opts = replace(opts, bus=sil.INPROC, channel=None, realtime=False, live=False,
                         live_stream=None, live_url=None, progress=False, record=False,
-                        figures=False, keep="failing", baseline="off", jobs=1,
+                        figures=False, keep="none", baseline="off", jobs=1,
                         core_journal=None)
     names = ", ".join(f.name for f in flagged)
     if opts.progress:

@@ -37,7 +37,9 @@ class RunOptions:
     can_log: str | None = None
     # what a run keeps besides result.json, report.md and recording.rrd: "all" keeps the
     # full-rate traces (*.trace) and capture columns (capture/) of every run, "failing" only
-    # of runs that did not pass (rig run's default; the API's is "all": callers read captures)
+    # of runs that did not pass (rig run's default; the API's is "all": callers read captures),
+    # "none" of no run (the confirmation's fresh seeds: their values are all it needs, and a
+    # mutation campaign's kills kept 8 seeds' traces each, 5 GB a mutant)
     keep: str = "all"
     extra_plant_args: Sequence[str] = ()
     extra_fw_args: Sequence[str] = ()

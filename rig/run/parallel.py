@@ -86,6 +86,15 @@ def _crashed(job: Job, exc: BaseException, kind: str = "crash",
         failure=Failure(kind, f"{what} ({type(exc).__name__}: {exc})"))
 
 
+def _raised(job: Job, exc: BaseException) -> RunResult:
+    """A run that raised ``exc`` in its worker before it wrote its result."""
+    return RunResult(
+        out_dir=Path(job.opts.out), scenario=job.scenario.name,
+        scenario_file=str(job.scenario.file), profile=job.scenario.profile, status="error",
+        failure=Failure("exception", f"the run raised {type(exc).__name__}: {exc} before it "
+                        "wrote its result (a worker of the in-process pool)"))
+
+
 def run_jobs(jobs: Sequence[Job], workers: int,
              results: list[RunResult | None],
              on_done: Callable[[Job, RunResult | None], None] | None = None,
@@ -122,7 +131,10 @@ def run_jobs(jobs: Sequence[Job], workers: int,
                 if results[i] is None and isinstance(exc, BrokenProcessPool):
                     results[i] = _crashed(jobs[i], exc)
                 elif results[i] is None and exc is not None:
-                    raise exc
+                    # the run raised before it wrote a result (an import missing from the
+                    # install, a bug of the rig): that run is an error, named, and the suite
+                    # goes on to its verdict instead of ending in a traceback
+                    results[i] = _raised(jobs[i], exc)
                 if on_done is not None:
                     on_done(jobs[i], results[i])
                 halt = halt or (stop is not None and stop(jobs[i], results[i]))

@@ -122,7 +122,8 @@ def _run_claimed(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Cla
         result.timing = run.timing(wall)
         result.finished = _now()
     with signals_deferred():  # result.json and report.md are written whole
-        result.kept = outputs.prune(out, keep_full=opts.keep == "all" or not result.passed,
+        result.kept = outputs.prune(out, keep_full=opts.keep == "all" or (
+            opts.keep == "failing" and not result.passed),
                                     keep=opts.keep)
         result.capture = cap if result.kept.full_rate else None
         claimed.record()

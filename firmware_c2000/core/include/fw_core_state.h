@@ -286,7 +286,10 @@ struct fw_core {
     fw_flux_t flux;
     int16_t est_valid;
     int16_t est_fail_run;
-    int16_t sensor_bad;          /* leaky count of implausible two-vector periods */
+    int16_t sensor_bad;          /* leaky count of implausible periods (current sensors) */
+    int16_t codes_frozen;        /* fw_protection_codes_frozen of the period (RUN only) */
+    real_t vec_proj[2];          /* 1/H, each measured active vector's slope difference
+                                    projected on its own voltage (v . di / |v|^2) */
     uint32_t est_reject_count;
     int16_t flux_pos_load;       /* 1: load high enough for the flux hand-over (hysteresis) */
     int16_t start_recover;       /* 1: ramp back to start_speed_rpm; 2: then to the command, no faster */

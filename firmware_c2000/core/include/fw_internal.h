@@ -246,6 +246,7 @@ static inline real_t fw_protection_adc_offset(int32_t code, int32_t adc_half)
     return (real_t)code - (real_t)adc_half;
 }
 int16_t fw_protection_codes_in_range(const fw_adc_t *adc, int32_t adc_half); /* all in 0..2^N-1 */
+int16_t fw_protection_codes_frozen(const fw_adc_t *adc); /* bit 0: ia, bit 1: ib one code */
 uint16_t fw_protection_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb, real_t oc_trip,
                             real_t *i_peak);
 uint16_t fw_protection_vdc(real_t vdc, real_t ov, real_t uv, int16_t check_uv);

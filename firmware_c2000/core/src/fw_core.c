@@ -58,6 +58,8 @@ static void reset_estimation(fw_core_t *c)
     c->est_valid = 0;
     c->est_fail_run = 0;
     c->sensor_bad = 0;
+    c->vec_proj[0] = c->vec_proj[1] = FW_REAL(0.0);
+    c->codes_frozen = 0;
     c->polarity_ok = 0;
     c->flips_in_window = 0;
     c->flip_window_ticks = 0;
@@ -244,6 +246,13 @@ static int16_t estimate_position(fw_core_t *c, const fw_adc_t *adc, int16_t by_f
                     real_t diq = fw_cmul(fw_csub(c->i_win[w], c->i_win[FW_WIN_ZERO]), rot_m).im;
                     fw_cplx_t dv = fw_csub(v, fw_cmul(rot2, fw_cconj(v)));
                     di[n_act] = fw_csub(di[n_act], fw_cscale(dv, FW_REAL(0.5) * kappa * diq));
+                }
+                {
+                    fw_cplx_t v_unit = fw_svpwm_vec_unit(vec[n_act]);
+                    real_t v_len = FW_REAL(2.0) / FW_REAL(3.0) * pl->vdc;
+                    c->vec_proj[n_act] = (v_len > FW_REAL(0.0))
+                        ? (v_unit.re * di[n_act].re + v_unit.im * di[n_act].im) / v_len
+                        : FW_REAL(0.0);
                 }
                 n_act++;
             }
@@ -630,18 +639,51 @@ static void polarity_lost_check(fw_core_t *c, int16_t data_ok)
  * 0.56-1.63 with Gamma1/Gamma0 up to 1.1 in single noisy periods (12-bit ADC, 5 mA), a leaky
  * count of at most 2; ia read 5x: 2.3-3.9 at once; ia stuck at mid-scale: 0.31, then
  * Gamma1 > Gamma0. The over-current check cannot see these: the current loop regulates the
- * false reading to its reference and the true current goes where it will. */
+ * false reading to its reference and the true current goes where it will.
+ * Two-vector periods alone came too rarely and too mildly: after a stuck ia or a lost ib most
+ * periods measured one vector (slopes_ok 1), and a sector could pass the mean Gamma0 for 30
+ * periods while one of its vectors was plainly wrong; detection took 19-142 periods as the
+ * noise fell (faults suite, seeds 1-160) and a lost ib let the true current reach 23 A before
+ * the over-current trip. So every measured vector is judged on its own (v.Gamma.v/|v|^2 within
+ * the machine's 1/Lq..1/Ld, widened by the same ratios), and a converter stuck on one code is
+ * implausible in every period it is: both faults are now caught in 19-25 periods. */
+static int16_t period_implausible(fw_core_t *c)
+{
+    const real_t *p = c->p;
+    real_t inv_ld = FW_REAL(1.0) / p[FW_IDX_LD_H], inv_lq = FW_REAL(1.0) / p[FW_IDX_LQ_H];
+    real_t g0_nom = FW_REAL(0.5) * (inv_ld + inv_lq);
+    real_t lo = p[FW_IDX_SENSOR_G0_MIN_RATIO] * fw_min(inv_ld, inv_lq);
+    real_t hi = p[FW_IDX_SENSOR_G0_MAX_RATIO] * fw_max(inv_ld, inv_lq);
+    int16_t k;
+    if (c->codes_frozen) {
+        return 1; /* a converter stuck on one code while the windows it measured slewed */
+    }
+    if (c->slopes_ok == 2 && c->est.n_active == 2) {
+        real_t ratio = c->est.gamma0 / g0_nom;
+        if (!(ratio >= p[FW_IDX_SENSOR_G0_MIN_RATIO] && ratio <= p[FW_IDX_SENSOR_G0_MAX_RATIO]) ||
+            !(c->est.gamma1 < c->est.gamma0)) {
+            return 1;
+        }
+    }
+    /* each vector: its slope difference projected on its own voltage is v.Gamma.v / |v|^2,
+     * between the machine's smallest and largest inverse inductance whatever the angle. Two
+     * vectors' mean Gamma0 alone let a lost ib pass for 30 periods in a sector where one
+     * vector's projection was 0 and the other's twice the nominal */
+    for (k = 0; k < c->slopes_ok; k++) {
+        if (!(c->vec_proj[k] >= lo && c->vec_proj[k] <= hi)) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
 static void current_sensor_check(fw_core_t *c)
 {
     const real_t *p = c->p;
-    real_t g0_nom, ratio;
-    if (c->slopes_ok != 2 || c->est.n_active != 2) {
-        return; /* this period's slopes did not give the whole matrix */
+    if (c->slopes_ok < 1) {
+        return; /* this period measured no active vector */
     }
-    g0_nom = FW_REAL(0.5) * (FW_REAL(1.0) / p[FW_IDX_LD_H] + FW_REAL(1.0) / p[FW_IDX_LQ_H]);
-    ratio = c->est.gamma0 / g0_nom;
-    if (!(ratio >= p[FW_IDX_SENSOR_G0_MIN_RATIO] && ratio <= p[FW_IDX_SENSOR_G0_MAX_RATIO]) ||
-        !(c->est.gamma1 < c->est.gamma0)) {
+    if (period_implausible(c)) {
         if (c->sensor_bad < 30000) {
             c->sensor_bad++;
         }
@@ -739,6 +781,7 @@ static int16_t take_period(fw_core_t *c, const fw_adc_t *adc, uint32_t *period)
         data_ok = (int16_t)(adc->period == c->period + 1u && adc->n_soc == c->plan_next.n_soc &&
                             adc->n_soc >= 0 && adc->n_soc <= FW_MAX_SOC &&
                             fw_protection_codes_in_range(adc, c->adc_half));
+        c->codes_frozen = (data_ok && c->state == FW_STATE_RUN) ? fw_protection_codes_frozen(adc) : 0;
     }
     if (c->have_period && c->trk.init) {
         uint32_t gap = k - c->period;

@@ -32,6 +32,24 @@ int16_t fw_protection_codes_in_range(const fw_adc_t *adc, int32_t adc_half)
     return 1;
 }
 
+/* A converter that returns one code in every sample of a switching period is stuck: the
+ * phase currents slew by hundreds of codes inside each measured active window (the slopes the
+ * estimator fits), and noise alone moves them by a few. Bit 0: ia, bit 1: ib. */
+int16_t fw_protection_codes_frozen(const fw_adc_t *adc)
+{
+    const int16_t n = n_samples(adc);
+    int32_t moved_a = 0, moved_b = 0;
+    int16_t k;
+    if (n < 2) {
+        return 0;
+    }
+    for (k = 1; k < n; k++) {
+        moved_a |= adc->ia[k] ^ adc->ia[0];
+        moved_b |= adc->ib[k] ^ adc->ib[0];
+    }
+    return (int16_t)((moved_a == 0 ? 1 : 0) | (moved_b == 0 ? 2 : 0));
+}
+
 /* the largest phase-current magnitude of the samples in real_t, sample by sample */
 static real_t peak_of_samples(const fw_adc_t *adc, int32_t adc_half, real_t lsb)
 {

@@ -600,6 +600,29 @@ static void protection(void)
         CHECK(same(p_ref, p_new), "extreme codes");
         CHECK(fw_protection_codes_in_range(&a, 32768) == 0, "extreme codes in range");
     }
+    {
+        /* a stuck converter: one code in every sample; one code moved is not stuck */
+        fw_adc_t a;
+        int16_t k, m;
+        memset(&a, 0, sizeof a);
+        a.n_soc = FW_MAX_SOC;
+        for (k = 0; k < FW_MAX_SOC; k++) {
+            a.ia[k] = 32768;
+            a.ib[k] = 30000 + 17 * k;
+        }
+        CHECK(fw_protection_codes_frozen(&a) == 1, "ia stuck: %d", fw_protection_codes_frozen(&a));
+        for (m = 0; m < FW_MAX_SOC; m++) {
+            a.ia[m] = 32769;
+            CHECK(fw_protection_codes_frozen(&a) == 0, "ia moved at sample %d", m);
+            a.ia[m] = 32768;
+        }
+        for (k = 0; k < FW_MAX_SOC; k++) {
+            a.ib[k] = 0;
+        }
+        CHECK(fw_protection_codes_frozen(&a) == 3, "both stuck");
+        a.n_soc = 1;
+        CHECK(fw_protection_codes_frozen(&a) == 0, "one sample says nothing");
+    }
 }
 
 static void drop_voltages(void)

@@ -226,3 +226,27 @@ def test_the_gate_false_alarm_bound_from_the_committed_baselines() -> None:
     assert n > 800  # the gate's criteria, every one with its per-seed values
     assert 1.0 < expected_flags < 0.01 * n  # at most 0.5 % per criterion on its worse side
     assert expected_flags * confirm.ALPHA <= 0.05
+
+
+def test_confirmation_runs_keep_no_traces_even_when_they_fail(tmp_path: Path) -> None:
+    """keep="none" (the confirmation's fresh seeds) removes the full-rate traces and the
+    capture of a run that fails its limit too: a mutation campaign's kills kept 8 seeds'
+    traces a flag, 5 GB a mutant, and filled the disk. "failing" keeps them."""
+    from rig.run.runner import run_scenario
+
+    text = SCENARIO.replace("limit = 5", "limit = 0.0001")
+    assert text != SCENARIO
+    (tmp_path / "tight.toml").write_text(text)
+    sc = scenario.load_scenario(tmp_path / "tight.toml")
+    runs = {}
+    for keep in ("none", "failing"):
+        out = tmp_path / keep
+        runs[keep] = run_scenario(sc, RunOptions(out=out, bus="inproc", progress=False,
+                                                 record=False, figures=False, keep=keep))
+        assert not runs[keep].passed
+    assert not list((tmp_path / "none").glob("*.trace"))
+    assert not (tmp_path / "none" / "capture").exists()
+    assert not runs["none"].kept.full_rate
+    assert list((tmp_path / "failing").glob("*.trace")) and runs["failing"].kept.full_rate
+    assert runs["none"].criteria[0]["value"] == runs["failing"].criteria[0]["value"]
+    assert (tmp_path / "none" / "result.json").exists()
