@@ -4,6 +4,7 @@ between runs, and the ``hil-suite/1`` summary (``result.json``, ``report.md``)."
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -177,8 +178,24 @@ def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunRe
     finally:
         for sc, r in zip(suite.scenarios, got, strict=True):
             if r is not None:
+                _keep_error(r)
                 results.append(r)
                 entries.append(entry(sc, r))
+
+
+def _keep_error(r: RunResult) -> None:
+    """A run that ended in an error before it wrote its result (its worker died or raised,
+    the cluster never ran it) gets its result.json all the same: the scenario's folder says
+    what happened, as the suite's summary does."""
+    from rig.results.result import write_result
+
+    if r.status != "error" or (Path(r.out_dir) / "result.json").exists():
+        return
+    try:
+        Path(r.out_dir).mkdir(parents=True, exist_ok=True)
+        write_result(r)
+    except OSError as exc:  # the suite's summary still says it
+        print(f"rig run: {r.scenario}: its error could not be written ({exc})", file=sys.stderr)
 
 
 def evaluate_comparison(cmp: Comparison,
