@@ -28,6 +28,7 @@ from typing import Any
 
 from rig import _paths, cliargs, protocols
 from rig import bus as rigbus
+from rig.benchmarks import machine
 
 PROFILES = ("ideal", "paper", "harsh")
 TS = protocols.timebase().ts  # PWM period
@@ -185,7 +186,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     report: dict[str, Any] = {"benchmark": "plant", "host_cpus": os.cpu_count(),
                               "in_vm": os.environ.get("HIL_IN_VM") == "1",
                               "profile": args.profile,
-                              "load_average": [round(x, 2) for x in os.getloadavg()]}
+                              "load_average": machine.load_average()}
     report["compute"] = compute_cost(args.periods)
     compute_median = report["compute"].get(args.profile, {}).get("median_us")
     transports = _transports(args)
@@ -196,7 +197,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         report["realtime"] = {t: realtime_run(t, _channel(t, args.channel), args.profile,
                                               args.realtime, args.rt_spin_us)
                               for t in transports}
-    report["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
+    report["load_average_after"] = machine.load_average()
     print(json.dumps(report))
     return report
 

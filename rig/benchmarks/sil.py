@@ -34,6 +34,7 @@ from typing import Any
 
 from rig import bus as rigbus
 from rig import cliargs, scenario
+from rig.benchmarks import machine
 from rig.benchmarks.bus import ping_pong
 from rig.benchmarks.isr import sil_bench_argv
 from rig.data import capture
@@ -95,7 +96,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         raise SystemExit(f"rig bench sil: {args.scenario} is a suite, not a scenario")
     report: dict[str, Any] = {"benchmark": "sil", "scenario": sc.name, "profile": sc.profile,
                               "host_cpus": os.cpu_count(),
-                              "load_average": [round(x, 2) for x in os.getloadavg()]}
+                              "load_average": machine.load_average()}
     with tempfile.TemporaryDirectory() as tmp:
         inproc = _fastest([_run(sc, Path(tmp) / f"inproc{k}", "inproc", "")
                            for k in range(args.repeat)])
@@ -116,4 +117,5 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     report["sil_bench"] = sil_bench_program(sc.profile)
     report["vs_motulator_0_5"] = round(
         inproc["sim_s_per_wall_s"] / MOTULATOR_0_5_SIM_S_PER_WALL_S, 0)
+    report["load_average_after"] = machine.load_average()
     return report

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rig import cliargs
-from rig.benchmarks import apart, bus, gate, isr, overload, plant, sil, startup
+from rig.benchmarks import apart, bus, cluster, gate, isr, overload, plant, sil, startup
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -60,10 +60,16 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     cliargs.command(ap, _printed(apart.measure))
 
     ga = bsub.add_parser(
-        "gate", help="the regression gate's wall and CPU time (target: 3 min on 2 cores)",
+        "gate", help="the regression gate's wall and CPU time (target: 30 s on 2 cores)",
         description=gate.__doc__, formatter_class=raw)
     gate.add_arguments(ga)
     cliargs.command(ga, _printed(gate.measure))
+
+    cl = bsub.add_parser(
+        "cluster", help="a suite on 1, 2 and 4 local Dask workers: the speed-up",
+        description=cluster.__doc__, formatter_class=raw)
+    cluster.add_arguments(cl)
+    cliargs.command(cl, _printed(cluster.measure))
 
 
 def _printed(measure: Callable[[argparse.Namespace], dict[str, Any]]

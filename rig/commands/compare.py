@@ -16,7 +16,12 @@ better side), unknown (no spread known), added or removed; with its change in % 
 half-widths and the chance of a difference that large, most significant first. A baseline
 side is narrowed to the other side's scenario runs.
 
-exit status: 0 nothing regressed or changed; 1 something did; 2 usage, a side that cannot be
+--exact asks more: every criterion of B is in A with the very same value (each seed's too)
+and outcome; A may hold more runs (the bus's runs against the gate's in process: the same
+computation, so any difference is a defect).
+
+exit status: 0 nothing regressed or changed (--exact: B identical to A); 1 something did
+(--exact: a criterion of B differs from A's or is not in A); 2 usage, a side that cannot be
 read, or sides that are not comparable (one evaluated nothing, or no scenario run in
 common); 3 --out cannot be written.
 """
@@ -33,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("b", metavar="B")
     p.add_argument("--all", action="store_true",
                    help="list every criterion, not only those that moved")
+    p.add_argument("--exact", action="store_true",
+                   help="B must equal A to the bit on every criterion B holds (exit 1 "
+                   "otherwise)")
     cliargs.add_shared(p, "out", type=Path,
                        help="also write DIR/compare.md, compare.json and a plot per moved "
                        "metric")
@@ -71,5 +79,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 3
         print(f"\n-> {args.out}/compare.md ({len(pngs)} plots)", file=sys.stderr)
+    if args.exact:
+        differ = compare.not_identical_in_b(rows)
+        for r in differ[:20]:
+            a = "absent" if r.a is None else f"{r.a.value} ({r.a.outcome})"
+            b = "absent" if r.b is None else f"{r.b.value} ({r.b.outcome})"
+            print(f"rig compare: --exact: {r.key[0]} {r.key[1]}: A {a}, B {b}",
+                  file=sys.stderr)
+        in_b = sum(1 for r in rows if r.b is not None)
+        print(f"rig compare: --exact: {in_b - len(differ)} of {in_b} criteria of B identical "
+              "to A's", file=sys.stderr)
+        return 1 if differ else 0
     c = compare.counts(rows)
     return 1 if c.get("regressed") or c.get("changed") else 0

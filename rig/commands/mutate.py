@@ -12,7 +12,9 @@ from typing import TYPE_CHECKING
 from rig import cliargs
 
 if TYPE_CHECKING:
-    from rig.regression.mutation.campaign import Gate
+    from collections.abc import Callable
+
+    from rig.regression.mutation.campaign import Gate, Verdict
     from rig.regression.mutation.catalogue import Mutant
     from rig.regression.mutation.worktree import MutationTree
 
@@ -30,8 +32,13 @@ the rounding-only mutants instead (class benign): every kill is a false alarm.
 --null-seeds LIST also runs the unmutated gate at seeds the baselines never saw: a failure
 is a false alarm. `rig mutate --set all --null-seeds 9-28` prints all three rates.
 
+--cluster tcp://HOST:PORT runs the control, the null seeds and the mutants as tasks on a Dask
+cluster: each worker unpacks this checkout into a tree of its own, builds it once and judges
+one mutant at a time (--jobs is then each worker's build and gate parallelism); every worker
+must run this same rig. A lost worker's mutant is judged again on another one.
+
 exit status: 0 the campaign ran (whatever the score); 1 the unmutated tree fails a detector;
-2 usage or catalogue error.
+2 usage or catalogue error; 3 the cluster could not run the campaign.
 """
 
 
@@ -68,6 +75,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--null-seeds", default=None, metavar="LIST",
                    help="also run the unmutated gate at these seeds (e.g. 9-28; none of the "
                    "baselines' 1-8): each failure is a false alarm")
+    p.add_argument("--cluster", default=None, metavar="tcp://HOST:PORT",
+                   help="judge the mutants on the Dask cluster whose scheduler is at this "
+                   "address (each worker builds its own copy of this checkout)")
+    p.add_argument("--no-worker-timeout", type=cliargs.number(above=0.0), default=60.0,
+                   metavar="S", help="with --cluster: end the campaign when the cluster has "
+                   "had no worker for S seconds (default 60; exit 3)")
     p.add_argument("--list", action="store_true", help="list the catalogue and exit")
     cliargs.command(p, cmd_mutate)
 
@@ -114,6 +127,8 @@ def cmd_mutate(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     gate = campaign.Gate(tuple(s.strip() for s in args.suite.split(",") if s.strip()),
                          args.baseline, args.jobs, args.seed)
+    if args.cluster is not None:
+        return _on_cluster(args, mutants, gate, out, detectors, null_seeds)
     # the copy lives in a short temporary path: the C bus tests put Unix sockets under their
     # build folder, and a socket address holds at most 107 bytes
     work = Path(tempfile.mkdtemp(prefix="rig-mutate-"))
@@ -123,6 +138,50 @@ def cmd_mutate(args: argparse.Namespace) -> int:
     finally:
         if not args.keep_work:
             shutil.rmtree(work, ignore_errors=True)
+
+
+def _on_cluster(args: argparse.Namespace, mutants: list[Mutant], gate: Gate, out: Path,
+                detectors: list[str], null_seeds: tuple[int, ...]) -> int:
+    from rig.regression.mutation import on_cluster
+    from rig.run.cluster import ClusterError
+
+    def say(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+
+    say(f"rig mutate: {len(mutants)} mutants on the cluster at {args.cluster}; the unmutated "
+        "tree first through " + ", ".join(detectors))
+    try:
+        problems, verdicts = on_cluster.run(
+            args.cluster, mutants, gate, out, both=args.both, detectors=detectors,
+            null_seeds=null_seeds, no_worker_timeout_s=args.no_worker_timeout, progress=say)
+    except ClusterError as exc:
+        say(f"rig mutate: {exc}; the verdicts that arrived are in {out}")
+        return 3
+    except KeyboardInterrupt:
+        say(f"rig mutate: interrupted; partial results in {out}")
+        return 130
+    if problems:
+        say("rig mutate: the unmutated tree fails; no kill would mean anything:")
+        for p in problems:
+            say(f"  {p}")
+        return 1
+    return _said(verdicts, out, say)
+
+
+def _said(verdicts: list[Verdict], out: Path, say: Callable[[str], None]) -> int:
+    """The campaign's score and its survivors and false alarms, as every campaign ends."""
+    from rig.regression.mutation import campaign
+
+    s = campaign.score(verdicts)
+    for line in campaign.summary_lines(s):
+        say(f"rig mutate: {line}")
+    say(f"rig mutate: -> {out}/summary.md")
+    for v in verdicts:
+        if v.status == campaign.SURVIVED and not v.benign:
+            say(f"  survived: {v.id}: {v.description}")
+        if v.status == campaign.KILLED and v.benign:
+            say(f"  false alarm: {v.id}: {v.killed_by[0][:160]}")
+    return 0
 
 
 def _campaign(args: argparse.Namespace, mutants: list[Mutant], gate: Gate, tree: MutationTree,
@@ -156,13 +215,4 @@ def _campaign(args: argparse.Namespace, mutants: list[Mutant], gate: Gate, tree:
     except KeyboardInterrupt:
         say(f"rig mutate: interrupted; partial results in {out}")
         return 130
-    s = campaign.score(verdicts)
-    for line in campaign.summary_lines(s):
-        say(f"rig mutate: {line}")
-    say(f"rig mutate: -> {out}/summary.md")
-    for v in verdicts:
-        if v.status == campaign.SURVIVED and not v.benign:
-            say(f"  survived: {v.id}: {v.description}")
-        if v.status == campaign.KILLED and v.benign:
-            say(f"  false alarm: {v.id}: {v.killed_by[0][:160]}")
-    return 0
+    return _said(verdicts, out, say)

@@ -73,6 +73,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--no-figures", action="store_true",
                    help="skip drawing figure.png and the pictures of the criteria that did not "
                    "pass (shown in report.md)")
+    p.add_argument("--failing-figures", action="store_true",
+                   help="draw the pictures only for scenarios that do not pass (the gate: a "
+                   "passing run's pictures cost about as much CPU as its closed loop)")
     p.add_argument("--keep-all", action="store_true",
                    help="keep the full-rate traces (*.trace) and capture columns (capture/) of "
                    "passing scenarios too (default: only of scenarios that did not pass; "
@@ -85,6 +88,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    metavar="N",
                    help="a suite in process (--bus inproc): run N scenarios at once, one "
                    "worker process each (default 1)")
+    p.add_argument("--cluster", default=None, metavar="tcp://HOST:PORT",
+                   help="a suite in process: run its scenarios on the Dask cluster whose "
+                   "scheduler is at this address (each worker must run this same rig; the "
+                   "results come back into --out)")
+    p.add_argument("--no-worker-timeout", type=cliargs.number(above=0.0), default=60.0,
+                   metavar="S", help="with --cluster: end the suite when the cluster has had "
+                   "no worker for S seconds (default 60); its runs not done fail, exit 3")
     p.add_argument("--baseline", default="auto", metavar="auto|require|off|FILE",
                    help="compare every criterion with the committed baseline "
                    "(rig/baselines/): auto where one exists (default), require: a scenario "
@@ -213,6 +223,10 @@ def _cmd_run(args: argparse.Namespace, said: list[str], where: list[Path], guard
     if args.jobs > 1 and _bus_of(args) != "inproc":
         return _refuse(said, "--jobs runs a suite on the in-process bench (--bus inproc); on a "
                        "bus the scenarios share its channel one at a time", runner.EXIT_USAGE)
+    if args.cluster is not None and (_bus_of(args) != "inproc"
+                                     or not isinstance(target, scenario.Suite)):
+        return _refuse(said, "--cluster runs a suite on the in-process bench (--bus inproc "
+                       "and a suite)", runner.EXIT_USAGE)
     if args.can_log is not None and _bus_of(args) == "inproc":
         return _refuse(said, "--can-log logs a bus; in process there is none (`rig export DIR "
                        "--can-log FILE` rebuilds a log from a run's traces)", runner.EXIT_USAGE)
@@ -301,6 +315,7 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
 
     from rig import outputs, scenario
     from rig.run import runner
+    from rig.run.cluster import ClusterError
     from rig.run.suite import run_suite
     from rig.supervisor import Terminated, terminate_as_exception
 
@@ -308,9 +323,11 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
         out=out, bus=args.bus, channel=args.channel, realtime=args.realtime, live=args.live,
         live_url=live_url, progress=not args.quiet, timeout_s=args.timeout,
         record=not args.no_record, figures=not args.no_figures,
+        figures_failing_only=args.failing_figures,
         keep="all" if args.keep_all else "failing",
         jobs=args.jobs, fail_fast=args.fail_fast, baseline=args.baseline,
-        confirm=not args.no_confirm,
+        confirm=not args.no_confirm, cluster=args.cluster,
+        no_worker_timeout_s=args.no_worker_timeout,
         can_log=args.can_log,
     )
     started = time.time()
@@ -340,7 +357,7 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
               f"({out}/result.json): the exit status is the verdict's ({status})",
               file=sys.stderr)
         return status
-    except outputs.OutputError as exc:
+    except (outputs.OutputError, ClusterError) as exc:
         print(f"rig run: {exc}", file=sys.stderr)
         return runner.EXIT_ENV
     _print_verdict(result)

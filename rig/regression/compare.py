@@ -213,11 +213,25 @@ def counts(rows: list[Row]) -> dict[str, int]:
     return out
 
 
+def identical(r: Row) -> bool:
+    """Both sides hold the criterion with the same value (every seed's too) and outcome."""
+    return (r.a is not None and r.b is not None and r.a.value == r.b.value
+            and r.a.outcome == r.b.outcome and r.a.values == r.b.values)
+
+
+def not_identical_in_b(rows: list[Row]) -> list[Row]:
+    """The criteria of side B that side A does not hold to the bit (``--exact``: B is the
+    same computation as A on a part of A's runs, e.g. the bus against the gate in process)."""
+    return [r for r in rows if r.b is not None and not identical(r)]
+
+
 def summary_line(rows: list[Row], what: str = "") -> str:
     c = counts(rows)
     parts = ", ".join(f"{c[k]} {k}" for k in ("regressed", "changed", "improved", "unknown",
                                                "added", "removed", "unchanged") if c.get(k))
-    return f"{len(rows)} criteria{' ' + what if what else ''}: {parts or 'none'}"
+    same = sum(1 for r in rows if identical(r))
+    return (f"{len(rows)} criteria{' ' + what if what else ''}: {parts or 'none'}"
+            f"; {same} identical")
 
 
 def _fmt(v: float | None) -> str:

@@ -117,9 +117,9 @@ def scenario_report(result: Mapping[str, Any]) -> str:
         f"| profile | {result.get('profile')} |",
         f"| mode | {result.get('mode')} |",
         f"| bus | {result.get('bus')} / {result.get('channel')} |",
-        f"| simulated | {_fmt(result.get('timing', {}).get('sim_s'))} s |",
-        f"| wall | {_fmt(result.get('timing', {}).get('wall_s'))} s |",
-        f"| speed | {_fmt(result.get('timing', {}).get('speed_x'))}x real time |",
+        f"| simulated | {_fmt((result.get('timing') or {}).get('sim_s'))} s |",
+        f"| wall | {_fmt((result.get('timing') or {}).get('wall_s'))} s |",
+        f"| speed | {_fmt((result.get('timing') or {}).get('speed_x'))}x real time |",
     ]
     if result.get("figure"):
         lines.append(f"| paper | {result['figure']} |")

@@ -26,6 +26,9 @@ class RunOptions:
     record: bool = True
     # figure.png and a picture per criterion that did not pass (rig.results.figures)
     figures: bool = True
+    # ... only for a run that did not pass (the gate: a passing run's pictures cost 0.2-0.3 s
+    # of CPU each, a third of the gate's time, and nobody looks at them)
+    figures_failing_only: bool = False
     # every frame of the run into the traces (the plant's VIO frames, rig.trace: the rig's
     # own), so rig export --can-log holds the whole bus
     trace_bus: bool = True
@@ -50,6 +53,10 @@ class RunOptions:
     confirm: bool = True
     # suites in process: scenarios run on this many worker processes at once
     jobs: int = 1
+    # suites in process: their scenarios on the Dask cluster whose scheduler is at this
+    # address instead (rig.run.cluster), which ends them when it has had no worker this long
+    cluster: str | None = None
+    no_worker_timeout_s: float = 60.0
     # suites: no scenario starts after one did not pass (the others' verdicts are not needed)
     fail_fast: bool = False
     # in process only: journal every call into the control core to this file (rig.target_m4

@@ -75,7 +75,8 @@ def _run_claimed(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Cla
         timing=Timing(sim_s=sc.duration))
     plan = Plan.build(sc)
     run = Execution(preload=(*(("rig.results.recording",) if opts.record else ()),
-                             *(figures_modules() if opts.figures else ())))
+                             *(figures_modules() if opts.figures and
+                               not opts.figures_failing_only else ())))
     interrupted: BaseException | None = None
     failure: Failure | None = None
     try:
@@ -110,7 +111,8 @@ def _run_claimed(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Cla
         cap = found.capture
         if cap is not None and cap.n and opts.record:
             result.recording = write_recording(result, cap, run, found.reads)
-        if cap is not None and cap.n and opts.figures:
+        if cap is not None and cap.n and opts.figures and not (
+                opts.figures_failing_only and result.passed):
             result.figures = write_figures(out, cap, result)
     except (KeyboardInterrupt, Terminated) as exc:
         # interrupted while the results were worked out: the result says so, whole

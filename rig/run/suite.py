@@ -4,6 +4,7 @@ between runs, and the ``hil-suite/1`` summary (``result.json``, ``report.md``)."
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -82,7 +83,7 @@ def _run_claimed(suite: Suite, opts: RunOptions, out: Path, claimed: outputs.Cla
                                      for sc in suite.scenarios])
     try:
         with display:
-            if opts.jobs > 1 and opts.bus == sil.INPROC:
+            if (opts.jobs > 1 or opts.cluster) and opts.bus == sil.INPROC:
                 _run_parallel(suite, opts, out, results, entries, display)
             else:
                 for sc in suite.scenarios:
@@ -154,11 +155,12 @@ def _stops(r: RunResult) -> bool:
 
 def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunResult],
                   entries: list[dict[str, Any]], display: progress.Display) -> None:
-    """The suite's scenarios on ``opts.jobs`` worker processes (in process only: each run has
-    its own bench); ``results`` and ``entries`` in the suite's order, up to the first run
-    missing when interrupted. ``opts.fail_fast``: no new run starts after one failed in a way
-    the seeds confirm (``_stops``)."""
-    jobs = [parallel.Job(sc, replace(opts, out=out / sc.name, progress=False, jobs=1))
+    """The suite's scenarios on ``opts.jobs`` worker processes or on ``opts.cluster`` (in
+    process only: each run has its own bench); ``results`` and ``entries`` in the suite's
+    order, up to the first run missing when interrupted. ``opts.fail_fast``: no new run
+    starts after one failed in a way the seeds confirm (``_stops``)."""
+    jobs = [parallel.Job(sc, replace(opts, out=out / sc.name, progress=False, jobs=1,
+                                     cluster=None))
             for sc in suite.scenarios]
 
     def done(job: parallel.Job, r: RunResult | None) -> None:
@@ -171,12 +173,29 @@ def _run_parallel(suite: Suite, opts: RunOptions, out: Path, results: list[RunRe
 
     got: list[RunResult | None] = [None] * len(jobs)
     try:
-        parallel.run_jobs(jobs, opts.jobs, got, on_done=done, stop=stop)
+        parallel.run_jobs(jobs, opts.jobs, got, on_done=done, stop=stop,
+                          cluster=opts.cluster, no_worker_timeout_s=opts.no_worker_timeout_s)
     finally:
         for sc, r in zip(suite.scenarios, got, strict=True):
             if r is not None:
+                _keep_error(r)
                 results.append(r)
                 entries.append(entry(sc, r))
+
+
+def _keep_error(r: RunResult) -> None:
+    """A run that ended in an error before it wrote its result (its worker died or raised,
+    the cluster never ran it) gets its result.json all the same: the scenario's folder says
+    what happened, as the suite's summary does."""
+    from rig.results.result import write_result
+
+    if r.status != "error" or (Path(r.out_dir) / "result.json").exists():
+        return
+    try:
+        Path(r.out_dir).mkdir(parents=True, exist_ok=True)
+        write_result(r)
+    except OSError as exc:  # the suite's summary still says it
+        print(f"rig run: {r.scenario}: its error could not be written ({exc})", file=sys.stderr)
 
 
 def evaluate_comparison(cmp: Comparison,

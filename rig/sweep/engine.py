@@ -70,7 +70,7 @@ class Outcome:
 
     workers_seen: set[str] = field(default_factory=set)
     workers_lost: set[str] = field(default_factory=set)
-    rerun: int = 0  # points run again after their worker was lost
+    rerun: int = 0  # tasks given to another worker after theirs was lost
     gave_up: str | None = None  # why the sweep ended before every point finished
 
     def to_json(self) -> dict[str, Any]:
@@ -97,25 +97,38 @@ def _reruns(c: Any, keys: Sequence[str]) -> int:
         return 0
 
 
-def run_tasks(c: Any, tasks: Sequence[sweep_point.Task],
-              fn: Callable[[sweep_point.Task], Row] = sweep_point.run, *, retries: int = 2,
-              progress: bool = True, on_row: Callable[[Row], None] | None = None,
+class NoWorkers(RuntimeError):
+    """The cluster had no worker for the whole ``no_worker_timeout_s``: a task not run."""
+
+
+def map_tasks(c: Any, items: Sequence[Any], fn: Callable[[Any], Any], *, keys: Sequence[str],
+              on_result: Callable[[int, Any, BaseException | None], bool],
+              args: Sequence[Any] = (), retries: int = 2,
+              priorities: Sequence[float] | None = None,
               no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S,
-              outcome: Outcome | None = None) -> list[Row]:
-    """Every task's row, in task order (a failure is a row too); ``outcome`` gets what the
-    cluster went through."""
+              outcome: Outcome | None = None) -> None:
+    """Runs ``fn`` on every item on the cluster and hands each outcome to ``on_result`` as it
+    ends, with the item's index: its value, or the exception that ended it (``KilledWorker``
+    once the workers running it kept dying, a task error, :class:`NoWorkers` when the cluster
+    was left without a worker for ``no_worker_timeout_s``). ``on_result`` returning True
+    cancels the items not yet ended (each still gets its ``on_result``: ``CancelledError``).
+    ``args``: more arguments of every call (a scattered Future is resolved on the worker).
+    ``priorities``: higher starts first (the longest runs first balance the workers).
+    ``outcome`` gets what the cluster went through. The sweeps', suites' and mutation
+    campaigns' one loop over a cluster."""
+    from concurrent.futures import CancelledError
+
     from distributed import wait
 
     seen = outcome if outcome is not None else Outcome()
-    keys = [f"sweep-point-{t.index}-{id(tasks)}" for t in tasks]
-    futures = c.map(fn, list(tasks), retries=retries, pure=False, key=keys)
-    by_future = dict(zip(futures, tasks, strict=True))
-    rows: dict[int, Row] = {}
-    line = Display("sweep", len(tasks), unit="point", enabled=progress)
-    with line:
-        pending = set(futures)
-        alone_since: float | None = None
-        seen.workers_seen |= _workers(c)
+    prio = list(priorities) if priorities is not None else [0.0] * len(items)
+    seen.workers_seen |= _workers(c)  # before the first task can start (and its worker die)
+    futures = [c.submit(fn, item, *args, key=key, retries=retries, pure=False, priority=p)
+               for item, key, p in zip(items, keys, prio, strict=True)]
+    index = {f.key: i for i, f in enumerate(futures)}
+    pending = set(futures)
+    alone_since: float | None = None
+    try:
         while pending:
             try:
                 wait(list(pending), timeout=POLL_S, return_when="FIRST_COMPLETED")
@@ -126,32 +139,65 @@ def run_tasks(c: Any, tasks: Sequence[sweep_point.Task],
             now_workers = _workers(c)
             seen.workers_lost |= seen.workers_seen - now_workers
             seen.workers_seen |= now_workers
-            for fut in done:
-                task = by_future[fut]
+            halt = False
+            for fut in sorted(done, key=lambda f: index[f.key]):
                 try:
-                    row: Row = fut.result()
-                except Exception as exc:  # KilledWorker, a lost connection, a task error
-                    row = sweep_point.failed_row(task, type(exc).__name__, str(exc) or repr(exc))
-                rows[task.index] = row
-                line.done(f"point {task.index}", bool(row.get("passed")))
-                if on_row is not None:
-                    on_row(row)
+                    value, exc = fut.result(), None
+                except Exception as e:  # KilledWorker, a lost connection, a task error
+                    value, exc = None, e
+                halt = bool(on_result(index[fut.key], value, exc)) or halt
+            if halt:
+                c.cancel(list(pending))
+                for fut in sorted(pending, key=lambda f: index[f.key]):
+                    on_result(index[fut.key], None, CancelledError())
+                pending.clear()
+                break
             if now_workers or done:
                 alone_since = None
                 continue
             alone_since = alone_since or time.monotonic()
             if time.monotonic() - alone_since >= no_worker_timeout_s:
                 seen.gave_up = (f"the cluster had no worker for {no_worker_timeout_s:g} s "
-                                f"({len(pending)} points unfinished)")
+                                f"({len(pending)} tasks unfinished)")
                 c.cancel(list(pending))
-                for fut in pending:
-                    task = by_future[fut]
-                    rows[task.index] = sweep_point.failed_row(task, "no_workers", seen.gave_up)
-                    line.done(f"point {task.index}", False)
-                    if on_row is not None:
-                        on_row(rows[task.index])
-                break
-    seen.rerun = _reruns(c, keys)
-    for fut in futures:
-        fut.release()
+                for fut in sorted(pending, key=lambda f: index[f.key]):
+                    on_result(index[fut.key], None, NoWorkers(seen.gave_up))
+                pending.clear()
+    except BaseException:
+        c.cancel(list(pending))
+        raise
+    finally:
+        seen.rerun += _reruns(c, list(keys))
+        for fut in futures:
+            fut.release()
+
+
+def run_tasks(c: Any, tasks: Sequence[sweep_point.Task],
+              fn: Callable[[sweep_point.Task], Row] = sweep_point.run, *, retries: int = 2,
+              progress: bool = True, on_row: Callable[[Row], None] | None = None,
+              no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S,
+              outcome: Outcome | None = None) -> list[Row]:
+    """Every task's row, in task order (a failure is a row too); ``outcome`` gets what the
+    cluster went through."""
+    rows: dict[int, Row] = {}
+    line = Display("sweep", len(tasks), unit="point", enabled=progress)
+
+    def got(i: int, value: Any, exc: BaseException | None) -> bool:
+        task = tasks[i]
+        if exc is None:
+            row: Row = value
+        elif isinstance(exc, NoWorkers):
+            row = sweep_point.failed_row(task, "no_workers", str(exc))
+        else:
+            row = sweep_point.failed_row(task, type(exc).__name__, str(exc) or repr(exc))
+        rows[task.index] = row
+        line.done(f"point {task.index}", bool(row.get("passed")))
+        if on_row is not None:
+            on_row(row)
+        return False
+
+    with line:
+        map_tasks(c, tasks, fn, keys=[f"sweep-point-{t.index}-{id(tasks)}" for t in tasks],
+                  on_result=got, retries=retries, no_worker_timeout_s=no_worker_timeout_s,
+                  outcome=outcome)
     return [rows[t.index] for t in tasks]

@@ -266,6 +266,11 @@ def summary_lines(s: Score) -> list[str]:
     return out
 
 
+def say_one(v: Verdict, i: int, total: int, progress: Callable[[str], None]) -> None:
+    """One verdict said as a line (a campaign on a cluster, where no display runs)."""
+    progress(_line(v, i, total))
+
+
 def run(mutants: Sequence[Mutant], tree: MutationTree, gate: Gate, out: Path, *,
         both: bool = False, detectors: Sequence[str] = ("ctest", "gate"),
         null_seeds: Sequence[int] = (),

@@ -196,3 +196,35 @@ def test_rows_carry_percent_band_widths_and_chance_most_significant_first(
     assert [r.key[1] for r in rows] == ["other", "pos"]
     assert rows[0].chance is not None and rows[1].chance is not None
     assert rows[0].chance < rows[1].chance
+
+
+def test_exact_asks_every_value_of_b_to_equal_a_to_the_bit(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--exact (the bus's runs against the gate's in process): B may hold fewer runs than A,
+    but each of its values must be A's exactly; a change far inside any band still fails, as
+    does a criterion A does not hold."""
+    def crit(name: str, value: float, outcome: str = "pass") -> dict[str, object]:
+        return {"name": name, "metric": "pos_err_max_deg", "value": value, "outcome": outcome,
+                "unit": "deg"}
+
+    def suite(folder: Path, runs: dict[str, list[dict[str, object]]]) -> Path:
+        for name, crits in runs.items():
+            _run(folder / name, name, crits)
+        (folder / "result.json").write_text(json.dumps({
+            "schema": "hil-suite/1", "suite": "s",
+            "scenarios": [{"name": n, "dir": n, "profile": "paper", "criteria": c}
+                          for n, c in runs.items()]}))
+        return folder
+
+    gate = suite(tmp_path / "gate", {"a": [crit("pos", 0.5)], "b": [crit("pos", 0.25)]})
+    same = suite(tmp_path / "same", {"b": [crit("pos", 0.25)]})
+    assert cli.main(["compare", str(gate), str(same), "--exact"]) == 0
+    assert "1 of 1 criteria of B identical" in capsys.readouterr().err
+    nudged = suite(tmp_path / "nudged", {"b": [crit("pos", 0.25 * (1 + 1e-15))]})
+    assert cli.main(["compare", str(gate), str(nudged), "--exact"]) == 1
+    assert "b@paper pos: A 0.25 (pass), B 0.25" in capsys.readouterr().err
+    extra = suite(tmp_path / "extra", {"b": [crit("pos", 0.25), crit("speed", 1.0)]})
+    assert cli.main(["compare", str(gate), str(extra), "--exact"]) == 1
+    assert "b@paper speed: A absent" in capsys.readouterr().err
+    # without --exact the nudge is unchanged (inside any spread): exit 0
+    assert cli.main(["compare", str(gate), str(nudged)]) == 0

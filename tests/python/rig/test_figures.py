@@ -142,6 +142,27 @@ def test_a_passing_run_has_its_overview_only_and_no_figures_means_none(tmp_path:
     assert "![" not in (tmp_path / "b" / "report.md").read_text()
 
 
+def test_failing_figures_draws_only_the_runs_that_do_not_pass(tmp_path: Path) -> None:
+    """The gate's --failing-figures: a passing run draws nothing (its pictures cost about as
+    much CPU as its closed loop), one that fails draws what a plain run draws."""
+    suite = tmp_path / "pair.toml"
+    tight = tmp_path / "smoke_tight.toml"
+    tight.write_text(SMOKE.read_text() + TIGHT)
+    suite.write_text(f'name = "pair"\nscenarios = ["{SMOKE}", "{tight}"]\n')
+    assert cli.main(["run", str(suite), "--bus", "inproc", "--quiet", "--failing-figures",
+                     "--jobs", "2", "--out", str(tmp_path / "s")]) == 1
+    passing = tmp_path / "s" / "smoke"
+    assert "figures" not in json.loads((passing / "result.json").read_text())
+    assert not list(passing.glob("*.png"))
+    failing = tmp_path / "s" / "smoke_tight"
+    drawn = json.loads((failing / "result.json").read_text())["figures"]["files"]
+    assert cli.main(["run", str(tight), "--bus", "inproc", "--quiet", "--out",
+                     str(tmp_path / "plain")]) == 1
+    plain = json.loads((tmp_path / "plain" / "result.json").read_text())["figures"]["files"]
+    assert drawn == plain and len(drawn) == 3  # the overview and the two tight criteria
+    assert all((failing / f["path"]).is_file() for f in drawn)
+
+
 def test_a_suite_report_links_its_runs_pictures(tmp_path: Path) -> None:
     suite = tmp_path / "pair.toml"
     suite.write_text(textwrap.dedent(f"""\

@@ -5,7 +5,6 @@ its reason, and the table and summary are written."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
@@ -15,6 +14,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import dask_support
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
@@ -167,58 +167,11 @@ def test_plots_name_their_units() -> None:
         assert box.x0 >= 0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height
 
 
-def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
-    """SIGTERM to each process group (a nanny and its worker), SIGKILL after 5 s."""
-    for p in procs:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(p.pid, signal.SIGTERM)
-    deadline = time.monotonic() + 5.0
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(p.pid, signal.SIGKILL)
-            p.wait(timeout=10)
-
-
-def _scheduler_address(sched_file: Path, deadline: float) -> str:
-    """The address in the scheduler's file, once the file holds all of it: the scheduler
-    creates the file before it has written it (on a loaded machine it was read empty)."""
-    while True:
-        try:
-            return str(json.loads(sched_file.read_text())["address"])
-        except (FileNotFoundError, json.JSONDecodeError, KeyError):
-            assert time.monotonic() < deadline, "scheduler did not start"
-            time.sleep(0.1)
-
-
 @pytest.fixture(scope="module")
 def dask_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A scheduler and two single-threaded workers (with nannies) on 127.0.0.1."""
-    sched_file = tmp_path_factory.mktemp("dask") / "scheduler.json"
-    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL,
-             "start_new_session": True}
-    scheduler = subprocess.Popen(
-        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-         "--port", "0", "--no-dashboard", "--scheduler-file", str(sched_file)], **quiet)
-    workers: list[subprocess.Popen[bytes]] = []
-    try:
-        address = _scheduler_address(sched_file, time.monotonic() + 60)
-        assert address.startswith("tcp://127.0.0.1:")
-        for _ in range(2):
-            workers.append(subprocess.Popen(
-                [sys.executable, "-m", "distributed.cli.dask_worker", address, "--host",
-                 "127.0.0.1", "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
-                **quiet))
-        from distributed import Client
-
-        with Client(address, timeout="30s") as c:
-            c.wait_for_workers(2, timeout=60)
-        yield address
-    finally:
-        _stop(workers)
-        _stop([scheduler])
+    with dask_support.cluster(tmp_path_factory.mktemp("dask")) as c:
+        yield c.address
 
 
 def test_sweep_on_a_dask_cluster_survives_a_killed_worker(dask_cluster: str,
