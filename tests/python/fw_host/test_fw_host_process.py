@@ -19,6 +19,9 @@ COUNTER_KEYS = {
     "state", "fault_code", "fault_name", "core_overruns", "tx_frames", "tx_drops", "tx_errors",
     "rx_frames", "rx_overflows", "rx_malformed", "rx_filtered", "non_data_frames",
     "foreign_entries", "peers_beyond_limit", "tx_ids", "rx_ids", "rt",
+    # the lossless unixcan node's back-pressure (issue 36.5): zero on SocketCAN
+    "tx_stalls", "tx_stall_ms_total", "tx_stall_ms_max", "tx_stall_failures", "rx_pending_max",
+    "listener_drops",
 }
 
 
