@@ -361,9 +361,10 @@ def prune(out: Path, *, keep_full: bool, keep: str) -> Kept:
             target.unlink()
     return Kept(full_rate=False, policy=keep, removed=present,
                 removed_bytes=removed_bytes,
-                note="full-rate traces and capture not kept: " + (
-                    "a confirmation run, which only its values need" if keep == "none" else
-                    "passed (rig run --keep-all keeps them)"))
+                note=("a confirmation run: full-rate traces and capture removed (only its "
+                      "values are needed)") if keep == "none" else
+                "passed: full-rate traces and capture removed (rig run --keep-all keeps "
+                "them)")
 
 
 def json_default(o: Any) -> Any:

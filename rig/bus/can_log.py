@@ -29,15 +29,19 @@ LIVE = "live capture"
 REBUILT = "rebuilt from the traces"
 
 
-def writer(path: Path, kind: str, detail: str) -> can.io.generic.MessageWriter:
+def writer(path: Path, kind: str, detail: str,
+           start: float | None = None) -> can.io.generic.MessageWriter:
     """A python-can writer by the file's suffix (.blf, .asc, else candump -L), saying in the
-    file which ``kind`` of log it is where the format allows."""
+    file which ``kind`` of log it is where the format allows. ``start``: the time of the first
+    frame to come (a rebuilt log's run start; a live one: now). BLF counts every frame's time
+    from its first object, so the note must not be later than the frames: a log rebuilt
+    after the run put its first frame at the export's time."""
     text = f"{kind}: {detail}"
     suffix = path.suffix.lower()
     out: can.io.generic.MessageWriter
     if suffix == ".blf":
         blf = can.BLFWriter(path)
-        blf.log_event(text, timestamp=time.time())
+        blf.log_event(text, timestamp=time.time() if start is None else start)
         out = blf
     elif suffix == ".asc":
         asc = can.ASCWriter(path)

@@ -452,7 +452,7 @@ def write_can_log(run_dir: Path, dest: Path) -> dict[str, Any]:
         writer = can_log.writer(
             tmp, can_log.REBUILT, "the frames the plant (channel 0), the firmware (1) and the "
             "rig (2) traced, each at the run's start plus its PWM period; not a live capture "
-            "(rig run --can-log)")
+            "(rig run --can-log)", start=start_time(run_dir))
         try:
             for msg in messages(run_dir):
                 writer.on_message_received(msg)

@@ -165,7 +165,35 @@ def cell(rpm: int, torque: float, values: dict[str, float]) -> str:
             crit("torque estimate error", "te_err_max_nm", 0.1, profiles=[pr])
         crit("torque estimate error", "te_err_max_nm", None, "report", ["harsh"],
              better="lower")
+    windows = ISR_COST.get((rpm, torque))
+    if windows:
+        lines.extend(["", *ISR_COST_NOTE])
+        for what, a, b in windows:
+            for stat, metric in (("median", "isr_instructions_median"),
+                                 ("worst", "isr_instructions_max")):
+                lines.extend(["", "[[criteria]]",
+                              f'name = "ISR instructions on the Cortex-M4F, {stat} ({what})"',
+                              f'metric = "{metric}"', f"window = [{a}, {b}]",
+                              'comparison = "report"', 'better = "lower"',
+                              'profiles = ["paper"]'])
     return "\n".join(lines) + "\n"
+
+
+# The ISR's cost on the emulated Cortex-M4F (issue 40) in the cells of the gate's sample that
+# covers every state and path of the ISR: (rpm, torque) -> (what, window start, window end)
+ISR_COST: dict[tuple[int, float], list[tuple[str, float, float]]] = {
+    (1, 1): [("the start: INIT, IDLE, the standstill polarity test, RUN", 0.0, 0.15),
+             ("1 r/min, 1 N*m: slopes, polarity watch", 1.9, 1.95)],
+    (1000, 1): [("1000 r/min, the load ramp", 0.69, 0.74)],
+}
+ISR_COST_NOTE = [
+    "# The ISR's cost on the emulated Cortex-M4F (rig.target_m4.cost, issue 40): fw_core_isr's",
+    "# instructions per period over the window, median and worst, judged against the baseline",
+    "# (5 % of the mean or more on the worse side is a regression; its message names the step of",
+    "# fw_core_isr that grew). In-process runs only. This scenario is one of the gate's sample",
+    "# that covers every state and path of the ISR: firmware_c2000/core/README.md (The ISR's cost",
+    "# in the gate).",
+]
 
 
 def render() -> dict[str, str]:
