@@ -35,7 +35,7 @@ One file describes one bench, virtual or real, so the same commissioning scripts
     [virtual]                           # only for the emulated bench: what the rig starts
     profile = "paper"                   # plant_rt fidelity profile (name or file)
     programs = ["plant_rt", "fw_host", "loadbench"]
-    ready_timeout_s = 30.0
+    ready_timeout_s = 120.0                # a ceiling for the programs to be ready
     truth_every = 10                    # plant: BENCH_TRUTH on the bus every N periods
     trace = false                       # plant.trace / fw.trace in the run folder
     [virtual.plant]                     # plant_rt --set KEY=VALUE (quoted dotted keys)
@@ -113,7 +113,7 @@ class ClockSpec:
 class VirtualSpec:
     profile: str = "paper"
     programs: tuple[str, ...] = PROGRAMS
-    ready_timeout_s: float = 30.0
+    ready_timeout_s: float = 120.0  # a ceiling for the programs to be ready (VM, loaded)
     truth_every: int = 10
     trace: bool = False
     plant: Mapping[str, Any] = field(default_factory=dict)
