@@ -251,6 +251,12 @@ class Claim:
             os.close(self._fd)
             self._fd = None
 
+    def __enter__(self) -> Claim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
 
 def _lock(out: Path) -> int:
     """An exclusive lock on the folder (flock on the folder itself), or FolderInUse."""

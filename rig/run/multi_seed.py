@@ -82,11 +82,8 @@ def combine(criteria_per_seed: list[list[dict[str, Any]]], seeds: tuple[int, ...
 def run_over_own_seeds(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs ``sc`` once per seed of ``sc.seeds`` and writes the combined result."""
     out = opts.out
-    claimed = outputs.claim(out, sc.periods, sc.file)
-    try:
+    with outputs.claim(out, sc.periods, sc.file) as claimed:
         return _over_seeds(sc, opts, out, claimed)
-    finally:
-        claimed.release()
 
 
 def _over_seeds(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Claim

@@ -61,11 +61,8 @@ def run_single(sc: Scenario, opts: RunOptions) -> RunResult:
     """Runs one scenario at one seed into ``opts.out``; always writes result.json and
     report.md."""
     out = Path(opts.out)
-    claimed = outputs.claim(out, sc.periods, sc.file)
-    try:
+    with outputs.claim(out, sc.periods, sc.file) as claimed:
         return _run_claimed(sc, opts, out, claimed)
-    finally:
-        claimed.release()
 
 
 def _run_claimed(sc: Scenario, opts: RunOptions, out: Path, claimed: outputs.Claim

@@ -60,13 +60,10 @@ def entry(sc: Scenario, r: RunResult) -> dict[str, Any]:
 def run_suite(suite: Suite, opts: RunOptions) -> SuiteResult:
     out = Path(opts.out)
     # (each scenario checks its own room again before it starts)
-    claimed = outputs.claim_suite(out, [sc.name for sc in suite.scenarios],
-                                  max((round(sc.duration / capture.TS)
-                                       for sc in suite.scenarios), default=0))
-    try:
+    with outputs.claim_suite(out, [sc.name for sc in suite.scenarios],
+                             max((round(sc.duration / capture.TS)
+                                  for sc in suite.scenarios), default=0)) as claimed:
         return _run_claimed(suite, opts, out, claimed)
-    finally:
-        claimed.release()
 
 
 def _run_claimed(suite: Suite, opts: RunOptions, out: Path, claimed: outputs.Claim
