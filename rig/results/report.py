@@ -199,6 +199,8 @@ def scenario_report(result: Mapping[str, Any]) -> str:
                          f"({_size(kept.get('removed_bytes'))})")
         else:
             lines.append("- no full-rate traces or capture")
+    if result.get("isr_cost_differs"):
+        lines += ["", "## The ISR's cost", "", f"- counted, though {result['isr_cost_differs']}"]
     counters = result.get("counters") or {}
     if "rig.listeners.start" in counters or result.get("bus_report"):
         from rig.run.bus_report import in_words

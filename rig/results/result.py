@@ -114,6 +114,9 @@ class RunResult:
     # unixcan: the other nodes on the channel and what each missed, the lockstep's waits, the
     # rig's own live log of the bus (rig.run.bus_report)
     bus_report: dict[str, Any] | None = None
+    # the ISR's cost counted on a target whose outputs were not the host's to the bit but on
+    # its path (rig.target_m4.cost): how they differed ("" when identical or not measured)
+    isr_cost_differs: str = ""
     capture: capture.Capture | None = field(default=None, compare=False, repr=False)
 
     @classmethod
@@ -157,6 +160,8 @@ class RunResult:
             out["left_out"] = self.left_out
         if self.bus_report is not None:
             out["bus_report"] = self.bus_report
+        if self.isr_cost_differs:
+            out["isr_cost_differs"] = self.isr_cost_differs
         return out
 
     @classmethod
@@ -180,7 +185,8 @@ class RunResult:
             finished=str(data.get("finished", "")), kept=_from_json(Kept, data.get("kept")),
             baseline=data.get("baseline"), seeds=data.get("seeds"),
             figures=data.get("figures"), left_out=data.get("left_out"),
-            bus_report=data.get("bus_report"), capture=cap,
+            bus_report=data.get("bus_report"),
+            isr_cost_differs=str(data.get("isr_cost_differs") or ""), capture=cap,
         )
 
     @classmethod

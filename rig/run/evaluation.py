@@ -53,35 +53,37 @@ def evaluate(found: Evaluated, result: RunResult, sc: Scenario, plan: Plan, run:
     cov = coverage(plan, found.capture, loss, run.periods_done, opts.realtime, interrupted,
                    found.failure)
     on_bench = opts.bus == sil.INPROC
-    extra, why = isr_cost(sc, result.out_dir, found.capture, on_bench and not interrupted
-                          and opts.core_journal is None)
+    extra, why, result.isr_cost_differs = isr_cost(
+        sc, result.out_dir, found.capture, on_bench and not interrupted
+        and opts.core_journal is None)
     found.reads = judge(result, sc, found.capture, cov, found.failure, on_bench=on_bench,
                         extra=extra, extra_missing=why)
 
 
 def isr_cost(sc: Scenario, out: Path, cap: capture.Capture | None, measured: bool
-             ) -> tuple[dict[str, Any], str]:
+             ) -> tuple[dict[str, Any], str, str]:
     """The capture-aligned columns of the ISR's cost on the target for the scenario's
     criteria of it (rig.target_m4.cost: the run's journal replayed, or the cache's counts
-    for this build and journal), or why there are none."""
+    for this build and journal), or why there are none; and, when the target's outputs were
+    not the host's to the bit but on its path, how they differed."""
     if not any(metrics.needs_target(cr.metric) for cr in sc.criteria):
-        return {}, ""
+        return {}, "", ""
     journal = out / "isr.journal"
     if not measured or cap is None or not journal.is_file():
         return {}, "the ISR's cost is measured on the in-process bench from the run's own " \
-            "journal (rig.target_m4.cost)"
+            "journal (rig.target_m4.cost)", ""
     from rig.target_m4 import cost, emulator, steps
 
     try:
         costs = cost.measure(journal)
     except FileNotFoundError as exc:
         return {}, f"no Cortex-M4F image ({emulator.ELF_NAME}: ./hil install builds it " \
-            f"with arm-none-eabi-gcc): {exc}"
+            f"with arm-none-eabi-gcc): {exc}", ""
     except (cost.TargetMismatch, steps.StepMapError, ValueError, RuntimeError) as exc:
-        return {}, f"the ISR's cost could not be measured: {exc}"
+        return {}, f"the ISR's cost could not be measured: {exc}", ""
     finally:
         journal.unlink(missing_ok=True)
-    return costs.columns(cap.first_period, cap.n), ""
+    return costs.columns(cap.first_period, cap.n), "", costs.differs
 
 
 def judge_interrupted(result: RunResult, sc: Scenario, plan: Plan, run: Execution,

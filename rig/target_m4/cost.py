@@ -12,13 +12,18 @@ the rig's Python, a confirmation's seeds met before) replays nothing. The cache 
 ``$HIL_CACHE`` (else ``$XDG_CACHE_HOME/hil-rig``, else ``~/.cache/hil-rig``); only the most
 recently used ``KEEP_BUILDS`` builds' folders are kept.
 
-The replay also checks the image's outputs against the host's, period by period: a run whose
-target outputs differ has no cost values (``TargetMismatch``), since they would not be the
-cost of the same computation.
+The replay also checks the image's outputs against the host's, period by period. Identical
+outputs are the rule (the same compiler's rounding on both). A host that rounds differently
+(fused multiply-add, another compiler) gives outputs that differ in their last bits: when every
+period still took the host's path (``replay.Comparison.same_path``: the same state machine
+states, gate enables and conversions, compares within a few ticks) the counts stand, with the
+differences said in ``IsrCosts.differs``; a run whose target left the host's path has no cost
+values (``TargetMismatch``), since they would not be the cost of the same computation.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import shutil
@@ -53,6 +58,7 @@ class IsrCosts:
     steps: np.ndarray  # int64, one row per period, one column per step
     step_names: tuple[str, ...]
     cached: bool = False
+    differs: str = ""  # on the host's path, but not to the bit: how far (else "")
 
     def columns(self, first_period: int, n: int) -> dict[str, np.ndarray]:
         """Capture-aligned columns (row i: period first_period + i; NaN where the period
@@ -123,27 +129,39 @@ def measure(journal: Path, target: str = TARGET, cache: Path | None = None) -> I
         try:
             with np.load(hit) as z:
                 costs = IsrCosts(z["periods"], z["instructions"], z["steps"],
-                                 tuple(str(s) for s in z["step_names"]), cached=True)
+                                 tuple(str(s) for s in z["step_names"]), cached=True,
+                                 differs=str(z["differs"]) if "differs" in z else "")
             os.utime(build)
             return costs
         except (OSError, ValueError, KeyError):
             pass  # a damaged entry: measured again
     m4 = emulator.M4Core(image, count=True, target=target)
     comp = replay.replay(Journal(journal), m4, journal.parent.name)
-    if not comp.identical:
-        raise TargetMismatch(f"the {target} image's outputs differ from the host's: "
+    if not comp.same_path:
+        raise TargetMismatch(f"the {target} image left the host's path: "
                              + "; ".join(comp.examples[:2]))
     costs = _costs(comp, Journal(journal))
+    if not comp.identical:
+        costs = dataclasses.replace(costs, differs=_differs(comp))
     try:
         build.mkdir(parents=True, exist_ok=True)
         tmp = build / f".{hit.stem}.{os.getpid()}.{time.monotonic_ns()}.npz"
         np.savez(tmp, periods=costs.periods, instructions=costs.instructions,
-                 steps=costs.steps, step_names=np.array(costs.step_names))
+                 steps=costs.steps, step_names=np.array(costs.step_names),
+                 differs=np.array(costs.differs))
         tmp.replace(hit)
         _prune(root, build)
     except OSError:
         pass  # no cache: measured again next time
     return costs
+
+
+def _differs(comp: replay.Comparison) -> str:
+    """How a replay on the host's path differs from the host's outputs."""
+    return (f"the image's outputs differ from the host's in their last bits, on the host's "
+            f"path: {comp.pwm_differences} of {comp.periods} periods' PWM by at most "
+            f"{comp.max_tick_difference} tick(s), the core state in "
+            f"{comp.state_differences} (a build that rounds differently)")
 
 
 def _costs(comp: replay.Comparison, journal: Journal) -> IsrCosts:

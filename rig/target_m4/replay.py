@@ -4,7 +4,14 @@ Per window of the journal (from ``fw_core_init`` and the parameters when it star
 first ISR, else from the host's state at its start): every command and limit with its
 status, every ISR with its ADC data (or none), and after each ISR the PWM of the next period
 (compares, SOC count and instants, gate enable) and a CRC of the whole core state compared
-with what the host build produced from the same inputs."""
+with what the host build produced from the same inputs.
+
+A replay is *identical* when every output and state matches the host's to the bit. A build
+that rounds differently (another compiler, fused multiply-add on one side) cannot be; it still
+takes *the same path* when every period ends in the host's state machine state, with the
+host's gate enable and number of conversions, and every compare and conversion instant within
+``PATH_TICKS`` timer ticks of the host's: the ISR then did the same work on the same inputs, so
+its instruction count is the cost of that computation (rig.target_m4.cost)."""
 
 from __future__ import annotations
 
@@ -18,6 +25,7 @@ from rig.target_m4.emulator import M4Core
 from rig.target_m4.journal import Journal, Pwm
 
 STATE_NAMES = protocols.names("drive", "DRIVE_STATUS", "state")
+PATH_TICKS = 2  # timer ticks a compare or conversion instant may differ by on the same path
 
 
 @dataclass
@@ -46,6 +54,8 @@ class Comparison:
     state_differences: int = 0  # periods whose core state CRC differs from the host's
     first_state_difference: int | None = None
     status_differences: int = 0
+    fsm_differences: int = 0  # periods ending in another state machine state than the host's
+    shape_differences: int = 0  # periods with another gate enable or number of conversions
     examples: list[str] = field(default_factory=list)
     costs: list[IsrCost] = field(default_factory=list)
     steps: tuple[str, ...] = ()  # the names of IsrCost.steps (counted replays)
@@ -54,6 +64,13 @@ class Comparison:
     def identical(self) -> bool:
         return (self.pwm_differences == 0 and self.state_differences == 0
                 and self.status_differences == 0 and self.init_identical is not False)
+
+    @property
+    def same_path(self) -> bool:
+        """Every period took the host's path, its outputs within ``PATH_TICKS`` ticks (the
+        last bits of a differently rounding build; ``identical`` implies it)."""
+        return (self.status_differences == 0 and self.fsm_differences == 0
+                and self.shape_differences == 0 and self.max_tick_difference <= PATH_TICKS)
 
     def summary(self) -> dict[str, Any]:
         return {"journal": self.name, "windows": self.windows, "periods": self.periods,
@@ -64,7 +81,10 @@ class Comparison:
                 "state_differences": self.state_differences,
                 "first_state_difference": self.first_state_difference,
                 "status_differences": self.status_differences,
-                "identical": self.identical, "examples": self.examples[:5]}
+                "fsm_differences": self.fsm_differences,
+                "shape_differences": self.shape_differences,
+                "identical": self.identical, "same_path": self.same_path,
+                "examples": self.examples[:5]}
 
 
 def _tick_difference(a: Pwm, b: Pwm) -> int:
@@ -157,12 +177,22 @@ def replay(journal: Journal, m4: M4Core, name: str = "", max_examples: int = 5) 
             host_pwm, target_pwm = Pwm.unpack(isr.pwm), Pwm.unpack(m4.read("m4_pwm"))
             if host_pwm != target_pwm:
                 out.pwm_differences += 1
+                if (host_pwm.n_soc != target_pwm.n_soc
+                        or host_pwm.gate_enable != target_pwm.gate_enable):
+                    out.shape_differences += 1
                 d = _tick_difference(host_pwm, target_pwm)
                 out.max_tick_difference = max(out.max_tick_difference, d)
                 if out.first_pwm_difference is None:
                     out.first_pwm_difference = rec.isr
                 note(f"ISR {rec.isr}: PWM host {host_pwm} target {target_pwm}")
-            if zlib.crc32(m4.read("m4_core", core_size)) != isr.crc:
+            target_core = m4.read("m4_core", core_size)
+            target_state = struct.unpack_from("<h", target_core, _state_offset(m4))[0]
+            if target_state != isr.state:
+                out.fsm_differences += 1
+                note(f"ISR {rec.isr}: state machine in "
+                     f"{STATE_NAMES.get(target_state, str(target_state))}, the host's in "
+                     f"{STATE_NAMES.get(isr.state, str(isr.state))}")
+            if zlib.crc32(target_core) != isr.crc:
                 out.state_differences += 1
                 if out.first_state_difference is None:
                     out.first_state_difference = rec.isr

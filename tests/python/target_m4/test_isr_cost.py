@@ -110,13 +110,35 @@ def test_costs_are_cached_per_build_and_journal(counted: dict[str, object],
     comp = counted["m4"]
     assert isinstance(comp, run.replay.Comparison)
     assert first.instructions.tolist() == [c.instructions for c in comp.costs]
-    # another journal (one ADC code changed): measured, not taken from the cache
-    other = tmp_path / "other.journal"
+    assert first.differs == ""  # the same compiler's rounding: identical to the bit
+
+
+@needs_images
+def test_a_target_on_the_hosts_path_is_counted_one_that_left_it_is_not(
+        counted: dict[str, object], tmp_path: Path) -> None:
+    """A build that rounds differently makes the last bits of the core's state differ from
+    the host's while every period takes the host's path: the counts stand, and say so. A
+    target that ends a period in another state machine state did other work: no counts."""
+    journal = counted["journal"]
+    assert isinstance(journal, Path)
+    exact = cost.measure(journal, cache=tmp_path)
     raw = bytearray(journal.read_bytes())
-    raw[-8] ^= 1  # the last ISR's state CRC
-    other.write_bytes(bytes(raw))
-    with pytest.raises(cost.TargetMismatch):  # (and the host's outputs no longer match)
-        cost.measure(other, cache=tmp_path)
+    # the last ISR record ends with the host's core-state CRC and its state machine state
+    last_bits = tmp_path / "last-bits.journal"
+    crc_changed = bytearray(raw)
+    crc_changed[-8] ^= 1
+    last_bits.write_bytes(bytes(crc_changed))
+    counted_anyway = cost.measure(last_bits, cache=tmp_path)
+    assert not counted_anyway.cached  # another journal: measured, not the cache's
+    assert np.array_equal(counted_anyway.instructions, exact.instructions)
+    assert "the core state in 1" in counted_anyway.differs
+    again = cost.measure(last_bits, cache=tmp_path)
+    assert again.cached and again.differs == counted_anyway.differs
+    other_path = tmp_path / "other-path.journal"
+    state = int.from_bytes(raw[-4:], "little", signed=True)
+    other_path.write_bytes(bytes(raw[:-4]) + (state + 1).to_bytes(4, "little", signed=True))
+    with pytest.raises(cost.TargetMismatch, match="left the host's path"):
+        cost.measure(other_path, cache=tmp_path)
 
 
 def test_columns_line_up_with_the_capture() -> None:
