@@ -50,7 +50,9 @@ from rig.supervisor import StopReport
 OWN = "up"  # the bench's own unixcan channel: up-<pid>
 PACES = ("realtime", "wall")
 GRANT_S = 0.01  # wall pacing: bench time granted at a time (a command acts within it)
-MAX_LAG_S = 0.1  # wall pacing: behind the wall clock by more, the bench time pauses
+MAX_LAG_S = 0.02  # wall pacing: behind the wall clock by more, the bench time pauses (a
+# bench that raced to catch up would run ahead of its clients: a master starved for a moment
+# would see its command time-out pass faster than on the wall clock)
 BENCH_FILE = "bench.toml"
 TS = capture.TS  # PWM period (docs/interfaces.md)
 

@@ -10,12 +10,10 @@ import numpy as np
 
 from rig.commissioning.results import Quantity, StepResult, Table
 from rig.commissioning.session import BenchSession
-from rig.commissioning.steps.common import measure
+from rig.commissioning.steps.common import measure, reach_speed
 
 TITLE = "Speed sweep with load steps"
 POLL_S = 0.01
-REACH_CEILING_S = 10.0  # a ceiling for the speed to come within tolerance, not a wait
-REACH_POLL_S = 0.05
 
 
 def _recovery(speeds: np.ndarray, ref: float, tol: float, dt: float) -> float:
@@ -25,15 +23,6 @@ def _recovery(speeds: np.ndarray, ref: float, tol: float, dt: float) -> float:
         return 0.0
     last = int(outside[-1])
     return math.inf if last == speeds.size - 1 else (last + 1) * dt
-
-
-def _reach(s: BenchSession, ref: float, tol: float) -> float:
-    """Waits until the load bench measures the speed within tol of ref (a ceiling of
-    REACH_CEILING_S); the bench time it took (0: already there)."""
-    lb = s.load
-    assert lb is not None
-    return s.clock.wait(lambda: abs(lb.measure().speed_rpm - ref) <= tol, REACH_CEILING_S,
-                        f"speed {ref:g} r/min within {tol:g} r/min", step_s=REACH_POLL_S)
 
 
 def run(s: BenchSession, r: StepResult) -> None:
@@ -50,11 +39,9 @@ def run(s: BenchSession, r: StepResult) -> None:
     speed = 0.0
     for ref in cfg.sweep_speeds_rpm:
         s.drive.command(speed_ref=ref)
-        s.clock.advance(abs(ref - speed) / cfg.accel_rpm_s + cfg.sweep_settle_s)
-        # the ramp's time is what a drive keeping its ramp needs; a bench that is slower
-        # (a free-running virtual bench on a loaded machine lags the wall clock) or a drive
-        # that is not gets until it is there, then the settling time again
-        if _reach(s, ref, tol) > 0.0:
+        ramp_s = abs(ref - speed) / cfg.accel_rpm_s
+        s.clock.advance(ramp_s + cfg.sweep_settle_s)
+        if reach_speed(s, ref, tol, ramp_s) > 0.0:
             s.clock.advance(cfg.sweep_settle_s)
         speed = ref
         before = measure(s, 0.1)
