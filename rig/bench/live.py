@@ -21,7 +21,8 @@ Its health comes from the plant's BENCH_COUNTERS and BENCH_PROGRESS (every 100 m
 whole periods: wall time minus simulated time, in periods, estimated from BENCH_PROGRESS;
 plant_rt's exit counters give the exact figure), late commands (periods that started
 without their VIO_PWM frame) and frames dropped (the plant's transmit drops, and this
-monitor's own receive overflows).
+monitor's own receive overflows). In real time the monitor is on the channel only while it
+takes a sample (a health line), as a Python node that falls behind costs the plant waits.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from rig.supervisor import StopReport
 OWN = "up"  # the bench's own unixcan channel: up-<pid>
 PACES = ("realtime", "wall")
 GRANT_S = 0.01  # wall pacing: bench time granted at a time (a command acts within it)
+SAMPLE_CEILING_S = 1.0  # real time: a health sample's ceiling (the frames come every 100 ms)
 MAX_LAG_S = 0.02  # wall pacing: behind the wall clock by more, the bench time pauses (a
 # bench that raced to catch up would run ahead of its clients: a master starved for a moment
 # would see its command time-out pass faster than on the wall clock)
@@ -145,6 +147,9 @@ class LiveBench:
         self._t0 = time.monotonic()
         self._progress0: tuple[float, int] | None = None  # (wall, period) of the first report
         self._progress: tuple[float, int] | None = None
+        self._transport = ""
+        self._sampled: dict[str, Signals] = {}  # real time: the last health sample's frames
+        self._sample_overflows = 0
 
     # -- up -----------------------------------------------------------------------------
     def start(self) -> Address:
@@ -181,6 +186,12 @@ class LiveBench:
         self.address = Address(transport, channel, ends.console_port, d.modbus.host,
                                ends.modbus_port, self.dir / BENCH_FILE)
         outputs.write_text(self.address.bench_file, self.bench_file_text())
+        if self.clock is None:
+            # in real time nothing needs this node between health samples, and a Python node
+            # that falls behind the virtual wires' frames makes the plant wait for it
+            link.close()
+            self.link = None
+        self._transport = transport
         self._t0 = time.monotonic()
         return self.address
 
@@ -225,7 +236,7 @@ class LiveBench:
     def watch(self, seconds: float) -> None:
         """Takes the bench's frames for this long, watching the programs (ChildFailed when
         one exits)."""
-        assert self.link is not None and self.bench is not None
+        assert self.bench is not None
         end = time.monotonic() + seconds
         while True:
             self.bench.check()
@@ -233,8 +244,8 @@ class LiveBench:
             left = end - now
             if left <= 0:
                 return
-            if self.clock is None:
-                self.link.pump(min(left, 0.05))
+            if self.clock is None or self.link is None:
+                time.sleep(min(left, 0.05))
                 continue
             clock = self.clock
             due = self._period0 + int((now - self._grid0) / TS)  # the period the wall is at
@@ -249,9 +260,30 @@ class LiveBench:
                 wait = (clock.period + 1 - self._period0) * TS + self._grid0 - now
                 self.link.pump(min(left, max(wait, 0.0)))
 
+    def _sample(self) -> dict[str, Signals]:
+        """Real time: the bench's housekeeping frames (every 100 ms), heard on a node that
+        is on the channel only for this."""
+        wanted = ("BENCH_COUNTERS", "BENCH_PROGRESS", "DRIVE_STATUS")
+        link = BusLink.open(self._transport, self._channel)
+        try:
+            link.on("BENCH_PROGRESS", self._heard_progress)
+            deadline = time.monotonic() + SAMPLE_CEILING_S
+            while (not all(n in link.latest for n in wanted)
+                   and time.monotonic() < deadline):
+                link.pump(0.05)
+            self._sample_overflows += int(getattr(link.bus, "stats", {}).get("rx_overflows", 0))
+            return dict(link.latest)
+        finally:
+            link.close()
+
     def health(self) -> Health:
-        assert self.link is not None
-        c: dict[str, Any] = self.link.latest.get("BENCH_COUNTERS", {})
+        if self.link is not None:
+            latest: dict[str, Signals] = self.link.latest
+            overflows = int(getattr(self.link.bus, "stats", {}).get("rx_overflows", 0))
+        else:
+            latest = self._sampled = self._sample()
+            overflows = self._sample_overflows
+        c: dict[str, Any] = latest.get("BENCH_COUNTERS", {})
         slipped = None
         period = None
         if self.clock is not None:
@@ -262,13 +294,12 @@ class LiveBench:
             period = p1
             if w1 > w0:
                 slipped = max(0, round((w1 - w0) / TS) - (p1 - p0))
-        status = self.link.latest.get("DRIVE_STATUS")
+        status = latest.get("DRIVE_STATUS")
         state = "?" if status is None else protocols.named_value(
             "drive", "DRIVE_STATUS", "state", status["state"])
-        stats = getattr(self.link.bus, "stats", {})
         return Health(time.monotonic() - self._t0, period, int(c.get("overruns", 0)), slipped,
-                      int(c.get("late_cmds", 0)), int(c.get("tx_drops", 0)),
-                      int(stats.get("rx_overflows", 0)), state, self.clock is not None)
+                      int(c.get("late_cmds", 0)), int(c.get("tx_drops", 0)), overflows,
+                      state, self.clock is not None)
 
     # -- down ---------------------------------------------------------------------------
     def stop(self) -> dict[str, StopReport]:
