@@ -51,6 +51,7 @@ from rig.supervisor import StopReport
 OWN = "up"  # the bench's own unixcan channel: up-<pid>
 PACES = ("realtime", "wall")
 GRANT_S = 0.01  # wall pacing: bench time granted at a time (a command acts within it)
+WALL_PRIORITY = 10  # wall pacing: SCHED_FIFO of the bench's processes (0: none)
 SAMPLE_CEILING_S = 1.0  # real time: a health sample's ceiling (the frames come every 100 ms)
 MAX_LAG_S = 0.02  # wall pacing: behind the wall clock by more, the bench time pauses (a
 # bench that raced to catch up would run ahead of its clients: a master starved for a moment
@@ -114,6 +115,21 @@ def scheduling(pid: int) -> str:
     return f"{name} {prio}" if policy in (os.SCHED_FIFO, os.SCHED_RR) else name
 
 
+def make_fifo(pid: int, priority: int) -> bool:
+    """Every thread of ``pid`` at SCHED_FIFO ``priority``; False where the kernel refuses."""
+    try:
+        tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        return False
+    ok = True
+    for tid in tids:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+        except OSError:
+            ok = False
+    return ok
+
+
 class LiveBench:
     """Brings the free-running virtual bench up (``start``), watches it (``health``) and
     takes it down with everything it made (``stop``)."""
@@ -131,6 +147,7 @@ class LiveBench:
         if pace not in PACES:
             raise ValueError(f"pace {pace!r}: one of {', '.join(PACES)}")
         self.pace = pace
+        self.rt_priority = rt_priority
         prio = () if rt_priority is None or pace != "realtime" else (
             "--rt-priority", str(rt_priority))
         self.programs = replace(virtual.from_description(desc), lockstep=pace == "wall",
@@ -181,6 +198,14 @@ class LiveBench:
             self.clock = LockstepClock(link, grant_s=GRANT_S)
             self.clock.on_idle(self.bench.check)
             self._period0 = self.clock.sync(timeout_s=d.virtual.ready_timeout_s)
+            # the bench's processes (the pacer's threads too) ahead of the machine's other
+            # work, below the real-time mode's priority: they block between grants, so they
+            # take only the time the bench needs, and the bench keeps up with the wall clock
+            prio = WALL_PRIORITY if self.rt_priority is None else self.rt_priority
+            if prio > 0:
+                for child in self.bench.sup.children.values():
+                    make_fifo(child.pid, prio)
+                make_fifo(os.getpid(), prio)
             self._grid0 = time.monotonic()
         assert ends.console_port is not None and ends.modbus_port is not None
         self.address = Address(transport, channel, ends.console_port, d.modbus.host,
@@ -220,11 +245,16 @@ class LiveBench:
         return tomlkit.dumps(doc)
 
     def scheduling(self) -> dict[str, str]:
-        """What the kernel granted each real-time program."""
+        """What the kernel granted the bench's processes (in real time plant_rt and fw_host;
+        paced by the wall clock every one, this pacer too)."""
         assert self.bench is not None
-        return {name: scheduling(child.pid)
-                for name, child in self.bench.sup.children.items()
-                if name in (virtual.PLANT, virtual.FIRMWARE)}
+        names = ((virtual.PLANT, virtual.FIRMWARE) if self.clock is None
+                 else (virtual.PLANT, virtual.FIRMWARE, virtual.LOADBENCH))
+        out = {name: scheduling(child.pid)
+               for name, child in self.bench.sup.children.items() if name in names}
+        if self.clock is not None:
+            out["pacer"] = scheduling(os.getpid())
+        return out
 
     # -- running ------------------------------------------------------------------------
     def _heard_progress(self, v: Signals) -> None:

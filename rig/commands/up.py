@@ -120,7 +120,7 @@ def cmd_up(args: argparse.Namespace) -> int:
                 reports = bench.stop()
                 if wrote_copy and copy is not None:
                     copy.unlink(missing_ok=True)
-                _print_exit(reports)
+                _print_exit(reports, bench)
     return status
 
 
@@ -155,7 +155,10 @@ def _print_address(desc, addr, copy: Path | None, bench) -> None:  # type: ignor
         _say(f"             python -m can.logger -i socketcan -c {addr.channel} --fd")
 
 
-def _print_exit(reports) -> None:  # type: ignore[no-untyped-def]
+def _print_exit(reports, bench) -> None:  # type: ignore[no-untyped-def]
+    if bench.clock is not None:
+        _say(f"rig up: paced by the wall clock: {bench.slipped_wall} periods slipped, bench "
+             f"at period {bench.clock.period}")
     for name, rep in reports.items():
         c = rep.counters or {}
         bits = [f"exit {rep.returncode}"]

@@ -111,6 +111,15 @@ def check_left_nothing(up: Up, env: dict[str, str]) -> None:
     assert processes_on(channel) == []
 
 
+def failed_lines(run: Path) -> str:
+    """The report's failed checks and stopped steps."""
+    report = run / "commissioning.md"
+    if not report.exists():
+        return ""
+    return "\n".join(ln for ln in report.read_text().splitlines()
+                     if "✘" in ln or "Stopped" in ln)
+
+
 def writable_param() -> tuple[str, float]:
     """A writable parameter and a value in its range other than its default."""
     info = paramtable.table().lookup("cmd_timeout_ms")
@@ -175,9 +184,9 @@ def test_the_readme_sequence_on_the_free_running_bench(bus_dir: dict[str, str],
         r = rig(bus_dir, "param", "set", name, f"{listed[name]:g}", "--bench", f)
         assert r.returncode == 0, r
 
-        r = rig(bus_dir, "commission", "all", "--bench", f, "--quiet",
-                "--out", str(tmp_path / "free-running"))
-        assert r.returncode == 0, r.stdout + r.stderr
+        out = tmp_path / "free-running"
+        r = rig(bus_dir, "commission", "all", "--bench", f, "--quiet", "--out", str(out))
+        assert r.returncode == 0, r.stdout + r.stderr + failed_lines(out) + up.text()
         got = identified(r.stdout)
         for key in IDENTIFIED:
             assert got[key] == pytest.approx(want[key], rel=0.01), (key, got, want)
