@@ -148,6 +148,8 @@ class LiveBench:
             raise ValueError(f"pace {pace!r}: one of {', '.join(PACES)}")
         self.pace = pace
         self.rt_priority = rt_priority
+        # (in real time the programs take it themselves; paced by the wall clock the pacer
+        # gives it to every process of the bench once they are up)
         prio = () if rt_priority is None or pace != "realtime" else (
             "--rt-priority", str(rt_priority))
         self.programs = replace(virtual.from_description(desc), lockstep=pace == "wall",

@@ -23,6 +23,9 @@ the kernel allows; it says what each was granted) and the Modbus load bench, on 
 channel of its own (up-<pid>) unless one is named. It prints the bus and channel, the
 console's pty, the Modbus address and a bench file for --bench, then a health line every few
 seconds. Ctrl-C or SIGTERM stops it: programs, channel, pty and files go with it.
+--pace wall runs them in lockstep instead, at SCHED_FIFO 10, granted bench time as the wall
+clock passes: for a machine that does not hold 10 kHz real time (README: Pointing it at a
+real bench).
 
 Try it (in another shell, with the same UNIXCAN_DIR):
   rig console --bench FILE -c version        # or interactive: rig console --bench FILE
@@ -62,8 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    "time pauses when the machine falls behind)")
     p.add_argument("--rt-priority", type=cliargs.number(int, minimum=0, maximum=99),
                    default=None, metavar="N",
-                   help="SCHED_FIFO priority of plant_rt and fw_host (default: theirs, 80; "
-                   "0: none)")
+                   help="SCHED_FIFO priority: in real time of plant_rt and fw_host (default: "
+                   "theirs, 80), paced by the wall clock of every process of the bench "
+                   "(default 10: clients on a loaded machine run above it); 0: none")
     cliargs.command(p, cmd_up)
 
 
