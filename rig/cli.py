@@ -24,7 +24,7 @@ COMMAND_MODULES = (
     "rig.commands.vm",
     "rig.commands.clean",
     "rig.commands.export",
-    *(f"rig.commands.{m}" for m in ("console", "param", "loadbench", "commission")),
+    *(f"rig.commands.{m}" for m in ("console", "param", "loadbench", "commission", "up", "drive")),
 )
 
 

@@ -25,6 +25,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     _channel_options(st, "the channel to look at (default: $HIL_CHANNEL, else vcan0)")
     cliargs.command(st, _status)
 
+    ld = bsub.add_parser("load", help="the drive protocol's bus load, from its DBC",
+                         description="Each cyclic message of protocols/drive.dbc: its frame in "
+                         "bits with worst-case stuffing (classic CAN) times its rate "
+                         "(GenMsgCycleTime), over the bit rate (the Baudrate attribute); "
+                         "exit 1 when the total passes the 60 % the telemetry is held to.")
+    cliargs.command(ld, _load)
+
 
 def _channel_options(p: argparse.ArgumentParser, what: str) -> None:
     cliargs.add_shared(p, "channel", env="HIL_CHANNEL", help=what)
@@ -68,6 +75,18 @@ def _up(args: argparse.Namespace) -> int:
         print(f"rig bus up: {exc}", file=sys.stderr)
         return 3
     print(f"unixcan {channel} ready ({folder})")
+    return 0
+
+
+def _load(args: argparse.Namespace) -> int:
+    from rig.bus import load
+
+    print(load.table("drive"))
+    total = load.total_pct(load.message_loads("drive"), load.bitrate("drive"))
+    if total > load.TELEMETRY_LIMIT_PCT:
+        print(f"rig bus load: {total:.1f} % is above {load.TELEMETRY_LIMIT_PCT:g} %",
+              file=sys.stderr)
+        return 1
     return 0
 
 

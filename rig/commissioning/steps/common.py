@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -10,9 +11,12 @@ import numpy as np
 from rig.commissioning.session import BenchSession
 from rig.commissioning.telemetry import Window
 from rig.drive import params as paramtable
+from rig.link.clock import BenchTimeout
 from rig.loadbench.client import BenchMeasurement
 
 RAMP_DT_S = 0.01  # load-machine speed ramps: one setpoint per 10 ms of bench time
+REACH_POLL_S = 0.05  # reach_speed: a load-bench reading every 50 ms of bench time
+REACH_CEILING_MIN_S = 2.0  # reach_speed: a ceiling, not a wait
 
 
 def nominal(key: str) -> float:
@@ -63,6 +67,23 @@ def measure(s: BenchSession, seconds: float, polls: int = 5) -> Sample:
         lq_hat=w.mean("TLM_PARAM", "lq_hat"), te_hat=w.mean("TLM_CUR", "te_hat"),
         shaft_torque=torque, bench_speed=float(np.mean(speeds)) if speeds.size else math.nan,
         bench_speeds=speeds, theta_err=w.angle_error_deg(), window=w)
+
+
+def reach_speed(s: BenchSession, ref: float, tol: float, ramp_s: float) -> float:
+    """After a speed ramp's own time: waits until the load bench measures the speed within
+    tol of ref, for at most 10 ramps (REACH_CEILING_MIN_S at least); the time it waited (0:
+    the drive was there, as a drive that keeps its ramp is). On a real bench a slower drive,
+    on a free-running virtual bench one that lags the wall clock (a loaded machine), gets the
+    time it needs, where a fixed time measured it half-way; a drive that never gets there is
+    left to the step's check of the speed."""
+    lb = s.load
+    assert lb is not None
+    t0 = s.clock.now()
+    with contextlib.suppress(BenchTimeout):
+        s.clock.wait(lambda: abs(lb.measure().speed_rpm - ref) <= tol,
+                     max(REACH_CEILING_MIN_S, 10.0 * ramp_s),
+                     f"speed {ref:g} r/min within {tol:g} r/min", step_s=REACH_POLL_S)
+    return s.clock.now() - t0
 
 
 def ramp_load_speed(s: BenchSession, start: float, stop: float, rate_rpm_s: float) -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from rig.commissioning.results import Quantity, StepResult
 from rig.commissioning.session import BenchSession
-from rig.commissioning.steps.common import measure
+from rig.commissioning.steps.common import measure, reach_speed
 
 TITLE = "Sensorless start at low speed (free shaft)"
 
@@ -24,7 +24,10 @@ def run(s: BenchSession, r: StepResult) -> None:
     r.check("enable", True, f"RUN {1e3 * t:.0f} ms after enable ({cfg.start_fw_mode})")
     ref = cfg.start_speed_rpm
     s.drive.command(speed_ref=ref)
-    s.clock.advance(abs(ref) / cfg.start_accel_rpm_s + cfg.start_hold_s)
+    ramp_s = abs(ref) / cfg.start_accel_rpm_s
+    s.clock.advance(ramp_s + cfg.start_hold_s)
+    if reach_speed(s, ref, cfg.start_tolerance_rpm, ramp_s) > 0.0:
+        s.clock.advance(cfg.start_hold_s)
     m = measure(s, 0.1)
     s.drive.check_no_fault("low-speed run")
     tol = cfg.start_tolerance_rpm

@@ -10,7 +10,7 @@ import numpy as np
 
 from rig.commissioning.results import Quantity, StepResult, Table
 from rig.commissioning.session import BenchSession
-from rig.commissioning.steps.common import measure
+from rig.commissioning.steps.common import measure, reach_speed
 
 TITLE = "Speed sweep with load steps"
 POLL_S = 0.01
@@ -39,7 +39,10 @@ def run(s: BenchSession, r: StepResult) -> None:
     speed = 0.0
     for ref in cfg.sweep_speeds_rpm:
         s.drive.command(speed_ref=ref)
-        s.clock.advance(abs(ref - speed) / cfg.accel_rpm_s + cfg.sweep_settle_s)
+        ramp_s = abs(ref - speed) / cfg.accel_rpm_s
+        s.clock.advance(ramp_s + cfg.sweep_settle_s)
+        if reach_speed(s, ref, tol, ramp_s) > 0.0:
+            s.clock.advance(cfg.sweep_settle_s)
         speed = ref
         before = measure(s, 0.1)
         lb.set_torque(cfg.sweep_load_nm)
