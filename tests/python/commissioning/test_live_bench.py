@@ -20,7 +20,9 @@ import pytest
 
 from rig.drive import params as paramtable
 
-pytestmark = pytest.mark.usefixtures("programs_built")
+# alone: the bench and its clients run at SCHED_FIFO; beside another test on two cores they
+# starved it (./hil test runs these after the others)
+pytestmark = [pytest.mark.usefixtures("programs_built"), pytest.mark.alone]
 
 RIG = [sys.executable, "-m", "rig"]
 UP_CEILING_S = 180.0  # the bench's programs ready, on a loaded machine: a ceiling, not a wait
