@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rig import cliargs
-from rig.benchmarks import apart, bus, cluster, gate, isr, overload, plant, sil, startup
+from rig.benchmarks import apart, bus, clock, cluster, gate, isr, overload, plant, sil, startup
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -64,6 +64,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         description=gate.__doc__, formatter_class=raw)
     gate.add_arguments(ga)
     cliargs.command(ga, _printed(gate.measure))
+
+    ck = bsub.add_parser("clock", help=clock.HELP, description=clock.__doc__,
+                         formatter_class=raw)
+    clock.add_arguments(ck)
+    cliargs.command(ck, _printed(clock.measure))
 
     cl = bsub.add_parser(
         "cluster", help="a suite on 1, 2 and 4 local Dask workers: the speed-up",

@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import os
+import sys
 import uuid
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
 from rig import bus as rigbus
+
+# the tests' shared helpers (waits.py: the ceilings of every wait) import as top-level modules
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def available_transports() -> list[str]:

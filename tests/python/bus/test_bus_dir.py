@@ -20,6 +20,7 @@ from pathlib import Path
 
 import can
 import pytest
+from waits import EVENT_S
 
 from rig import _paths
 from rig.bus import unixcan
@@ -308,11 +309,11 @@ def test_a_second_user_can_neither_send_nor_read(short_tmp: Path,
     monkeypatch.setenv("UNIXCAN_DIR", str(base))
     bus = can.Bus(interface="unixcan", channel="run")
     c_node = subprocess.Popen([tool(), "recv", "--bus", "unixcan", "--channel", "run",
-                               "--count", "1", "--timeout-ms", "3000"],
+                               "--count", "1", "--timeout-ms", str(round(EVENT_S * 1e3))],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         folder = base / "run"
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + EVENT_S
         while len(list(folder.glob("*.sock"))) < 2 and time.monotonic() < deadline:
             time.sleep(0.01)
         names = sorted(p.name for p in folder.glob("*.sock"))
@@ -330,7 +331,8 @@ def test_a_second_user_can_neither_send_nor_read(short_tmp: Path,
         assert result["mkdir"] == "Permission denied"
         # and nothing reached the run's nodes
         assert bus.recv(0.2) is None
-        out, _ = c_node.communicate(timeout=30)
+        c_node.terminate()  # (its own time-out is a ceiling: it must outlast the intruder)
+        out, _ = c_node.communicate(timeout=EVENT_S)
         assert '"id"' not in out
     finally:
         if c_node.poll() is None:

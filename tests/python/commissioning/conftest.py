@@ -20,6 +20,14 @@ from rig.commissioning.session import BenchSession
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from commission_support import MakeDesc
+from waits import EVENT_S, ceiling
+
+# The virtual bench with wall-time ceilings a loaded machine cannot reach (the console's and
+# Modbus's replies, the load bench's watchdog, the programs' readiness): a test that tests
+# one of these time-outs names its own after these.
+GENEROUS = [f"console.timeout_s={EVENT_S:g}", f"modbus.timeout_s={EVENT_S:g}",
+            f"modbus.watchdog_timeout_ms={min(60000, round(EVENT_S * 1e3))}",
+            f"virtual.ready_timeout_s={ceiling(300.0):g}"]
 
 
 @pytest.fixture(scope="session")
@@ -51,7 +59,7 @@ def make_desc(unix_channel: str, programs_built: None) -> MakeDesc:
 
     def make(*overrides: str) -> bd.BenchDescription:
         return bd.load("virtual", ["can.transport=unixcan", f"can.channel={unix_channel}",
-                                   "modbus.port=0", *overrides])
+                                   "modbus.port=0", *GENEROUS, *overrides])
 
     return make
 
@@ -63,7 +71,8 @@ def module_bench(tmp_path_factory: pytest.TempPathFactory, programs_built: None
     open. Tests leave the drive disabled and the load off."""
     chan_gen = _unix_channel()
     chan = next(chan_gen)
-    desc = bd.load("virtual", ["can.transport=unixcan", f"can.channel={chan}", "modbus.port=0"])
+    desc = bd.load("virtual", ["can.transport=unixcan", f"can.channel={chan}", "modbus.port=0",
+                               *GENEROUS])
     s = BenchSession(desc, tmp_path_factory.mktemp("bench"))
     try:
         s.start()

@@ -21,12 +21,13 @@ from typing import Any
 import can
 import pytest
 from cantools.database.can import Database, Message
+from waits import EVENT_S
 
 from rig import _paths, protocols
 
 ZERO_A = 32768
 VDC_200V = 32768
-READY_TIMEOUT_S = 30.0  # sanitizer builds and the VM start slowly
+READY_TIMEOUT_S = EVENT_S  # a ceiling: sanitizer builds, the VM, a loaded machine
 # the DRIVE_STATUS value tables of protocols/drive.dbc
 STATE = protocols.spelled("drive", "DRIVE_STATUS", "state")
 FAULT = protocols.spelled("drive", "DRIVE_STATUS", "fault_code")
@@ -53,7 +54,7 @@ class FwProcess:
     def stderr(self) -> str:
         return self.stderr_path.read_text(errors="replace")
 
-    def stop(self, sig: int = signal.SIGTERM, timeout: float = 20.0) -> int:
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = EVENT_S) -> int:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
         self.returncode = self.proc.wait(timeout=timeout)
@@ -126,7 +127,7 @@ class Peer:
                                 "alive": self.alive, "speed_ref": speed_ref, "iq_ref": iq_ref})
 
     # ---------------------------------------------------------------- receiving
-    def recv_until(self, want: Callable[[can.Message], bool], timeout: float = 5.0
+    def recv_until(self, want: Callable[[can.Message], bool], timeout: float = EVENT_S
                    ) -> can.Message | None:
         deadline = time.monotonic() + timeout
         while True:
@@ -141,7 +142,7 @@ class Peer:
                 return m
 
     def expect(self, name: str, pred: Callable[[dict[str, Any]], bool] | None = None,
-               timeout: float = 5.0) -> dict[str, Any]:
+               timeout: float = EVENT_S) -> dict[str, Any]:
         m = self.msg(name)
 
         def want(frame: can.Message) -> bool:
@@ -174,11 +175,11 @@ class Peer:
             got.append(m)
         return got
 
-    def pwm(self, period: int, timeout: float = 5.0) -> dict[str, Any]:
+    def pwm(self, period: int, timeout: float = EVENT_S) -> dict[str, Any]:
         return self.expect("VIO_PWM", lambda v: v["period"] == period, timeout)
 
     def status(self, pred: Callable[[dict[str, Any]], bool] | None = None,
-               timeout: float = 3.0) -> dict[str, Any]:
+               timeout: float = EVENT_S) -> dict[str, Any]:
         return self.expect("DRIVE_STATUS", pred, timeout)
 
     def step(self, period: int, n_soc: int, **codes: int) -> dict[str, Any]:
@@ -212,7 +213,7 @@ class Peer:
         return out
 
     def param(self, op: int, param_id: int, value: float = 0.0,
-              timeout: float = 5.0) -> dict[str, Any]:
+              timeout: float = EVENT_S) -> dict[str, Any]:
         """PARAM_REQ -> PARAM_RESP (matched by seq)."""
         self.seq = (self.seq + 1) % 256
         seq = self.seq

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import serial  # type: ignore[import-untyped]
 from fwhost_support import FAULT_ADC_LOSS, STATE, FwProcess, Peer, StartFw, param_ids
+from waits import EVENT_S, RUN_S, ceiling
 
 from rig import protocols
 
@@ -21,7 +22,7 @@ NUM = r"[-+]?(\d+(\.\d*)?|\.\d+)([eE][-+]?\d+)?"
 
 class Console:
     def __init__(self, link: Path) -> None:
-        self.port = serial.Serial(str(link), baudrate=115200, timeout=5.0)
+        self.port = serial.Serial(str(link), baudrate=115200, timeout=EVENT_S)
 
     def write(self, raw: bytes) -> None:
         self.port.write(raw)
@@ -248,8 +249,12 @@ def test_bad_lines(console_fw: tuple[FwProcess, Console]) -> None:
 
 def test_console_keepalive_and_command_timeout(start_fw: StartFw, peer: Peer,
                                                tmp_path: Path) -> None:
+    # The keep-alive is wall time: long enough that the 60 lockstep periods between two
+    # console lines fit in it on a loaded machine; the silence is longer than it (a sleep
+    # that only needs to last at least that long: a slower machine sleeps longer).
+    keepalive_s = ceiling(3.0)
     link = tmp_path / "c"
-    fw = start_fw("--pty-link", str(link), "--console-timeout-ms", "300",
+    fw = start_fw("--pty-link", str(link), "--console-timeout-ms", str(round(keepalive_s * 1e3)),
                   "--set", "cmd_timeout_ms=3")
     con = Console(link)
     pwms = peer.run(0, 2)
@@ -257,7 +262,7 @@ def test_console_keepalive_and_command_timeout(start_fw: StartFw, peer: Peer,
     pwms = peer.run(2, 60, pwms[-1]["n_soc"])    # 6 ms of ISR time > cmd_timeout: refreshed
     assert pwms[-1]["gate_enable"] == 1
     assert con.kv("status")["state"] == "POLARITY"
-    time.sleep(0.5)                              # console silent for longer than 300 ms
+    time.sleep(keepalive_s + 0.5)                # console silent for longer than the keep-alive
     pwms = peer.run(62, 40, pwms[-1]["n_soc"])
     assert pwms[-1]["gate_enable"] == 0
     s = con.kv("status")
@@ -276,9 +281,14 @@ def test_client_hangup_ends_the_console_session(start_fw: StartFw, peer: Peer,
     pwms = peer.run(0, 2)
     assert con.one("enable") == "OK"
     con.close()
-    time.sleep(0.1)                              # the HAL sees the hang-up on its 10 ms probe
-    pwms = peer.run(2, 40, pwms[-1]["n_soc"])
-    assert pwms[-1]["gate_enable"] == 0
+    # the HAL sees the hang-up on its 10 ms probe (wall time), then the command times out
+    # within 30 periods: lockstep periods until the gates are off (no keep-alive time-out
+    # here, so nothing but the hang-up ends the session)
+    period, n_soc = 2, int(pwms[-1]["n_soc"])
+    deadline = time.monotonic() + EVENT_S
+    while (pwm := peer.step(period, n_soc))["gate_enable"] != 0:
+        assert time.monotonic() < deadline, "the hang-up never ended the console session"
+        period, n_soc = period + 1, int(pwm["n_soc"])
     peer.status(lambda v: v["state"] == STATE["FAULT"])
     # a new client gets a fresh session
     con = Console(link)
@@ -300,10 +310,10 @@ def test_a_flood_of_lines_gets_every_reply(console_fw: tuple[FwProcess, Console]
     writer.start()
     time.sleep(1.0)  # the client reads nothing for a while: the replies back up
     got = b""
-    deadline = time.monotonic() + 120  # a bound for the failing case only
+    deadline = time.monotonic() + RUN_S  # a bound for the failing case only
     while got.count(b"\r\n") < n and time.monotonic() < deadline:
         got += con.port.read(max(1, con.port.in_waiting))
-    writer.join(timeout=60)
+    writer.join(timeout=EVENT_S)
     replies = got.split(b"\r\n")[:-1]
     assert len(replies) == n and all(r.startswith(b"OK") for r in replies), len(replies)
     assert fw.stop() == 0

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import pytest
 from fwhost_support import FAULT_CMD_TIMEOUT, STATE, Peer, StartFw, param_ids
+from waits import ceiling
 
 READ, WRITE, SAVE, LOAD = 0, 1, 2, 3
 OK, UNKNOWN_ID, OUT_OF_RANGE, READ_ONLY, BUSY, BAD_OP, STORE_ERROR = range(7)
@@ -190,18 +192,29 @@ def test_command_timeout_faults_and_turns_the_gates_off(start_fw: StartFw,
 
 
 def test_status_and_heartbeat_every_100_ms(start_fw: StartFw, peer: Peer) -> None:
+    started = time.monotonic()
     fw = start_fw("--node", "7")
-    beats = [peer.expect("HEARTBEAT", timeout=2.0) for _ in range(4)]
+    beats = [peer.expect("HEARTBEAT") for _ in range(4)]
     alive = [b["alive"] for b in beats]
     assert alive == [(alive[0] + i) % 256 for i in range(4)]
     assert all(b["node"] == 7 for b in beats)
-    assert 0.2 <= beats[-1]["uptime"] - beats[0]["uptime"] <= 0.5
+    # Every 100 ms of fw_host's clock, a late one not made up (the next is due 100 ms after
+    # it): three gaps of its own uptime span at least 200 ms on any machine. The upper bounds
+    # (here and for DRIVE_STATUS, by receive time) are ceilings, five times the nominal: they
+    # catch a cadence far off, not a loaded machine.
+    assert 0.2 <= beats[-1]["uptime"] - beats[0]["uptime"] <= ceiling(1.5)
     times = []
     for _ in range(3):
-        peer.status(timeout=2.0)
+        peer.status()
         times.append(peer.log[-1].timestamp)
-    assert 0.15 <= times[-1] - times[0] <= 0.35
+    assert times[-1] - times[0] <= ceiling(1.0)
     assert fw.stop() == 0
+    # never more often than every 100 ms, counted by fw_host over its whole life (inside
+    # this span on any machine); DRIVE_STATUS also goes out on each change (a few here)
+    span = time.monotonic() - started
+    c = fw.counters()
+    assert c["heartbeats"] <= 1 + span / 0.1 * 1.001, (c["heartbeats"], span)
+    assert c["status_frames"] <= 5 + span / 0.1 * 1.001, (c["status_frames"], span)
 
 
 @pytest.mark.parametrize("div", [1, 2])

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import pytest
 from fwhost_support import Peer, StartFw, fw_binary
+from waits import EVENT_S
 
 COUNTER_KEYS = {
     "program", "mode", "transport", "isr", "isr_no_data", "repeats", "last_period", "pwm_sent",
@@ -127,7 +127,7 @@ def test_signal_exits_0_with_json_counters(start_fw: StartFw, peer: Peer, sig: i
 def test_max_periods_ends_the_run(start_fw: StartFw, peer: Peer) -> None:
     fw = start_fw("--max-periods", "4", "--realtime", "--rt-priority", "0")
     peer.run(0, 4)
-    assert fw.proc.wait(timeout=20) == 0
+    assert fw.proc.wait(timeout=EVENT_S) == 0
     c = fw.counters()
     assert c["isr"] == 4 and c["mode"] == "realtime" and c["overruns"] >= 0
 
@@ -140,10 +140,8 @@ def test_ready_file_holds_the_pid(start_fw: StartFw, tmp_path: Path) -> None:
 
 def test_spin_does_not_change_results(start_fw: StartFw, peer: Peer) -> None:
     fw = start_fw("--spin-us", "200")
-    t0 = time.monotonic()
-    pwms = peer.run(0, 20)
+    pwms = peer.run(0, 20)  # (each PWM awaited with a ceiling: a spin that never ends fails)
     assert [p["period"] for p in pwms] == list(range(1, 21))
-    assert time.monotonic() - t0 < 20
     assert fw.stop() == 0
 
 

@@ -191,7 +191,7 @@ def test_sync_is_answered_after_everything_before_it(start_fw: StartFw, peer: Pe
     peer.send("VIO_SYNC", {"period": 22, "seq": 7})
     got = []
     while len(got) < 2:
-        m = peer.recv_until(lambda f: f.arbitration_id in (pwm_id, ack_id), timeout=5.0)
+        m = peer.recv_until(lambda f: f.arbitration_id in (pwm_id, ack_id))
         assert m is not None, got
         got.append(peer.decode(m) | {"id": m.arbitration_id})
     assert [g["id"] for g in got] == [pwm_id, ack_id]
@@ -200,13 +200,13 @@ def test_sync_is_answered_after_everything_before_it(start_fw: StartFw, peer: Pe
     frame_id, data = peer.adc_frames(23, n_soc, ia=1 << 20)[0]
     peer.send_raw(frame_id, data, fd=True)
     peer.send("VIO_SYNC", {"period": 23, "seq": 8})
-    ack = peer.recv_until(lambda f: f.arbitration_id in (pwm_id, ack_id), timeout=5.0)
+    ack = peer.recv_until(lambda f: f.arbitration_id in (pwm_id, ack_id))
     assert ack is not None and ack.arbitration_id == ack_id
     assert peer.decode(ack)["seq"] == 8
     # a VIO_SYNC of the wrong length is refused (the next one shows it was handled)
     peer.send_raw(peer.msg("VIO_SYNC").frame_id, bytes(4), fd=True)
     peer.send("VIO_SYNC", {"period": 23, "seq": 9})
-    ack = peer.recv_until(lambda f: f.arbitration_id == ack_id, timeout=5.0)
+    ack = peer.recv_until(lambda f: f.arbitration_id == ack_id)
     assert ack is not None and peer.decode(ack)["seq"] == 9
     assert fw.stop() == 0
     c = fw.counters()

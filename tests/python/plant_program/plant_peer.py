@@ -20,6 +20,7 @@ from typing import Any
 
 import can
 from cantools.database.can import Database, Message
+from waits import EVENT_S
 
 from rig import _paths
 from rig import bus as rigbus
@@ -69,7 +70,7 @@ class PlantProcess:
                      "--ready-file", str(self.ready), *args]
         self.proc = subprocess.Popen(self.argv, stdout=subprocess.DEVNULL,
                                      stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + EVENT_S
         while not self.ready.exists():
             if self.proc.poll() is not None or time.monotonic() > deadline:
                 self.proc.kill()
@@ -77,12 +78,12 @@ class PlantProcess:
                 raise RuntimeError(f"plant_rt did not start ({' '.join(self.argv)}): {err}")
             time.sleep(0.002)
 
-    def stop(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> Exit:
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = EVENT_S) -> Exit:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
         return self.wait(timeout)
 
-    def wait(self, timeout: float = 10.0) -> Exit:
+    def wait(self, timeout: float = EVENT_S) -> Exit:
         try:
             _, err = self.proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
@@ -97,7 +98,7 @@ class PlantProcess:
             self.proc.communicate()
 
 
-def run_plant(*args: str, timeout: float = 10.0) -> subprocess.CompletedProcess[str]:
+def run_plant(*args: str, timeout: float = EVENT_S) -> subprocess.CompletedProcess[str]:
     """plant_rt to completion (for start-up failures that never reach the bus)."""
     return subprocess.run([plant_binary(), *args], capture_output=True, text=True,
                           timeout=timeout, check=False)
@@ -112,7 +113,7 @@ class Responder:
             [responder_binary(), "--bus", transport, "--channel", channel,
              "--ready-file", str(ready), *args],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + EVENT_S
         while not ready.exists():
             if self.proc.poll() is not None or time.monotonic() > deadline:
                 self.proc.kill()
@@ -123,7 +124,7 @@ class Responder:
     def stop(self) -> dict[str, Any]:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
-        out, err = self.proc.communicate(timeout=10.0)
+        out, err = self.proc.communicate(timeout=EVENT_S)
         assert self.proc.returncode == 0, err
         return last_json(out)
 
@@ -230,7 +231,7 @@ class Peer:
         self.heard.append(frame)
         return frame
 
-    def wait_for(self, pred: Callable[[Frame], bool], timeout: float = 5.0,
+    def wait_for(self, pred: Callable[[Frame], bool], timeout: float = EVENT_S,
                  what: str = "frame") -> Frame:
         deadline = time.monotonic() + timeout
         while True:
@@ -241,7 +242,7 @@ class Peer:
             if f is not None and pred(f):
                 return f
 
-    def adc(self, period: int, timeout: float = 5.0) -> Frame:
+    def adc(self, period: int, timeout: float = EVENT_S) -> Frame:
         """The VIO_ADC frame that completes `period` (all of its SOCs)."""
         while True:
             f = self.wait_for(lambda f: f.name.startswith("VIO_ADC_")
@@ -302,7 +303,7 @@ def read_trace(path: Path) -> list[Record]:
     return out
 
 
-def wait_file(path: Path, timeout: float = 5.0) -> None:
+def wait_file(path: Path, timeout: float = EVENT_S) -> None:
     deadline = time.monotonic() + timeout
     while not path.exists():
         assert time.monotonic() < deadline, f"{path} not written"

@@ -13,6 +13,7 @@ from pathlib import Path
 import can
 import pytest
 from plant_peer import Frame, Peer, PlantProcess, Pwm, read_trace
+from waits import EVENT_S
 
 from rig.bus import unixcan
 
@@ -69,7 +70,7 @@ def test_a_datagram_with_length_255_is_counted_not_traced(transport: str, channe
         peer.pwm(Pwm(2))
         peer.adc(2)
         peer.pwm(Pwm(3))
-        peer.wait_for(lambda f: progress(f) and f.signals["period"] == 3, 5.0, "progress 3")
+        peer.wait_for(lambda f: progress(f) and f.signals["period"] == 3, EVENT_S, "progress 3")
         out = plant.stop()
         assert out.returncode == 0, out.stderr
         assert out.counters["rx_malformed"] == len(bad)
@@ -89,12 +90,12 @@ def test_a_grant_at_the_far_end_of_the_counter_is_rejected(transport: str, chann
         peer.pwm(Pwm(1))
         peer.adc(1)
         peer.pwm(Pwm(2))
-        peer.wait_for(lambda f: progress(f) and f.signals["period"] == 2, 5.0, "progress 2")
+        peer.wait_for(lambda f: progress(f) and f.signals["period"] == 2, EVENT_S, "progress 2")
         # 0xFFFFFFFF is 2^32 - 3 periods "ahead" unsigned, behind the plant with wrapping
         # periods: it must not take the plant's grant, nor make it say it is running
         peer.step(0xFFFFFFFF, seq=9)
         mark = len(peer.heard)
-        peer.drain(0.35)  # housekeeping every 100 ms
+        peer.wait_for(progress, EVENT_S, "BENCH_PROGRESS of the housekeeping (every 100 ms)")
         said = [f for f in peer.heard[mark:] if progress(f)]
         assert said and all(f.signals["state"] == 0 and f.signals["seq"] == 1
                             and f.signals["period"] == 2 for f in said)
@@ -104,7 +105,7 @@ def test_a_grant_at_the_far_end_of_the_counter_is_rejected(transport: str, chann
         peer.adc(2)
         peer.pwm(Pwm(3))
         peer.wait_for(lambda f: progress(f) and f.signals["seq"] == 2
-                      and f.signals["period"] == 3, 5.0, "progress 3")
+                      and f.signals["period"] == 3, EVENT_S, "progress 3")
         out = plant.stop()
         assert out.returncode == 0, out.stderr
         assert out.counters["rejects"]["stale_period"] >= 1

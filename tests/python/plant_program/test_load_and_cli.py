@@ -133,7 +133,7 @@ def test_bad_flag_value_exits_2(flag: str, value: str) -> None:
 def test_signal_stops_cleanly_with_counters(transport: str, channel: str, tmp_path: Path,
                                             pacing: str, sig: int) -> None:
     plant = PlantProcess(transport, channel, tmp_path, pacing, "--rt-priority", "0")
-    time.sleep(0.05)
+    time.sleep(0.05)  # (a real-time plant runs some periods; none is needed in lockstep)
     result = plant.stop(sig)
     assert result.returncode == 0, result.stderr
     c = result.counters

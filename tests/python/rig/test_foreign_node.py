@@ -12,6 +12,7 @@ import uuid
 from pathlib import Path
 
 import pytest
+from waits import EVENT_S
 
 from rig import _paths
 from rig.bus import unixcan
@@ -30,7 +31,7 @@ def test_a_node_listening_on_the_channel_is_welcome(tmp_path: Path,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         folder = unixcan.base_dir() / channel
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + EVENT_S
         while not list(folder.glob("*.sock")) and time.monotonic() < deadline:
             time.sleep(0.01)
         out = tmp_path / "run"

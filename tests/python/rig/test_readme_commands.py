@@ -28,8 +28,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from waits import EVENT_S, wait_until
 
 from rig import cli, cliargs
+from rig.bus import unixcan
 
 ROOT = Path(__file__).resolve().parents[3]
 README = ROOT / "README.md"
@@ -232,26 +234,45 @@ def _send_drive_status(channel: str, env: dict[str, str]) -> None:
             "data = m.encode({'state': 2, 'ctrl_mode': 1, 'fw_mode': 0, 'fault_code': 0,"
             " 'cmd_status': 0, 'rx_rejected': 0, 'polarity_ok': 1, 'est_valid': 1})\n"
             f"with can.Bus(interface='unixcan', channel={channel!r}) as bus:\n"
-            "    time.sleep(0.3)\n"
             "    bus.send(can.Message(arbitration_id=m.frame_id, is_extended_id=False,"
-            " data=data))\n"
-            "    time.sleep(0.3)\n")
-    subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=60)
+            " data=data))\n")
+    subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=EVENT_S)
+
+
+def _nodes(channel: str) -> int:
+    return len(list(unixcan.channel_dir(channel).glob("*.sock")))
+
+
+def _await_join(p: subprocess.Popen[bytes] | subprocess.Popen[str], channel: str,
+                before: int) -> None:
+    """Waits until the program started has joined the channel (its socket is there)."""
+    wait_until(lambda: p.poll() is not None or _nodes(channel) > before,
+               f"{channel}: the program joining the channel", poll_s=0.02)
 
 
 def _until_interrupted(cmd: list[str], cwd: Path, env: dict[str, str]) -> str:
-    """Starts a logger, sends it a frame, interrupts it as a user would (Ctrl-C)."""
-    p = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE,
-                         stderr=subprocess.STDOUT, text=True)
+    """Starts a logger, sends it a frame once it is on the channel, interrupts it as a user
+    would (Ctrl-C) once it has printed the frame."""
+    channel = _channel_of(cmd)
+    before = _nodes(channel)
+    p = subprocess.Popen(cmd, cwd=cwd, env={**env, "PYTHONUNBUFFERED": "1"},
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    assert p.stdout is not None
+    out = b""
     try:
-        time.sleep(2.0)
-        _send_drive_status(_channel_of(cmd), env)
-        time.sleep(0.5)
+        _await_join(p, channel, before)
+        _send_drive_status(channel, env)
+        deadline = time.monotonic() + EVENT_S
+        while not re.search(rb"ID:\s+0*120\b", out) and p.poll() is None \
+                and time.monotonic() < deadline:
+            if select.select([p.stdout], [], [], 0.1)[0]:
+                out += os.read(p.stdout.fileno(), 65536)
     finally:
         p.send_signal(signal.SIGINT)
-        out, _ = p.communicate(timeout=30)
-    assert "error" not in out.lower(), out
-    return out
+        rest, _ = p.communicate(timeout=EVENT_S)
+    text = (out + rest).decode(errors="replace")
+    assert "error" not in text.lower(), text
+    return text
 
 
 def _channel_of(cmd: list[str]) -> str:
@@ -263,15 +284,18 @@ def _on_a_terminal(cmd: list[str], cwd: Path, env: dict[str, str]) -> str:
     screen it drew."""
     master, slave = os.openpty()
     term_env = {**env, "TERM": "xterm", "LINES": "40", "COLUMNS": "120"}
+    channel = _channel_of(cmd)
+    before = _nodes(channel)
     p = subprocess.Popen(cmd, cwd=cwd, env=term_env, stdin=slave, stdout=slave, stderr=slave,
                          start_new_session=True)
     os.close(slave)
     screen = b""
 
-    def read_for(seconds: float) -> None:
+    def read_for(seconds: float, until: bytes | None = None) -> None:
+        """Reads the screen for `seconds`, or until `until` is on it."""
         nonlocal screen
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        while time.monotonic() < end and (until is None or until not in screen):
             ready, _, _ = select.select([master], [], [], 0.1)
             if ready:
                 try:
@@ -280,11 +304,11 @@ def _on_a_terminal(cmd: list[str], cwd: Path, env: dict[str, str]) -> str:
                     return
 
     try:
-        read_for(3.0)
-        _send_drive_status(_channel_of(cmd), env)
-        read_for(2.0)
+        _await_join(p, channel, before)
+        _send_drive_status(channel, env)
+        read_for(EVENT_S, until=b"state: POLARITY")
         os.write(master, b"q")
-        assert p.wait(timeout=20) == 0
+        assert p.wait(timeout=EVENT_S) == 0
         read_for(0.3)
     finally:
         if p.poll() is None:

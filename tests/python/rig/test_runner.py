@@ -19,9 +19,9 @@ import psutil
 import pytest
 import rerun as rr
 import scenario_text
+from waits import EVENT_S, RUN_S
 
 from rig import scenario as sc
-from rig.link.clock import STALL_S
 from rig.results import recording, verdict
 from rig.results.result import RunResult
 from rig.run import runner
@@ -59,7 +59,7 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def _ready_pid(path: Path, timeout: float = 10.0) -> int:
+def _ready_pid(path: Path, timeout: float = EVENT_S) -> int:
     deadline = time.monotonic() + timeout
     while not path.exists():
         assert time.monotonic() < deadline, f"{path} never appeared"
@@ -170,7 +170,7 @@ def test_stalled_lockstep_fails_with_the_period(with_fakes: Path, channel: str,
     r = runner.run_scenario(s, runner.RunOptions(
         out=tmp_path / "out", bus="unixcan", channel=channel, progress=False, record=False,
         stall_s=0.8, env={"FAKE_PLANT_FREEZE_AT": "700"}))
-    assert time.monotonic() - t0 < 10
+    assert time.monotonic() - t0 < EVENT_S  # (a stall never noticed would hang here)
     assert r.status == "failed" and r.failure.kind == "stall"
     assert "plant at period 700, granted 1000" in r.failure.message
 
@@ -216,16 +216,22 @@ def test_realtime_mode(with_fakes: Path, channel: str, tmp_path: Path) -> None:
     # else its trace starts after the window began: it joined the bus late
 
 
-# A rig that missed a crash or a kill would notice only when the lockstep stalls (STALL_S
-# without progress); one that watches its children ends within ~0.3 s of CPU, 1-2.5 s of
-# wall time on a loaded 2-core machine. Half the stall time tells the two apart without
-# timing the machine.
-PROMPT_S = STALL_S / 2
+# A rig that missed a crash or a kill would notice only when the lockstep stalls (its stall
+# time-out without progress); one that watches its children ends within ~0.3 s of CPU, 1-2.5 s
+# of wall time on a loaded 2-core machine. The rig under test gets a stall time-out of
+# LONG_STALL_S (rig.link.clock.STALL_S, 10 s, set before the run's options are imported), so
+# half of it tells the two apart on any machine, however slow.
+LONG_STALL_S = RUN_S
+PROMPT_S = LONG_STALL_S / 2
+RIG_WITH_LONG_STALL = ("import sys; import rig.link.clock as clock; "
+                       "clock.STALL_S = float(sys.argv.pop(1)); "
+                       "from rig.cli import main; sys.exit(main())")
 
 
 def _rig(args: list[str], env_extra: dict[str, str]) -> subprocess.Popen[str]:
     env = dict(os.environ, **env_extra)
-    return subprocess.Popen([sys.executable, "-m", "rig", "run", *args], env=env,
+    return subprocess.Popen([sys.executable, "-c", RIG_WITH_LONG_STALL, str(LONG_STALL_S),
+                             "run", *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
@@ -235,7 +241,7 @@ def test_firmware_crash_ends_the_run_before_the_stall_timeout(with_fakes: Path, 
     out = tmp_path / "out"
     proc = _rig([str(path), "--bus", "unixcan", "--channel", channel, "--out", str(out)],
                 {"FAKE_FW_CRASH_AT": "3000"})
-    text, _ = proc.communicate(timeout=60)
+    text, _ = proc.communicate(timeout=LONG_STALL_S + EVENT_S)
     t_end = time.time()
     assert proc.returncode == 1, text
     crash = re.search(r"injected crash at period 3000 \(t=([0-9.]+)\)",
@@ -263,7 +269,7 @@ def test_kill_mid_run_ends_before_the_stall_timeout(with_fakes: Path, channel: s
         os.kill(plant_pid, signal.SIGKILL)
     else:
         proc.send_signal(signal.SIGINT)  # Ctrl-C
-    text, _ = proc.communicate(timeout=30)
+    text, _ = proc.communicate(timeout=LONG_STALL_S + EVENT_S)
     elapsed = time.monotonic() - t0
     print(f"ended {elapsed:.3f} s after the {target} event")
     assert elapsed < PROMPT_S, text
@@ -276,7 +282,7 @@ def test_kill_mid_run_ends_before_the_stall_timeout(with_fakes: Path, channel: s
         assert proc.returncode == 130
         assert data["status"] == "interrupted"
     for pid in (plant_pid, fw_pid):
-        deadline = time.monotonic() + 1.0
+        deadline = time.monotonic() + EVENT_S
         while _alive(pid) and time.monotonic() < deadline:
             time.sleep(0.02)
         assert not _alive(pid)

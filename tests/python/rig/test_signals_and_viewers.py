@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 
 import pytest
+from waits import EVENT_S
 
 from rig.results import webview
 
@@ -116,7 +117,7 @@ def test_live_without_a_display_uses_the_web_viewer_and_ends(tmp_path: Path,
     assert proc.returncode == 0, text
     assert "no display here" in text and "web viewer" in text and f":{web}/" in text, text
     assert json.loads((out / "result.json").read_text())["passed"]
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + EVENT_S
     while (_listening(web) or _listening(grpc)) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _listening(web) and not _listening(grpc)  # the server ended with the run
@@ -181,7 +182,7 @@ def test_view_web_stopped_by_sigterm_frees_both_ports(tmp_path: Path) -> None:
         time.sleep(0.1)
     proc.send_signal(signal.SIGTERM)
     proc.communicate(timeout=30)
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + EVENT_S
     while (_listening(web) or _listening(grpc)) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _listening(web) and not _listening(grpc)
@@ -231,7 +232,7 @@ def test_view_web_killed_by_any_signal_takes_the_server_with_it(tmp_path: Path,
     assert server, "the web viewer is not a child of the rig"
     proc.send_signal(getattr(signal, sig))
     proc.communicate(timeout=30)
-    deadline = time.monotonic() + 20
+    deadline = time.monotonic() + EVENT_S
     while (any(not _gone(p) for p in server) or _listening(web) or _listening(grpc)) \
             and time.monotonic() < deadline:
         time.sleep(0.1)
