@@ -2,6 +2,7 @@
 
 usage: python tools/flake_summary.py PASS1.xml PASS2.xml ...  (pytest's JUnit XML files)
 
+Each argument is one pass: a JUnit file, or several joined by commas.
 Prints every test that did not pass in some pass, by name, with the passes it failed in; a
 test that failed in some passes and passed in others is a flake, one that failed in every
 pass fails outright. Exit 0 when no test failed in any pass, 1 when one did, 2 when a pass
@@ -34,8 +35,13 @@ def main(argv: list[str]) -> int:
     per_pass: list[set[str]] = []
     unreadable = False
     for i, name in enumerate(argv, 1):
+        # one pass may be several JUnit files, joined by commas (./hil test's two runs)
+        failed, run = set(), 0
         try:
-            failed, run = failed_tests(Path(name))
+            for part in name.split(","):
+                f, n = failed_tests(Path(part))
+                failed |= f
+                run += n
         except (OSError, ET.ParseError) as exc:
             print(f"pass {i}: no readable JUnit file ({name}: {exc})")
             unreadable = True
