@@ -113,32 +113,63 @@ def test_costs_are_cached_per_build_and_journal(counted: dict[str, object],
     assert first.differs == ""  # the same compiler's rounding: identical to the bit
 
 
+def _isr_state_offsets(path: Path) -> list[int]:
+    """The byte offsets of every ISR record's state machine state in a core journal."""
+    from rig.target_m4 import journal as jmod
+
+    j = jmod.Journal(path)
+    raw = path.read_bytes()
+    adc, pwm = jmod._pad(j.size("fw_adc_t")), jmod._pad(j.size("fw_pwm_t"))
+    offsets, off = [], 28
+    while off < len(raw):
+        tag = chr(int.from_bytes(raw[off:off + 4], "little"))
+        if tag == "I":
+            offsets.append(off + 8 + 4 + adc + pwm + 4)
+        off += 8 + j._payload_size(tag)
+    return offsets
+
+
+def _with_states_moved(journal: Path, out: Path, n: int) -> Path:
+    """The journal with the host's state machine state of its last n ISRs changed."""
+    raw = bytearray(journal.read_bytes())
+    for at in _isr_state_offsets(journal)[-n:]:
+        state = int.from_bytes(raw[at:at + 4], "little", signed=True)
+        raw[at:at + 4] = (state + 1).to_bytes(4, "little", signed=True)
+    out.write_bytes(bytes(raw))
+    return out
+
+
 @needs_images
 def test_a_target_on_the_hosts_path_is_counted_one_that_left_it_is_not(
         counted: dict[str, object], tmp_path: Path) -> None:
     """A build that rounds differently makes the last bits of the core's state differ from
-    the host's while every period takes the host's path: the counts stand, and say so. A
-    target that ends a period in another state machine state did other work: no counts."""
+    the host's while its periods take the host's path (a decision may fall a period apart):
+    the counts stand, and say so. A target that ends more than 1 % of its periods in another
+    state machine state than the host's did other work: no counts."""
     journal = counted["journal"]
     assert isinstance(journal, Path)
     exact = cost.measure(journal, cache=tmp_path)
     raw = bytearray(journal.read_bytes())
-    # the last ISR record ends with the host's core-state CRC and its state machine state
     last_bits = tmp_path / "last-bits.journal"
     crc_changed = bytearray(raw)
-    crc_changed[-8] ^= 1
+    crc_changed[-8] ^= 1  # the last ISR's core-state CRC
     last_bits.write_bytes(bytes(crc_changed))
     counted_anyway = cost.measure(last_bits, cache=tmp_path)
     assert not counted_anyway.cached  # another journal: measured, not the cache's
     assert np.array_equal(counted_anyway.instructions, exact.instructions)
-    assert "the core state in 1" in counted_anyway.differs
+    assert "the core state in 1 of" in counted_anyway.differs
+    assert "and 0 period(s) off the path" in counted_anyway.differs
     again = cost.measure(last_bits, cache=tmp_path)
     assert again.cached and again.differs == counted_anyway.differs
-    other_path = tmp_path / "other-path.journal"
-    state = int.from_bytes(raw[-4:], "little", signed=True)
-    other_path.write_bytes(bytes(raw[:-4]) + (state + 1).to_bytes(4, "little", signed=True))
-    with pytest.raises(cost.TargetMismatch, match="left the host's path"):
-        cost.measure(other_path, cache=tmp_path)
+    n_isr = len(_isr_state_offsets(journal))
+    assert n_isr == len(exact.instructions) > 300
+    one_apart = cost.measure(_with_states_moved(journal, tmp_path / "one.journal", 1),
+                             cache=tmp_path)
+    assert "and 1 period(s) off the path" in one_apart.differs
+    many = max(3, n_isr // 100 + 1)
+    with pytest.raises(cost.TargetMismatch, match=f"left the host's path: {many} of {n_isr}"):
+        cost.measure(_with_states_moved(journal, tmp_path / "many.journal", many),
+                     cache=tmp_path)
 
 
 def test_columns_line_up_with_the_capture() -> None:
