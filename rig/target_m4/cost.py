@@ -17,9 +17,9 @@ outputs are the rule (the same compiler's rounding on both). A host that rounds 
 (fused multiply-add, another compiler) gives outputs that differ in their last bits: when every
 period still took the host's path (``replay.Comparison.same_path``: the same state machine
 states, gate enables and conversions, compares within a few ticks, in all but 1 % of the
-periods) the counts stand, with the
-differences said in ``IsrCosts.differs``; a run whose target left the host's path has no cost
-values (``TargetMismatch``), since they would not be the cost of the same computation.
+periods) the counts stand, with the differences said in ``IsrCosts.differs``; a run whose
+target left the host's path has no cost values (``TargetMismatch``), since they would not be
+the cost of the same computation.
 """
 
 from __future__ import annotations

@@ -291,28 +291,28 @@ static const char *const seeded_check_names[FC_N] = {
     "speed loop's integral kept", "running after", "speed back", "position back",
     "caught in time", "the implausible-current fault"};
 
-static int seeded_tally;          /* 1: count the flip checks' failures instead of CHECK */
+static int seeded_tally;          /* 1: count the seeded checks' failures instead of CHECK */
 static unsigned seeded_failed;    /* the checks (bits) failed by the case being run */
-static int seeded_seed;           /* the noise seed of the flip cases (0: the profile's) */
+static int seeded_seed;           /* the noise seed of the seeded cases (0: the profile's) */
 
-#define SEEDED_CHECK(id, cond, ...)                                                          \
-    do {                                                                                   \
-        if (seeded_tally) {                                                                  \
-            if (!(cond)) {                                                                 \
-                seeded_failed |= 1u << (id);                                                 \
-            }                                                                              \
-        } else {                                                                           \
-            CHECK(cond, __VA_ARGS__);                                                      \
-        }                                                                                  \
+#define SEEDED_CHECK(id, cond, ...)                                                         \
+    do {                                                                                    \
+        if (seeded_tally) {                                                                 \
+            if (!(cond)) {                                                                  \
+                seeded_failed |= 1u << (id);                                                \
+            }                                                                               \
+        } else {                                                                            \
+            CHECK(cond, __VA_ARGS__);                                                       \
+        }                                                                                   \
     } while (0)
-#define SEEDED_PRINTF(...)                                                                   \
-    do {                                                                                   \
-        if (!seeded_tally) {                                                                 \
-            printf(__VA_ARGS__);                                                           \
-        }                                                                                  \
+#define SEEDED_PRINTF(...)                                                                  \
+    do {                                                                                    \
+        if (!seeded_tally) {                                                                \
+            printf(__VA_ARGS__);                                                            \
+        }                                                                                   \
     } while (0)
 
-static void flip_open(sim_t *s, const char *profile)
+static void seeded_open(sim_t *s, const char *profile)
 {
     char set[64];
     const char *sets[] = {set, NULL};
@@ -327,7 +327,7 @@ static void settle_then_flip(sim_t *s, const char *profile, double watch_window_
                              long before_load, double load, long after_load, const char *name)
 {
     long k;
-    flip_open(s, profile);
+    seeded_open(s, profile);
     if (watch_window_ms >= 0.0) {
         CHECK(fw_param_set(s->core, FW_PID_POL_WATCH_WINDOW_MS, (float)watch_window_ms) ==
                   FW_STATUS_OK, "%s: watch window", name);
@@ -655,7 +655,7 @@ static void current_plausibility(int kind, long within, const char *name)
     plaus_fault_t f;
     long k, caught = -1;
     fw_status_t st;
-    flip_open(s, "paper");
+    seeded_open(s, "paper");
     f.kind = 0;
     f.lcg = 12345u;
     f.mid = sim_current_code(s, 0.0);
