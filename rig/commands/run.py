@@ -6,7 +6,7 @@ import argparse
 import contextlib
 import fnmatch
 import json
-import subprocess
+import os
 import sys
 import time
 from pathlib import Path
@@ -564,8 +564,16 @@ def cmd_view(args: argparse.Namespace) -> int:
                   "address it prints in a browser", file=sys.stderr)
             return 3
         port = ["--port", str(args.grpc_port)] if args.grpc_port else []
-        return subprocess.call([sys.executable, "-m", "rerun", "--bind", args.bind, *port,
-                                *map(str, files)])
+        try:
+            viewer = webview.rerun_binary()
+        except webview.WebViewerError as e:
+            print(f"rig view: {e}", file=sys.stderr)
+            return 2
+        # the viewer takes this process's place: a signal meant for `rig view` (Ctrl-C, a
+        # test's or a supervisor's SIGTERM) reaches the window itself, none is left behind
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.execv(viewer, [viewer, "--bind", args.bind, *port, *map(str, files)])
     return _view_web(args, files)
 
 

@@ -159,15 +159,57 @@ def test_view_without_a_display_says_use_web(tmp_path: Path) -> None:
     assert done.returncode == 3, done.stderr
     assert "no display here" in done.stderr and f"rig view --web {out}" in done.stderr
     assert "winit" not in done.stderr and "Traceback" not in done.stderr
-    # the native viewer's server listens on this machine only (it would take a display to
-    # get further: one that does not answer ends it right after the server is up)
+    # the native viewer's gRPC server listens on this machine only. Its window needs an X
+    # server: a silent one (it takes the connection, never answers) holds the viewer in its
+    # handshake, so the server is seen listening whatever order the viewer's threads run in
+    # (with a display that refuses, the window's error could end it before the server was up)
+    x_server, display = _silent_x_server()
     grpc = webview.free_port()
-    done = subprocess.run([sys.executable, "-m", "rig", "view", str(out), "--grpc-port",
-                           str(grpc)], env=_env(DISPLAY=":97"), capture_output=True,
-                          text=True, timeout=60)
-    log = done.stdout + done.stderr
-    assert f"Listening for gRPC connections on 127.0.0.1:{grpc}" in log, log
-    assert "0.0.0.0" not in log, log
+    proc = subprocess.Popen([sys.executable, "-m", "rig", "view", str(out), "--grpc-port",
+                             str(grpc)], env=_env(DISPLAY=display), text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while not (binds := _tcp_listeners(grpc)):
+            assert proc.poll() is None, proc.communicate()[0]
+            assert time.monotonic() < deadline, "the viewer's gRPC server never listened"
+            time.sleep(0.05)
+        assert binds == {"127.0.0.1"}, binds
+        # `rig view` is the viewer (exec): SIGTERM ends the window and frees the port
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=EVENT_S)
+        assert not _tcp_listeners(grpc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        x_server.close()
+
+
+def _silent_x_server() -> tuple[socket.socket, str]:
+    """A TCP listener on 127.0.0.1:6000+N (X display N), and the DISPLAY that names it."""
+    for port in range(6100, 7000):
+        server = socket.socket()
+        try:
+            server.bind(("127.0.0.1", port))
+        except OSError:
+            server.close()
+            continue
+        server.listen(4)
+        return server, f"127.0.0.1:{port - 6000}"
+    raise AssertionError("no free port in 6100-6999 for an X display")
+
+
+def _tcp_listeners(port: int) -> set[str]:
+    """The IPv4 addresses a socket on this machine listens on at ``port`` (/proc/net/tcp:
+    little-endian hex address, state 0A is LISTEN)."""
+    found: set[str] = set()
+    for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
+        local, state = line.split()[1], line.split()[3]
+        address, hex_port = local.split(":")
+        if state == "0A" and int(hex_port, 16) == port:
+            found.add(socket.inet_ntoa(bytes.fromhex(address)[::-1]))
+    return found
 
 
 def test_view_web_stopped_by_sigterm_frees_both_ports(tmp_path: Path) -> None:
