@@ -7,8 +7,7 @@ import sys
 from pathlib import Path
 
 from rig import cliargs
-
-EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ENV, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
 EPILOG = """\
 steps (in the order 'all' runs them; each starts and ends with the drive disabled and the
@@ -108,7 +107,7 @@ def cmd_commission(args: argparse.Namespace) -> int:
     if args.save_params is not None:
         if not _save_params(args.save_params, run.data, desc):
             return EXIT_FAIL
-    return EXIT_PASS if run.passed else EXIT_FAIL
+    return EXIT_OK if run.passed else EXIT_FAIL
 
 
 def _save_target_problem(path: Path) -> str | None:

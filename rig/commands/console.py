@@ -8,8 +8,7 @@ import sys
 from collections.abc import Iterable, Iterator
 
 from rig import cliargs
-
-EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_OK, EXIT_USAGE
 
 EPILOG = """\
 interactive (a terminal on stdin): line editing and history (readline), TAB completes
@@ -77,7 +76,7 @@ def cmd_console(args: argparse.Namespace) -> int:
         return _scripted(client, (line.rstrip("\r\n") for line in sys.stdin), args.keep_going)
     except ConsoleLinkError as exc:
         print(f"rig console: {exc}", file=sys.stderr)
-        return EXIT_LINK
+        return EXIT_ENV
     finally:
         client.close()
 
@@ -97,7 +96,7 @@ def _scripted(client: object, lines: Iterable[str], keep_going: bool) -> int:
             return EXIT_USAGE
         print("\n".join(reply.lines(client.grammar.data_prefix)), flush=True)
         if not reply.ok:
-            status = EXIT_ERR
+            status = EXIT_FAIL
             if not keep_going:
                 break
     return status
@@ -154,4 +153,4 @@ def _interactive(client: object) -> int:
                 continue
             print("\n".join(reply.lines(g.data_prefix)), flush=True)
             if not reply.ok:
-                status = EXIT_ERR
+                status = EXIT_FAIL

@@ -15,8 +15,8 @@ import time
 from pathlib import Path
 
 from rig import cliargs
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
-EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_ENV, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 PRINT_EVERY_S = 1.0
 
 

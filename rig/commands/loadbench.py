@@ -8,8 +8,7 @@ import sys
 from pathlib import Path
 
 from rig import cliargs
-
-EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_OK, EXIT_USAGE
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -59,7 +58,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                                   watchdog_timeout_ms=args.watchdog_ms))
     except (OSError, ValueError) as exc:
         print(f"rig loadbench serve: {exc}", file=sys.stderr)
-        return EXIT_ERR
+        return EXIT_FAIL
 
 
 def cmd_read(args: argparse.Namespace) -> int:
@@ -80,6 +79,6 @@ def cmd_read(args: argparse.Namespace) -> int:
                    "input": lb.read_table("input")}
     except LoadBenchError as exc:
         print(f"rig loadbench read: {exc}", file=sys.stderr)
-        return EXIT_LINK
+        return EXIT_ENV
     print(json.dumps(out, indent=1))
     return EXIT_OK

@@ -6,8 +6,7 @@ import argparse
 import sys
 
 from rig import cliargs
-
-EXIT_OK, EXIT_ERR, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_OK, EXIT_USAGE
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -59,7 +58,7 @@ def cmd_param(args: argparse.Namespace) -> int:
         link = BusLink.open(bus, channel)
     except (LinkError, ValueError) as exc:
         print(f"rig param: {exc}", file=sys.stderr)
-        return EXIT_LINK
+        return EXIT_ENV
     client = ParamClient(link, timeout_s=args.timeout)
     try:
         act = args.param_command
@@ -83,9 +82,9 @@ def cmd_param(args: argparse.Namespace) -> int:
         return EXIT_OK
     except ParamTimeout as exc:
         print(f"rig param: {exc}", file=sys.stderr)
-        return EXIT_LINK
+        return EXIT_ENV
     except ParamError as exc:
         print(f"rig param: {exc}", file=sys.stderr)
-        return EXIT_ERR
+        return EXIT_FAIL
     finally:
         link.close()

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rig import cliargs
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
 if TYPE_CHECKING:
     from rig.results.result import RunResult
@@ -170,13 +171,12 @@ def with_seed(target: Any, seed: int) -> Any:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from rig.run import runner
 
     if args.junit is not None:
         problem = junit_target_problem(args.junit, args.out)
         if problem is not None:
             print(f"rig run: --junit: {problem}", file=sys.stderr)
-            return runner.EXIT_USAGE
+            return EXIT_USAGE
     said: list[str] = []  # what stopped a run that wrote nothing (for the JUnit file)
     where: list[Path] = []
     started = time.time()
@@ -208,9 +208,9 @@ def _cmd_run(args: argparse.Namespace, said: list[str], where: list[Path], guard
     try:
         target = scenario.load(args.target)
     except FileNotFoundError as exc:
-        return _refuse(said, str(exc), runner.EXIT_USAGE)
+        return _refuse(said, str(exc), EXIT_USAGE)
     except scenario.ScenarioError as exc:
-        return _refuse(said, f"invalid scenario:\n{exc}", runner.EXIT_USAGE)
+        return _refuse(said, f"invalid scenario:\n{exc}", EXIT_USAGE)
     if args.seed is not None:
         target = with_seed(target, args.seed)
     from rig.regression import baseline
@@ -218,26 +218,26 @@ def _cmd_run(args: argparse.Namespace, said: list[str], where: list[Path], guard
     try:  # a malformed baseline stops the run before anything starts, not after it
         baseline.check_mode(args.baseline)
     except baseline.BaselineError as exc:
-        return _refuse(said, str(exc), runner.EXIT_USAGE)
+        return _refuse(said, str(exc), EXIT_USAGE)
     scenarios = target.scenarios if isinstance(target, scenario.Suite) else (target,)
     if args.jobs > 1 and _bus_of(args) != "inproc":
         return _refuse(said, "--jobs runs a suite on the in-process bench (--bus inproc); on a "
-                       "bus the scenarios share its channel one at a time", runner.EXIT_USAGE)
+                       "bus the scenarios share its channel one at a time", EXIT_USAGE)
     if args.cluster is not None and (_bus_of(args) != "inproc"
                                      or not isinstance(target, scenario.Suite)):
         return _refuse(said, "--cluster runs a suite on the in-process bench (--bus inproc "
-                       "and a suite)", runner.EXIT_USAGE)
+                       "and a suite)", EXIT_USAGE)
     if args.can_log is not None and _bus_of(args) == "inproc":
         return _refuse(said, "--can-log logs a bus; in process there is none (`rig export DIR "
-                       "--can-log FILE` rebuilds a log from a run's traces)", runner.EXIT_USAGE)
+                       "--can-log FILE` rebuilds a log from a run's traces)", EXIT_USAGE)
     if args.realtime and args.bus == "inproc":
         return _refuse(said, "--realtime needs a bus (the in-process bench runs in lockstep "
-                       "only)", runner.EXIT_USAGE)
+                       "only)", EXIT_USAGE)
     if args.realtime:
         bad = [s.name for s in scenarios if not s.realtime_ok]
         if bad:
             return _refuse(said, f"--realtime is not allowed for {', '.join(bad)} "
-                           "(run.realtime_ok = false)", runner.EXIT_USAGE)
+                           "(run.realtime_ok = false)", EXIT_USAGE)
     out = args.out or runner.default_out(target.name)
     where.append(out)
     try:
@@ -285,12 +285,11 @@ def junit_target_problem(dest: Path, out: Path | None) -> str | None:
 
 def _run(args: argparse.Namespace, target: Any, out: Path, guard: Any) -> int:
     from rig.results import webview
-    from rig.run import runner
 
     if args.web and not args.live:
         print("rig run: --web goes with --live (a finished run: rig view --web DIR)",
               file=sys.stderr)
-        return runner.EXIT_USAGE
+        return EXIT_USAGE
     if args.live and not args.web and args.bus != "inproc" and not webview.has_display():
         print(f"rig run: {webview.NO_DISPLAY}: the live view goes to the web viewer",
               file=sys.stderr)
@@ -302,7 +301,7 @@ def _run(args: argparse.Namespace, target: Any, out: Path, guard: Any) -> int:
                                grpc_port=args.grpc_port or webview.DEFAULT_GRPC_PORT)
     except webview.WebViewerError as exc:
         print(f"rig run: {exc}", file=sys.stderr)
-        return runner.EXIT_ENV
+        return EXIT_ENV
     with viewer:
         print(f"rig run: live view in the web viewer at {viewer.url()} (until the run ends)",
               file=sys.stderr)
@@ -343,15 +342,15 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
                       f"({sum(r.passed for r in suite.results)}/{len(target.scenarios)} passed)"
                       f" -> {out}/report.md", file=sys.stderr)
                 worst = max((runner.exit_code(r.passed, r.status) for r in suite.results),
-                            default=runner.EXIT_FAIL)
-                return runner.EXIT_PASS if ok else max(worst, runner.EXIT_FAIL)
+                            default=EXIT_FAIL)
+                return EXIT_OK if ok else max(worst, EXIT_FAIL)
             result = runner.run_scenario(target, opts)
             guard.hold()
     except (KeyboardInterrupt, Terminated) as exc:
         status = written_verdict(out, started)
         if status is None:
             print(f"rig run: interrupted; partial results in {out}", file=sys.stderr)
-            return runner.EXIT_INTERRUPTED
+            return EXIT_INTERRUPTED
         guard.hold()
         print(f"rig run: {type(exc).__name__} came after the verdict was written "
               f"({out}/result.json): the exit status is the verdict's ({status})",
@@ -359,7 +358,7 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
         return status
     except (outputs.OutputError, ClusterError) as exc:
         print(f"rig run: {exc}", file=sys.stderr)
-        return runner.EXIT_ENV
+        return EXIT_ENV
     _print_verdict(result)
     print(f"  -> {out}/report.md", file=sys.stderr)
     return runner.exit_code(result.passed, result.status)
@@ -384,10 +383,10 @@ def written_verdict(out: Path, since: float) -> int | None:
         if not data.get("complete") or not isinstance(entries, list):
             return None
         if data.get("passed"):
-            return runner.EXIT_PASS
+            return EXIT_OK
         worst = max((runner.exit_code(bool(e.get("passed")), str(e.get("status")))
-                     for e in entries if isinstance(e, dict)), default=runner.EXIT_FAIL)
-        return max(worst, runner.EXIT_FAIL)
+                     for e in entries if isinstance(e, dict)), default=EXIT_FAIL)
+        return max(worst, EXIT_FAIL)
     if data.get("status") in (None, "interrupted"):
         return None
     return runner.exit_code(bool(data.get("passed")), str(data.get("status")))

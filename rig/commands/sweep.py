@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from rig import cliargs
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
 EPILOG = """\
 axes (--param NAME=SPEC, repeatable):
@@ -99,7 +100,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise spec.SpecError(f"--metric {args.metric}: unknown (rig list --metrics)")
     except (FileNotFoundError, scenario.ScenarioError, spec.SpecError, ValueError) as exc:
         print(f"rig sweep: {exc}", file=sys.stderr)
-        return runner.EXIT_USAGE
+        return EXIT_USAGE
     out = args.out or runner.default_out(f"sweep-{sc.name}")
     out.mkdir(parents=True, exist_ok=True)
     # the points' scratch folders, under one this process removes whatever ends the sweep
@@ -133,7 +134,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                                     outcome=outcome)
     except (OSError, TimeoutError) as exc:
         print(f"rig sweep: cannot reach the cluster: {exc}", file=sys.stderr)
-        return runner.EXIT_ENV
+        return EXIT_ENV
     except (KeyboardInterrupt, Terminated):
         # the points that finished are kept: the table of what there is (perhaps no row)
         info["interrupted_after"] = len(done)
@@ -143,7 +144,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         files = _write(rows, axes, info, out)
         print(f"rig sweep: interrupted after {len(done)} of {len(tasks)} points; their "
               f"{len(rows)} rows are in {out} ({', '.join(files)})", file=sys.stderr)
-        return runner.EXIT_INTERRUPTED
+        return EXIT_INTERRUPTED
     finally:
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
@@ -157,7 +158,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         print(f"rig sweep: {len(outcome.workers_lost)} workers lost, {outcome.rerun} points "
               "run again on another worker"
               + (f"; {outcome.gave_up}" if outcome.gave_up else ""), file=sys.stderr)
-    return runner.EXIT_PASS if passed == len(rows) else runner.EXIT_FAIL
+    return EXIT_OK if passed == len(rows) else EXIT_FAIL
 
 
 def _write(rows: list[dict[str, Any]], axes: list[Any], info: dict[str, Any],

@@ -9,6 +9,7 @@ import tempfile
 from pathlib import Path
 
 from rig import cliargs
+from rig.exit_status import EXIT_ENV, EXIT_USAGE
 from rig.target_m4 import scenarios
 
 
@@ -38,7 +39,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 MARK = ".hil-target-compare"  # in an --out folder this command made: the only kind it reuses
-EXIT_USAGE, EXIT_ENV = 2, 3
 
 
 def out_problem(out: Path) -> str | None:

@@ -14,8 +14,7 @@ import time
 from pathlib import Path
 
 from rig import cliargs
-
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_ENV, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_OK, EXIT_USAGE
 
 EPILOG = """\
 What it starts: plant_rt and fw_host in real time (--realtime: SCHED_FIFO and mlockall where
@@ -116,7 +115,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         except ChildFailed as exc:
             started = bench.address is not None
             print(f"rig up: {exc}", file=sys.stderr)
-            status = EXIT_FAILED if started else EXIT_ENV
+            status = EXIT_FAIL if started else EXIT_ENV
         except (KeyboardInterrupt, Terminated):
             print("rig up: stopping", file=sys.stderr, flush=True)
         finally:

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from rig import outputs
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_OK
 from rig.results.result import RunResult
 from rig.run.multi_seed import run_over_own_seeds
 from rig.run.options import RunOptions
@@ -15,12 +16,6 @@ from rig.run.single import run_single
 from rig.scenario import Scenario
 
 __all__ = ["RunOptions", "default_out", "exit_code", "run_scenario"]
-
-EXIT_PASS = 0
-EXIT_FAIL = 1
-EXIT_USAGE = 2
-EXIT_ENV = 3
-EXIT_INTERRUPTED = 130
 
 
 def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
@@ -35,7 +30,7 @@ def run_scenario(sc: Scenario, opts: RunOptions) -> RunResult:
 
 def exit_code(passed: bool, status: str) -> int:
     if passed:
-        return EXIT_PASS
+        return EXIT_OK
     if status == "error":
         return EXIT_ENV
     return EXIT_FAIL
