@@ -106,6 +106,18 @@ int sil_bench_counters_json(const sil_bench_t *b, char *buf, size_t len);
 int sil_bench_journal_open(sil_bench_t *b, const char *path, const uint32_t *win_start,
                            const uint32_t *win_len, int n_win, char *err, size_t errlen);
 
+/* The frames the bus programs would send to the rig, kept in order until taken: what a live
+ * view of an in-process run reads (the same frames it reads on the bus). fw_host's TLM_*
+ * every tlm_div speed-loop periods (as its --tlm-div; its DRIVE_STATUS on a change comes
+ * along) and plant_rt's BENCH_TRUTH every truth_every periods (as its --truth-every); 0, 0
+ * turns it off, the default. The control loop computes the same with it on or off. Holds
+ * SIL_BENCH_OUTBOX_FRAMES: take them after each grant (a frame beyond is dropped, counted). */
+#define SIL_BENCH_OUTBOX_FRAMES 4096
+void sil_bench_outbox(sil_bench_t *b, uint32_t tlm_div, uint32_t truth_every);
+/* The oldest frame of the outbox (data: 64 bytes): 1, or 0 when it is empty. */
+int sil_bench_take_frame(sil_bench_t *b, uint32_t *can_id, uint8_t *data, uint8_t *len);
+uint64_t sil_bench_outbox_dropped(const sil_bench_t *b);
+
 /* Fault injection: hook(ctx, adc) sees (and may change) every period's assembled ADC data
  * just before fw_core_isr(). NULL removes it. */
 typedef void (*sil_bench_adc_hook_t)(void *ctx, fw_adc_t *adc);

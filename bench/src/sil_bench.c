@@ -51,6 +51,14 @@ struct sil_bench {
     sil_bench_stats_t st;   /* the plant's side and the timings (the firmware's: fw.cnt) */
     uint64_t plant_rejects[PLANT_REJ_COUNT];
     core_journal_t *journal; /* every core call (sil_bench_journal_open), or NULL */
+    /* what the bus programs would send to the rig, oldest first (sil_bench_outbox) */
+    struct {
+        struct canfd_frame f[SIL_BENCH_OUTBOX_FRAMES];
+        unsigned head, count;
+        uint32_t truth_every; /* BENCH_TRUTH every N periods; 0: none */
+        int on;
+        uint64_t dropped;
+    } outbox;
 };
 
 static fwh_param_list_t fw_sets; /* large: not on the stack (one bench opens at a time) */
@@ -169,8 +177,18 @@ static int16_t core_limits(void *ctx, fw_core_t *core, real_t i_max, real_t spee
     return st;
 }
 
-/* The handlers' sink: VIO_PWM kept for the plant; DRIVE_STATUS and VIO_SYNC_ACK have no
- * receiver here (the bench is in lockstep by construction). */
+static void outbox_put(sil_bench_t *b, const struct canfd_frame *f)
+{
+    if (b->outbox.count == SIL_BENCH_OUTBOX_FRAMES) {
+        b->outbox.dropped++; /* not taken in time: the oldest stays, as a full queue keeps it */
+        return;
+    }
+    b->outbox.f[(b->outbox.head + b->outbox.count) % SIL_BENCH_OUTBOX_FRAMES] = *f;
+    b->outbox.count++;
+}
+
+/* The handlers' sink: VIO_PWM kept for the plant; the rest (DRIVE_STATUS, TLM_*, VIO_SYNC_ACK)
+ * into the outbox when it is on, else nowhere (the bench is in lockstep by construction). */
 static int sink_send(void *ctx, const struct canfd_frame *f, int fd)
 {
     sil_bench_t *b = (sil_bench_t *)ctx;
@@ -178,6 +196,8 @@ static int sink_send(void *ctx, const struct canfd_frame *f, int fd)
     if ((f->can_id & CAN_SFF_MASK) == HIL_VIO_VIO_PWM_FRAME_ID) {
         b->pwm_out = *f;
         b->pwm_sent = 1;
+    } else if (b->outbox.on) {
+        outbox_put(b, f);
     }
     return 0;
 }
@@ -514,6 +534,9 @@ int sil_bench_step(sil_bench_t *b)
     }
     trace(b, b->plant_trace, &truth[0]);
     trace(b, b->plant_trace, &truth[1]);
+    if (b->outbox.truth_every > 0 && b->truth.period % b->outbox.truth_every == 0u) {
+        outbox_put(b, &truth[0]); /* before the period's telemetry, as plant_rt sends it */
+    }
     for (k = 0; k < n_out; k++) {
         int rej;
         const int r = firmware_adc(b, &b->out[k], &pwm);
@@ -601,6 +624,33 @@ int sil_bench_journal_open(sil_bench_t *b, const char *path, const uint32_t *win
     }
     b->journal = core_journal_open(path, &b->fw.core, win_start, win_len, n_win, err, errlen);
     return b->journal != NULL ? 0 : -1;
+}
+
+void sil_bench_outbox(sil_bench_t *b, uint32_t tlm_div, uint32_t truth_every)
+{
+    b->fw.opt.tlm_div = tlm_div;
+    b->outbox.truth_every = truth_every;
+    b->outbox.on = tlm_div > 0 || truth_every > 0;
+}
+
+int sil_bench_take_frame(sil_bench_t *b, uint32_t *can_id, uint8_t *data, uint8_t *len)
+{
+    const struct canfd_frame *f;
+    if (b->outbox.count == 0) {
+        return 0;
+    }
+    f = &b->outbox.f[b->outbox.head];
+    *can_id = f->can_id;
+    *len = f->len;
+    memcpy(data, f->data, f->len);
+    b->outbox.head = (b->outbox.head + 1) % SIL_BENCH_OUTBOX_FRAMES;
+    b->outbox.count--;
+    return 1;
+}
+
+uint64_t sil_bench_outbox_dropped(const sil_bench_t *b)
+{
+    return b->outbox.dropped;
 }
 
 void sil_bench_set_adc_hook(sil_bench_t *b, sil_bench_adc_hook_t hook, void *ctx)

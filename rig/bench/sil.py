@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes as C
 import json
+from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -66,6 +67,13 @@ def library() -> C.CDLL:
         lib.sil_bench_journal_open.argtypes = [C.c_void_p, C.c_char_p, C.POINTER(C.c_uint32),
                                                C.POINTER(C.c_uint32), C.c_int, C.c_char_p,
                                                C.c_size_t]
+        lib.sil_bench_outbox.restype = None
+        lib.sil_bench_outbox.argtypes = [C.c_void_p, C.c_uint32, C.c_uint32]
+        lib.sil_bench_take_frame.restype = C.c_int
+        lib.sil_bench_take_frame.argtypes = [C.c_void_p, C.POINTER(C.c_uint32), C.c_char_p,
+                                             C.POINTER(C.c_uint8)]
+        lib.sil_bench_outbox_dropped.restype = C.c_uint64
+        lib.sil_bench_outbox_dropped.argtypes = [C.c_void_p]
         lib.sil_bench_hardware_param.restype = C.c_char_p
         lib.sil_bench_hardware_param.argtypes = [C.c_int, C.POINTER(C.c_char_p),
                                                  C.POINTER(C.c_double)]
@@ -142,6 +150,26 @@ class SilBench:
                                             len(windows), err, len(err)) != 0:
             raise BenchError(err.value.decode(errors="replace"))
 
+    def outbox(self, tlm_div: int, truth_every: int) -> None:
+        """Keeps the frames the bus programs would send to the rig (fw_host's TLM_* every
+        ``tlm_div`` speed-loop periods, plant_rt's BENCH_TRUTH every ``truth_every``
+        periods) for ``take_frames``; the control loop computes the same either way."""
+        self._lib.sil_bench_outbox(self._handle(), tlm_div, truth_every)
+
+    def take_frames(self) -> list[tuple[int, bytes]]:
+        """The outbox's frames, oldest first, as (can_id, data); it is empty after."""
+        can_id, length, data = C.c_uint32(), C.c_uint8(), C.create_string_buffer(64)
+        frames = []
+        while self._lib.sil_bench_take_frame(self._handle(), C.byref(can_id), data,
+                                             C.byref(length)):
+            frames.append((can_id.value, data.raw[:length.value]))
+        return frames
+
+    @property
+    def outbox_dropped(self) -> int:
+        """Frames the outbox had no room for (not taken in time)."""
+        return int(self._lib.sil_bench_outbox_dropped(self._handle()))
+
     def run_until(self, run_until: int) -> int:
         n = int(self._lib.sil_bench_run_until(self._handle(), run_until))
         if n < 0:
@@ -204,3 +232,28 @@ class BenchPort:
         self.send(msg)
         self.refused_faulted += self.bench.rejected[n:]
         del self.bench.rejected[n:]
+
+
+class OutboxPort:
+    """The frames the bench's programs send to the rig (``SilBench.outbox``) as a bus that a
+    listening link reads (``BusLink.pump``): what a live view of an in-process run hears.
+    Nothing goes the other way (the rig's frames go in through ``BenchPort``)."""
+
+    def __init__(self, bench: SilBench) -> None:
+        self.bench = bench
+        self._frames: deque[tuple[int, bytes]] = deque()
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        raise BenchError("the bench's outbox only listens: frames go in through BenchPort")
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if not self._frames:
+            self._frames.extend(self.bench.take_frames())
+        if not self._frames:
+            return None
+        can_id, data = self._frames.popleft()
+        return can.Message(arbitration_id=can_id, data=data, is_extended_id=False,
+                           is_fd=len(data) > 8)
+
+    def shutdown(self) -> None:
+        """The bench closes with its run (``SilBench.close``)."""

@@ -290,7 +290,7 @@ def _run(args: argparse.Namespace, target: Any, out: Path, guard: Any) -> int:
         print("rig run: --web goes with --live (a finished run: rig view --web DIR)",
               file=sys.stderr)
         return EXIT_USAGE
-    if args.live and not args.web and args.bus != "inproc" and not webview.has_display():
+    if args.live and not args.web and not webview.has_display():
         print(f"rig run: {webview.NO_DISPLAY}: the live view goes to the web viewer",
               file=sys.stderr)
         args.web = True

@@ -4,13 +4,13 @@ of the same lockstep grants, the programs' counters from the bench."""
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from rig import _paths
+from rig import _paths, protocols
 from rig.bench import sil
 from rig.bench.configuration import BenchConfiguration
 from rig.link.bench_commands import BenchCommands
@@ -26,6 +26,15 @@ from rig.run.pacing import PacedBench
 from rig.run.plan import Plan
 from rig.run.versions import sha, versions
 from rig.scenario import Scenario
+
+if TYPE_CHECKING:  # the live view (rerun) is imported only for --live
+    from rig.run.live import LiveFeed
+
+
+# BENCH_TRUTH for a live view at the telemetry's rate (TLM_* every speed-loop period), as
+# plant_rt sends it on the bus unless told otherwise
+LIVE_TRUTH_EVERY = protocols.timebase().speed_loop_divider
+LIVE_TLM_DIV = 1
 
 
 class _GrantsTraced:
@@ -54,6 +63,37 @@ def cost_journal(sc: Scenario, out: Path) -> tuple[Path, list[tuple[int, int]]] 
     return out / cost.JOURNAL_NAME, cost.journal_windows(spans, sc.duration)
 
 
+class _LiveInProcess:
+    """The live view of an in-process run: the bench's outbox (the frames fw_host and
+    plant_rt send the rig on the bus) read by a link of its own after each grant."""
+
+    def __init__(self, feed: LiveFeed, link: BusLink) -> None:
+        self.feed, self.link = feed, link
+
+    def show(self) -> None:
+        self.link.pump()
+        self.feed.flush()
+
+    def close(self) -> None:
+        try:
+            self.show()
+        finally:
+            self.feed.close()
+
+
+def _live_feed(sc: Scenario, opts: RunOptions, bench: sil.SilBench) -> _LiveInProcess | None:
+    from rig.run import live
+    from rig.run.monitor import Monitor
+
+    view = live.open_view(sc, opts)
+    if view is None:
+        return None
+    bench.outbox(LIVE_TLM_DIV, LIVE_TRUTH_EVERY)
+    link = BusLink(sil.OutboxPort(bench))
+    feed = live.LiveFeed(view, link, Monitor(link), lambda: bench.next_period)
+    return _LiveInProcess(feed, link)
+
+
 @contextmanager
 def sil_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOptions,
               result: RunResult, run: Execution) -> Iterator[PacedBench]:
@@ -75,9 +115,6 @@ def sil_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOpt
         "plant_sets": list(config.plant_sets), "fw_sets": list(config.fw_sets)}}
     if config.profile_file is None:
         raise EnvironmentProblem(f"profile {config.profile!r} not found")
-    if opts.live:
-        print("rig: no live view on the in-process bench (no telemetry frames); running "
-              "without it", file=sys.stderr)
     timeout = opts.timeout_s or sc.timeout_s or 60.0 + 300.0 * sc.duration
     try:
         bench = sil.SilBench(config.profile_file, config.plant_sets, config.fw_sets,
@@ -95,6 +132,7 @@ def sil_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOpt
     port = sil.BenchPort(bench)
     link = BusLink(port, frame_faults=FrameFaults(plan.link_windows),
                    trace=out / "rig.trace" if opts.trace_bus else None)
+    live = _live_feed(sc, opts, bench) if opts.live else None
     try:
         run.t0 = time.monotonic()
         deadline = run.t0 + timeout
@@ -108,9 +146,13 @@ def sil_bench(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunOpt
         cpu0 = time.process_time()
         try:
             yield PacedBench(clock, DriveMaster(link), BenchCommands(link),
-                             lambda: (clock.granted * TS, None, None))
+                             lambda: (clock.granted * TS, None, None),
+                             live.show if live is not None else lambda: None)
             run.cpu_s = time.process_time() - cpu0
         finally:
+            if live is not None:
+                run.counters["rig.live_frames_dropped"] = float(bench.outbox_dropped)
+                live.close()
             bench_counters = bench.counters()
             for name in ("plant", "firmware"):
                 run.add_counters(name, bench_counters.get(name, {}))

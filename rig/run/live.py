@@ -1,23 +1,41 @@
-"""The live Rerun view of a run on the bus (``rig run --live``): the telemetry the drive
-sends (TLM_*, 1 kHz) and the plant's truth, as they arrive."""
+"""The live Rerun view of a run (``rig run --live``): the telemetry the drive sends (TLM_*,
+1 kHz) and the plant's truth, as they arrive: on the bus from the programs, in process from
+the bench's outbox (the same frames, ``rig.bench.sil.OutboxPort``)."""
 
 from __future__ import annotations
 
 import math
+import sys
+from collections.abc import Callable
 
 from rig.data import capture
 from rig.link.bus import BusLink, Signals
-from rig.link.clock import PlantProgress
 from rig.results import recording
 from rig.run.monitor import Monitor
+from rig.run.options import RunOptions
+from rig.scenario import Scenario
+
+
+def open_view(sc: Scenario, opts: RunOptions) -> recording.LiveView | None:
+    """The run's live view: the stream given, the web viewer's server, or a native viewer;
+    None (said on stderr) when none can open: the run goes on without it."""
+    try:
+        stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)", opts.live_url)
+        return recording.LiveView(stream)
+    except Exception as exc:  # no display, no viewer binary: run without live view
+        print(f"rig: live view unavailable ({exc}); running without it", file=sys.stderr)
+        return None
 
 
 class LiveFeed:
+    """Logs what ``link`` hears into ``view``; ``period_now`` is the plant's period as the
+    rig knows it (the telemetry carries 16 bits of it)."""
+
     def __init__(self, view: recording.LiveView, link: BusLink, monitor: Monitor,
-                 progress: PlantProgress) -> None:
+                 period_now: Callable[[], int | None]) -> None:
         self.view = view
         self.monitor = monitor
-        self.progress = progress
+        self.period_now = period_now
         link.on("TLM_POS", self._position)
         link.on("TLM_CUR", self._current)
         link.on("TLM_REF", self._reference)
@@ -26,7 +44,7 @@ class LiveFeed:
 
     def _full_period(self, p16: int) -> int:
         """The period of a 16-bit period number, next to the plant's own report."""
-        base = self.progress.period or 0
+        base = self.period_now() or 0
         cand = (base & ~0xFFFF) | p16
         if cand > base + 0x8000:
             cand -= 0x10000

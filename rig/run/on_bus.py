@@ -180,16 +180,10 @@ def _on_channel(sc: Scenario, plan: Plan, config: BenchConfiguration, opts: RunO
 
 def _live_view(sc: Scenario, opts: RunOptions, link: BusLink, monitor: Monitor,
                progress: PlantProgress) -> LiveFeed | None:
-    from rig.results import recording
-    from rig.run.live import LiveFeed
+    from rig.run import live
 
-    try:
-        stream = opts.live_stream or recording.spawn_live(f"{sc.name} (live)", opts.live_url)
-        view = recording.LiveView(stream)
-    except Exception as exc:  # no display, no viewer binary: run without live view
-        print(f"rig: live view unavailable ({exc}); running without it", file=sys.stderr)
-        return None
-    return LiveFeed(view, link, monitor, progress)
+    view = live.open_view(sc, opts)
+    return None if view is None else live.LiveFeed(view, link, monitor, lambda: progress.period)
 
 
 @contextmanager

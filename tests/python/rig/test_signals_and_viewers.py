@@ -101,11 +101,13 @@ def test_sigterm_after_the_verdict_is_written_keeps_the_verdict_s_exit_status(
     assert delivered >= 3
 
 
-def test_live_without_a_display_uses_the_web_viewer_and_ends(tmp_path: Path,
-                                                            channel: str) -> None:
+@pytest.mark.parametrize("bus", ["unixcan", "inproc"])
+def test_live_without_a_display_uses_the_web_viewer_and_ends(tmp_path: Path, channel: str,
+                                                            bus: str) -> None:
     web, grpc = webview.free_port(), webview.free_port()
     out = tmp_path / "run"
-    proc = _rig("run", "smoke", "--bus", "unixcan", "--channel", channel, "--live",
+    where = ["--bus", "unixcan", "--channel", channel] if bus == "unixcan" else ["--bus", bus]
+    proc = _rig("run", "smoke", *where, "--live",
                 "--web-port", str(web), "--grpc-port", str(grpc), "--out", str(out),
                 "--quiet", env=_env())
     try:
