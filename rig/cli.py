@@ -24,7 +24,8 @@ COMMAND_MODULES = (
     "rig.commands.vm",
     "rig.commands.clean",
     "rig.commands.export",
-    *(f"rig.commands.{m}" for m in ("console", "param", "loadbench", "commission", "up", "drive")),
+    *(f"rig.commands.{m}" for m in ("console", "param", "loadbench", "commission", "up", "drive",
+                                       "watch")),
 )
 
 

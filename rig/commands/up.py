@@ -30,6 +30,7 @@ Try it (in another shell, with the same UNIXCAN_DIR):
   rig console --bench FILE -c version        # or interactive: rig console --bench FILE
   rig param list --bench FILE
   rig drive --bench FILE --speed 1000 --load 1.0 --for 10
+  rig watch --bench FILE                     # a live view; Ctrl-C detaches
   rig commission all --bench FILE
 
 exit status: 0 stopped (Ctrl-C, SIGTERM, --for); 1 a program of the bench died; 2 usage;
@@ -151,6 +152,7 @@ def _print_address(desc, addr, copy: Path | None, bench) -> None:  # type: ignor
     _say(f"  try        rig console --bench {f} -c version")
     _say(f"             rig param list --bench {f}")
     _say(f"             rig drive --bench {f} --speed 1000 --load 1.0 --for 10")
+    _say(f"             rig watch --bench {f}      (a live view; Ctrl-C detaches)")
     _say(f"             rig commission all --bench {f}")
     if addr.transport == "unixcan":
         _say(f"             python -m can.logger -i unixcan -c {addr.channel} --fd")

@@ -36,6 +36,7 @@ class LiveFeed:
         self.view = view
         self.monitor = monitor
         self.period_now = period_now
+        self._last_period = 0
         link.on("TLM_POS", self._position)
         link.on("TLM_CUR", self._current)
         link.on("TLM_REF", self._reference)
@@ -43,14 +44,18 @@ class LiveFeed:
         link.on("BENCH_TRUTH", self._truth)
 
     def _full_period(self, p16: int) -> int:
-        """The period of a 16-bit period number, next to the plant's own report."""
-        base = self.period_now() or 0
+        """The period of a 16-bit period number, next to the plant's own report (or, where
+        nobody reports it, as a real drive's bench: next to the last one worked out)."""
+        base = self.period_now()
+        if base is None:
+            base = self._last_period
         cand = (base & ~0xFFFF) | p16
         if cand > base + 0x8000:
             cand -= 0x10000
         elif cand < base - 0x8000:
             cand += 0x10000
-        return max(cand, 0)
+        self._last_period = max(cand, 0)
+        return self._last_period
 
     def _position(self, v: Signals) -> None:
         p = self._full_period(int(v["period"]))

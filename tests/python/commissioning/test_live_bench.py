@@ -211,3 +211,48 @@ def test_the_readme_sequence_on_the_free_running_bench(bus_dir: dict[str, str],
         status = up.stop()
     assert status == 0, up.text()
     check_left_nothing(up, bus_dir)
+
+
+def test_a_live_view_attaches_and_detaches_while_the_bench_runs(bus_dir: dict[str, str],
+                                                                tmp_path: Path) -> None:
+    """``rig watch`` listens to the free-running bench (sends nothing) while ``rig drive``
+    turns it at 1000 r/min: the view pairs each estimate with the plant's truth of the same
+    period (the error is small at speed, the periods unwrap past 16 bits); a second watch
+    attaches after the first detached; the bench ran on throughout."""
+    import numpy as np
+
+    from rig.results import recording
+
+    up = Up(bus_dir, tmp_path, "--pace", "wall", *LOADED_MACHINE)
+    try:
+        f = str(up.bench_file)
+        first = tmp_path / "first.rrd"
+        watch = subprocess.Popen([*RIG, "watch", "--bench", f, "--save", str(first), "--for",
+                                  "12"], env=bus_dir, stdout=subprocess.PIPE,
+                                 stderr=subprocess.STDOUT, text=True,
+                                 preexec_fn=_client_priority)
+        r = rig(bus_dir, "drive", "--bench", f, "--speed", "1000", "--for", "6")
+        assert r.returncode == 0, r.stdout + r.stderr
+        text, _ = watch.communicate(timeout=120)
+        assert watch.returncode == 0 and "detached" in text, text
+        second = tmp_path / "second.rrd"
+        r = rig(bus_dir, "watch", "--bench", f, "--save", str(second), "--for", "2")
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert recording.entity_rows(second).get("live/position", 0) > 0, r.stderr
+        assert up.proc.poll() is None, up.text()
+    finally:
+        status = up.stop()
+    assert status == 0, up.text()
+    check_left_nothing(up, bus_dir)
+    _, speed_est = recording.read_column(first, "live/speed")
+    p_true, speed_true = recording.read_column(first, "live/speed_true")
+    p_err, err = recording.read_column(first, "live/error")
+    assert p_true[-1] > 0x10000  # the bench was up more than 6.5 s of bench time by then
+    assert np.nanmax(speed_est) > 950.0
+    # the position error where the shaft was at speed (the truth's samples on each side of
+    # the error's period within 20 r/min of the reference)
+    true_rpm = np.asarray(speed_true, dtype=float).ravel()
+    k = np.clip(np.searchsorted(p_true, p_err), 1, len(p_true) - 1)
+    at_speed = (np.abs(true_rpm[k] - 1000.0) < 20.0) & (np.abs(true_rpm[k - 1] - 1000.0) < 20.0)
+    errors = np.abs(np.asarray(err, dtype=float).ravel()[at_speed])
+    assert errors.size > 50 and errors.max() < 5.0, (errors.size, errors.max(initial=0.0))
