@@ -96,6 +96,8 @@ class Health:
     def line(self) -> str:
         slipped = ("?" if self.slipped is None
                    else f"{'' if self.slipped_exact else '≈'}{self.slipped}")
+        if self.slipped is not None and self.uptime_s > 0.0:  # the rate real time is judged by
+            slipped += f" ({self.slipped * 60.0 / self.uptime_s:.0f}/min)"
         period = "?" if self.period is None else str(self.period)
         return (f"up {self.uptime_s:6.0f} s  period {period}"
                 f"  drive {self.drive_state}  overruns {self.overruns}  slipped {slipped}"

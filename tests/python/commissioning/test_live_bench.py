@@ -256,3 +256,13 @@ def test_a_live_view_attaches_and_detaches_while_the_bench_runs(bus_dir: dict[st
     at_speed = (np.abs(true_rpm[k] - 1000.0) < 20.0) & (np.abs(true_rpm[k - 1] - 1000.0) < 20.0)
     errors = np.abs(np.asarray(err, dtype=float).ravel()[at_speed])
     assert errors.size > 50 and errors.max() < 5.0, (errors.size, errors.max(initial=0.0))
+
+
+def test_the_health_line_gives_the_slip_rate_per_minute() -> None:
+    """Real time is judged by periods slipped per minute (the goal: 0 over 60 s)."""
+    from rig.bench.live import Health
+
+    line = Health(30.0, 300_000, 0, 600, 0, 0, 0, "RUN (3)", slipped_exact=True).line()
+    assert "slipped 600 (1200/min)" in line
+    assert "slipped ≈0 (0/min)" in Health(60.0, 1, 0, 0, 0, 0, 0, "IDLE (1)").line()
+    assert "slipped ? " in Health(0.5, None, 0, None, 0, 0, 0, "?").line()
