@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -130,7 +131,10 @@ def test_a_lost_workers_run_is_run_again_elsewhere(prepared: dict[str, Any],
         victim.wait(timeout=30)
         _, err = proc.communicate(timeout=900)
     assert proc.returncode == 1, err
-    assert "the cluster lost 1 workers" in err and "runs went to another worker" in err, err
+    # the one killed; on a loaded machine the scheduler may also drop the other for a missed
+    # heartbeat (it came back: "2 lost" was seen once), which changes nothing the suite decided
+    lost = re.search(r"the cluster lost (\d+) workers", err)
+    assert lost and int(lost.group(1)) >= 1 and "runs went to another worker" in err, err
     assert _values(out) == _values(prepared["local"])
 
 
