@@ -1,10 +1,20 @@
-/* The ISR's cheaper paths give the same bits as the plain computations they replace (issue 26:
+/* The ISR's cheaper paths compute what the plain computations they replace compute (issue 26:
  * instructions per ISR on an embedded target): each plain computation is kept here as the
  * reference, as the core computed it before, and both run on random inputs that reach every
  * branch (currents near a phase zero for the device drop's and the dead time's soft signs,
- * converters of every width and lsb, patterns of every layout). Equal means bit for bit
- * (memcmp of the floats), so a difference of rounding, of a zero's sign or of a NaN fails. */
+ * converters of every width and lsb, patterns of every layout).
+ *
+ * Equal means equal up to rounding (near(), below): every decision (a flag, a count, a
+ * segment, a sample instant) the same, every value within NEAR_ULPS units in the last place of
+ * its scale. It was bit for bit; but another association, a reciprocal multiply or a fused
+ * multiply-add rounds differently and changes nothing the drive does, and since the gate
+ * judges the closed loop over noise seeds (issue 35) such a change must pass: bit for bit,
+ * this test failed 2 of the catalogue's 23 rounding-only changes. A wrong term, coefficient or
+ * sign is orders of magnitude beyond the limit; the worst difference seen is printed. */
+#include <float.h>
+#include <math.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -26,8 +36,43 @@ static real_t rnd(real_t lo, real_t hi) /* uniform in [lo, hi) */
     return lo + (hi - lo) * (real_t)(rnd_u32() >> 8) / (real_t)16777216.0f;
 }
 
-static int same(real_t a, real_t b) { return memcmp(&a, &b, sizeof a) == 0; }
-static int same_c(fw_cplx_t a, fw_cplx_t b) { return same(a.re, b.re) && same(a.im, b.im); }
+#define NEAR_ULPS 64.0
+#define REAL_EPSILON (sizeof(real_t) == sizeof(float) ? (double)FLT_EPSILON : DBL_EPSILON)
+static double worst_ulps; /* the largest difference seen, in units in the last place */
+
+/* a and b equal up to rounding at scale (at least their own magnitude: a value that cancels
+ * down from larger terms is judged at their scale); a NaN matches only a NaN, an infinity only
+ * itself */
+static int near_at(real_t a, real_t b, double scale)
+{
+    double ulps;
+    if (isnan(a) || isnan(b)) {
+        return isnan(a) && isnan(b);
+    }
+    if (isinf(a) || isinf(b)) {
+        return a == b;
+    }
+    scale = fmax(scale, fmax(fabs((double)a), fabs((double)b)));
+    if (scale == 0.0) {
+        return 1;
+    }
+    ulps = fabs((double)a - (double)b) / (REAL_EPSILON * scale);
+    if (ulps > worst_ulps) {
+        worst_ulps = ulps;
+    }
+    return ulps <= NEAR_ULPS;
+}
+
+static int near(real_t a, real_t b) { return near_at(a, b, 0.0); }
+
+/* both parts at the larger modulus, or at scale where that is larger */
+static int near_c_at(fw_cplx_t a, fw_cplx_t b, double scale)
+{
+    scale = fmax(scale, fmax(hypot((double)a.re, (double)a.im), hypot((double)b.re, (double)b.im)));
+    return near_at(a.re, b.re, scale) && near_at(a.im, b.im, scale);
+}
+
+static int near_c(fw_cplx_t a, fw_cplx_t b) { return near_c_at(a, b, 0.0); }
 
 /* ---- references: the plain computations ------------------------------------------------- */
 
@@ -539,7 +584,7 @@ static void state_voltages(void)
                            FW_REAL(311.7)};
     for (k = 0; k < (int)(sizeof vdcs / sizeof vdcs[0]); k++) {
         for (s = 0; s < 16; s++) {
-            CHECK(same_c(fw_svpwm_state_voltage(s, vdcs[k]), ref_state_voltage(s, vdcs[k])),
+            CHECK(near_c(fw_svpwm_state_voltage(s, vdcs[k]), ref_state_voltage(s, vdcs[k])),
                   "state %d at vdc %g", s, (double)vdcs[k]);
         }
     }
@@ -580,7 +625,7 @@ static void protection(void)
         }
         f_ref = ref_protection_samples(&a, half, lsb, FW_REAL(5.0), &p_ref);
         f_new = fw_protection_samples(&a, half, lsb, FW_REAL(5.0), &p_new);
-        CHECK(f_ref == f_new && same(p_ref, p_new), "peak %.9g vs %.9g (bits %d, lsb %.9g)",
+        CHECK(f_ref == f_new && near(p_ref, p_new), "peak %.9g vs %.9g (bits %d, lsb %.9g)",
               (double)p_new, (double)p_ref, bits, (double)lsb);
         CHECK(ref_codes_in_range(&a, half) == fw_protection_codes_in_range(&a, half),
               "codes in range (bits %d)", bits);
@@ -597,7 +642,7 @@ static void protection(void)
         a.ib[1] = INT32_MIN;
         (void)ref_protection_samples(&a, 32768, FW_REAL(20.0) / FW_REAL(65536.0), 10.0f, &p_ref);
         (void)fw_protection_samples(&a, 32768, FW_REAL(20.0) / FW_REAL(65536.0), 10.0f, &p_new);
-        CHECK(same(p_ref, p_new), "extreme codes");
+        CHECK(near(p_ref, p_new), "extreme codes");
         CHECK(fw_protection_codes_in_range(&a, 32768) == 0, "extreme codes in range");
     }
     {
@@ -636,7 +681,7 @@ static void drop_voltages(void)
         fw_cplx_t i0 = fw_c(rnd(-scale, scale), rnd(-scale, scale));
         fw_cplx_t i1 = (it % 5 == 0) ? i0 : fw_c(i0.re + rnd(-0.003f, 0.003f), i0.im + rnd(-scale, scale));
         c->p[FW_IDX_VDROP_V] = (it % 7 == 0) ? FW_REAL(0.0) : rnd(0.1f, 3.0f);
-        CHECK(same_c(fw_inverter_drop_voltage(c, i0, i1), ref_drop_voltage(c, i0, i1)),
+        CHECK(near_c(fw_inverter_drop_voltage(c, i0, i1), ref_drop_voltage(c, i0, i1)),
               "drop at (%g, %g) -> (%g, %g)", (double)i0.re, (double)i0.im, (double)i1.re,
               (double)i1.im);
     }
@@ -673,7 +718,9 @@ static void segments_and_socs(void)
             CHECK(pl.seg_t[s] == ref.seg_t[s] && (s == pl.n_seg || pl.seg_state[s] == ref.seg_state[s]),
                   "segment %d", s);
         }
-        CHECK(same_c(pl.dipole, ref.dipole), "dipole");
+        /* a sum of terms that largely cancel: at the scale of its largest possible term */
+        CHECK(near_c_at(pl.dipole, ref.dipole, (double)pl.vdc * FW_H_TICKS * (double)FW_TICK_S),
+              "dipole");
         for (w = 0; w < 3; w++) {
             const fw_window_t *win = &pl.win[w];
             int32_t first = (int32_t)win->start + (int32_t)c->pwm_cfg.soc_on;
@@ -785,7 +832,10 @@ static void reconstruction(void)
             fw_recon_current(c, &adc, &mid2);
         }
         ref_recon_current(r, &adc);
-        CHECK(same_c(c->i_avg, r->i_avg) && same_c(c->i_end, r->i_end),
+        /* the end current at the scale of the period's (it can be near zero) */
+        CHECK(near_c(c->i_avg, r->i_avg) &&
+                  near_c_at(c->i_end, r->i_end,
+                            hypot((double)r->i_avg.re, (double)r->i_avg.im)),
               "case %d: mean (%.9g, %.9g) vs (%.9g, %.9g), end (%.9g, %.9g) vs (%.9g, %.9g)", it,
               (double)c->i_avg.re, (double)c->i_avg.im, (double)r->i_avg.re,
               (double)r->i_avg.im, (double)c->i_end.re, (double)c->i_end.im,
@@ -801,11 +851,17 @@ static void reconstruction(void)
 }
 
 
-static int same_est(const fw_est_out_t *a, const fw_est_out_t *b)
+static int near_est(const fw_est_out_t *a, const fw_est_out_t *b)
 {
-    return a->n_active == b->n_active && a->ok == b->ok && same(a->theta_raw, b->theta_raw) &&
-           same(a->gamma0, b->gamma0) && same(a->gamma1, b->gamma1) && same_c(a->g, b->g) &&
-           same(a->residual, b->residual) && same(a->t_ref, b->t_ref);
+    /* the fit's outputs at the scale of the largest of them (the residual and a small part
+     * of g are differences of the large ones), the angle at a half turn */
+    const double fit = fmax(fmax(fabs((double)b->gamma0), fabs((double)b->gamma1)),
+                            fmax(hypot((double)b->g.re, (double)b->g.im), fabs((double)b->residual)));
+    return a->n_active == b->n_active && a->ok == b->ok &&
+           near_at(a->theta_raw, b->theta_raw, (double)FW_M_PI) && near_at(a->gamma0, b->gamma0, fit) &&
+           near_at(a->gamma1, b->gamma1, fit) && near_at(a->g.re, b->g.re, fit) &&
+           near_at(a->g.im, b->g.im, fit) && near_at(a->residual, b->residual, fit) &&
+           near(a->t_ref, b->t_ref);
 }
 
 static void slope_solutions(void)
@@ -830,7 +886,7 @@ static void slope_solutions(void)
         memset(&o_ref, 0x5A, sizeof o_ref);
         fw_slope_solve(n, vec, di, t, kv, omega, g0, &o_new);
         ref_slope_solve(n, vec, di, t, kv, omega, g0, &o_ref);
-        CHECK(same_est(&o_new, &o_ref), "solve case %d", it);
+        CHECK(near_est(&o_new, &o_ref), "solve case %d", it);
     }
 }
 
@@ -852,7 +908,7 @@ static void window_drops(void)
             c->slope[w] = fw_c(rnd(-3000.0f, 3000.0f), rnd(-3000.0f, 3000.0f));
             c->slope_t[w] = window_t_mean(&c->plan_cur, w);
             c->i_win[w] = fw_c(rnd(-0.01f, 0.01f), rnd(-0.01f, 0.01f));
-            CHECK(same_c(fw_inverter_window_drop(c, w), ref_window_drop(c, w)), "window %d", w);
+            CHECK(near_c(fw_inverter_window_drop(c, w), ref_window_drop(c, w)), "window %d", w);
         }
     }
     free(c);
@@ -875,7 +931,7 @@ static void ripple_products(void)
         c->trk.age_ticks = -(int32_t)(rnd_u32() % 10000u);
         c->pe.gamma0_f = rnd(50.0f, 80.0f);
         c->pe.gamma1_f = rnd(-6.0f, 6.0f);
-        CHECK(same(fw_recon_ripple_dq_product(c, &pl), ref_ripple_dq_product(c, &pl)),
+        CHECK(near(fw_recon_ripple_dq_product(c, &pl), ref_ripple_dq_product(c, &pl)),
               "ripple case %d", it);
         {
             /* with the current loop's angle and its fw_cexpj (fw_core.c), also at zero and
@@ -891,11 +947,11 @@ static void ripple_products(void)
             at.valid = 1;
             if (it % 10 == 0) {
                 /* the reference predicts: give it the same angle */
-                CHECK(same(fw_recon_ripple_dq_product_at(c, &pl, &at),
+                CHECK(near(fw_recon_ripple_dq_product_at(c, &pl, &at),
                            ref_ripple_at(c, &pl, at.th)),
                       "ripple at a quarter turn, case %d", it);
             } else {
-                CHECK(same(fw_recon_ripple_dq_product_at(c, &pl, &at),
+                CHECK(near(fw_recon_ripple_dq_product_at(c, &pl, &at),
                            ref_ripple_dq_product(c, &pl)),
                       "ripple with the loop's angle, case %d", it);
             }
@@ -932,7 +988,7 @@ static void lq_slopes(void)
             const real_t iq = (kind == 4)     ? FW_REAL(4.6)
                               : (it % 7 == 0) ? pe.lq_bin_x[rnd_u32() % FW_LQ_BINS]
                                               : rnd(-5.0f, 5.0f);
-            CHECK(same(fw_paramest_inv_lq_slope(&pe, iq), ref_inv_lq_slope(&pe, iq)),
+            CHECK(near(fw_paramest_inv_lq_slope(&pe, iq), ref_inv_lq_slope(&pe, iq)),
                   "Lq slope case %d at %g", it, (double)iq);
         }
     }
@@ -949,5 +1005,7 @@ int main(void)
     window_drops();
     ripple_products();
     lq_slopes();
+    printf("worst rounding difference from the plain computations: %.1f ulps (limit %.0f)\n",
+           worst_ulps, NEAR_ULPS);
     TEST_DONE();
 }
