@@ -69,17 +69,25 @@ def total_pct(loads: list[MessageLoad], rate: int) -> float:
 
 
 def table(db: str = "drive") -> str:
-    """The load table as text."""
+    """The load table as text, with each cyclic message's worst-case latency
+    (``rig.bus.latency``)."""
+    from rig.bus import latency
+
     rate = bitrate(db)
     loads = message_loads(db)
+    worst = {x.name: x.worst_s for x in latency.worst_case_latencies(loads, rate)}
     lines = [f"protocols/{db}.dbc at {rate / 1e6:g} Mbit/s, classic CAN, worst-case stuffing",
              f"{'message':14s} {'id':>6s} {'sender':7s} {'DLC':>3s} {'bits':>5s} "
-             f"{'per s':>7s} {'load %':>7s}"]
+             f"{'per s':>7s} {'load %':>7s} {'worst latency':>13s}"]
     for x in loads:
         per_s = f"{x.per_s:7g}" if x.cycle_ms else "   (on demand)"
         load = f"{x.pct(rate):7.2f}" if x.cycle_ms else ""
+        late = ""
+        if x.name in worst:
+            w = worst[x.name]
+            late = "     unbounded" if w is None else f"{w * 1e6:9.0f} µs"
         lines.append(f"{x.name:14s} {x.frame_id:#6x} {x.sender:7s} {x.length:3d} {x.bits:5d} "
-                     f"{per_s} {load}".rstrip())
+                     f"{per_s} {load}{late}".rstrip())
     lines.append(f"{'cyclic total':14s} {'':>6s} {'':7s} {'':>3s} {'':>5s} {'':>7s} "
                  f"{total_pct(loads, rate):7.2f}")
     return "\n".join(lines)

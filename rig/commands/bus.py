@@ -28,8 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     ld = bsub.add_parser("load", help="the drive protocol's bus load, from its DBC",
                          description="Each cyclic message of protocols/drive.dbc: its frame in "
                          "bits with worst-case stuffing (classic CAN) times its rate "
-                         "(GenMsgCycleTime), over the bit rate (the Baudrate attribute); "
-                         "exit 1 when the total passes the 60 % the telemetry is held to.")
+                         "(GenMsgCycleTime), over the bit rate (the Baudrate attribute), and "
+                         "each cyclic message's worst-case latency (fixed-priority "
+                         "non-preemptive arbitration, Davis et al. 2007); exit 1 when the "
+                         "total passes the 60 % the telemetry is held to, or a message's "
+                         "worst-case latency passes its period.")
     cliargs.command(ld, _load)
 
 
@@ -79,15 +82,23 @@ def _up(args: argparse.Namespace) -> int:
 
 
 def _load(args: argparse.Namespace) -> int:
-    from rig.bus import load
+    from rig.bus import latency, load
 
     print(load.table("drive"))
-    total = load.total_pct(load.message_loads("drive"), load.bitrate("drive"))
+    loads, rate = load.message_loads("drive"), load.bitrate("drive")
+    total = load.total_pct(loads, rate)
+    status = 0
     if total > load.TELEMETRY_LIMIT_PCT:
         print(f"rig bus load: {total:.1f} % is above {load.TELEMETRY_LIMIT_PCT:g} %",
               file=sys.stderr)
-        return 1
-    return 0
+        status = 1
+    for x in latency.worst_case_latencies(loads, rate):
+        if not x.meets_period:
+            worst = "unbounded" if x.worst_s is None else f"{x.worst_s * 1e6:.0f} µs"
+            print(f"rig bus load: {x.name}'s worst-case latency ({worst}) is beyond its "
+                  f"period ({x.period_s * 1e6:.0f} µs)", file=sys.stderr)
+            status = 1
+    return status
 
 
 def _status(args: argparse.Namespace) -> int:
