@@ -107,6 +107,9 @@ def read(path: Path) -> dict[str, Any]:
     if (len(mark) < 2 or not mark.startswith(".") or not mark[1:].isascii()
             or not mark[1:].isalpha() or mark == suffix):
         raise ValueError("[socket] lossless_mark: '.' and ASCII letters, not the suffix")
+    arbiter = _str(sock, "socket", "arbiter")
+    if not arbiter.isascii() or not arbiter.isalpha():
+        raise ValueError("[socket] arbiter: ASCII letters (no node's <pid>-... name is one)")
     _int(desc["timing"], "timing", "rescan_interval_ms", 1)
     grace = _int(desc["timing"], "timing", "full_peer_grace_ms", 1)
     if _int(desc["timing"], "timing", "lossless_stall_ms", 1) <= grace:
@@ -193,6 +196,9 @@ def header(desc: dict[str, Any]) -> str:
         f"#define HIL_UNIXCAN_SOCKET_SUFFIX {cs(sock['suffix'])}",
         f"#define HIL_UNIXCAN_C_TAG {cs(sock['c_tag'])}",
         f"#define HIL_UNIXCAN_LOSSLESS_MARK {cs(sock['lossless_mark'])}",
+        "/* the bit clock's socket: <ARBITER><LOSSLESS_MARK><SUFFIX>; while it is there,",
+        " * classic frames go to it alone, CAN FD frames to every other peer */",
+        f"#define HIL_UNIXCAN_ARBITER {cs(sock['arbiter'])}",
         "",
         "/* what a node promises the others (protocols/unixcan.toml [timing]) */",
         f"#define HIL_UNIXCAN_RESCAN_INTERVAL_NS {timing['rescan_interval_ms'] * 1_000_000}LL",

@@ -55,6 +55,7 @@ struct hilbus {
     struct sockaddr_un peers[HILBUS_MAX_PEERS];
     unsigned char congested[HILBUS_MAX_PEERS]; /* peer was still full after the grace wait */
     unsigned char lossless[HILBUS_MAX_PEERS];  /* peer's name carries the lossless mark */
+    unsigned char arbiter[HILBUS_MAX_PEERS];   /* peer is the channel's bit clock */
     int peer_fd[HILBUS_MAX_PEERS];             /* a socket connected to each peer: no path lookup per frame */
     struct timespec dir_mtime;
     struct timespec last_scan;

@@ -273,6 +273,15 @@ static const char *base_name(const char *path)
     return slash != NULL ? slash + 1 : path;
 }
 
+/* Whether a socket is the channel's bit clock (HIL_UNIXCAN_ARBITER, lossless: a sender waits
+ * for the bus as a CAN controller does): while it is there, a classic frame goes to it alone
+ * and a CAN FD frame to every other peer. */
+static int arbiter_name(const char *path)
+{
+    return strcmp(base_name(path),
+                  HIL_UNIXCAN_ARBITER HIL_UNIXCAN_LOSSLESS_MARK HIL_UNIXCAN_SOCKET_SUFFIX) == 0;
+}
+
 static int connect_peer(const struct sockaddr_un *addr)
 {
     int s = socket(AF_UNIX, SOCK_DGRAM | SOCK_CLOEXEC, 0);
@@ -322,6 +331,7 @@ static void scan_peers(struct hilbus *bus)
     int fds[HILBUS_MAX_PEERS];
     unsigned char congested[HILBUS_MAX_PEERS];
     unsigned char lossless[HILBUS_MAX_PEERS];
+    unsigned char arbiter[HILBUS_MAX_PEERS];
     int m = 0;
     for (int i = 0; i < n; i++) {
         int fd = -1;
@@ -347,6 +357,7 @@ static void scan_peers(struct hilbus *bus)
         fds[m] = fd;
         congested[m] = cong;
         lossless[m] = (unsigned char)lossless_name(found[i].sun_path);
+        arbiter[m] = (unsigned char)arbiter_name(found[i].sun_path);
         m++;
     }
     for (int j = 0; j < bus->n_peers; j++)
@@ -355,6 +366,7 @@ static void scan_peers(struct hilbus *bus)
     memcpy(bus->peer_fd, fds, (size_t)m * sizeof fds[0]);
     memcpy(bus->congested, congested, (size_t)m);
     memcpy(bus->lossless, lossless, (size_t)m);
+    memcpy(bus->arbiter, arbiter, (size_t)m);
     bus->n_peers = m;
 }
 
@@ -460,6 +472,7 @@ static void remove_peer(struct hilbus *bus, int i)
     bus->peer_fd[i] = bus->peer_fd[bus->n_peers - 1];
     bus->congested[i] = bus->congested[bus->n_peers - 1];
     bus->lossless[i] = bus->lossless[bus->n_peers - 1];
+    bus->arbiter[i] = bus->arbiter[bus->n_peers - 1];
     bus->n_peers--;
     bus->stats.peers_removed++;
 }
@@ -495,6 +508,16 @@ static void take_into_pending(struct hilbus *bus)
     }
 }
 
+/* One try. To the bit clock from this node's own socket: it delivers the frame to every
+ * node but its sender, so it must know who that is (the per-peer sockets have no name). */
+static ssize_t send_once(struct hilbus *bus, int i, const struct canfd_frame *out, size_t size)
+{
+    if (bus->arbiter[i])
+        return sendto(bus->sock, out, size, MSG_DONTWAIT | MSG_NOSIGNAL,
+                      (const struct sockaddr *)&bus->peers[i], sizeof bus->peers[i]);
+    return send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
+}
+
 /* A frame to a lossless peer whose queue was full: wait (taking this node's own deliveries
  * meanwhile) until it goes, the stop flag is set (EINTR) or HIL_UNIXCAN_LOSSLESS_STALL_NS
  * have passed (ETIMEDOUT). */
@@ -520,7 +543,7 @@ static ssize_t wait_for_lossless(struct hilbus *bus, int i, const struct canfd_f
         const int np = pending_room(bus) ? 2 : 1;
         if (poll(p, (nfds_t)np, (int)wait_ms) > 0 && np == 2 && (p[1].revents & POLLIN))
             take_into_pending(bus);
-        n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
+        n = send_once(bus, i, out, size);
         if (n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK)) break;
     }
     const uint64_t waited = (uint64_t)(mono_ns() - start);
@@ -531,14 +554,14 @@ static ssize_t wait_for_lossless(struct hilbus *bus, int i, const struct canfd_f
 
 static ssize_t send_to_peer(struct hilbus *bus, int i, const struct canfd_frame *out, size_t size)
 {
-    ssize_t n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
+    ssize_t n = send_once(bus, i, out, size);
     if (n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK)) return n;
     if (bus->lossless[i]) return wait_for_lossless(bus, i, out, size);
     if (bus->congested[i]) return n;
     const int64_t give_up = mono_ns() + HIL_UNIXCAN_FULL_PEER_GRACE_NS;
     do {
         sched_yield();
-        n = send(bus->peer_fd[i], out, size, MSG_DONTWAIT | MSG_NOSIGNAL);
+        n = send_once(bus, i, out, size);
     } while (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK) && mono_ns() < give_up);
     return n;
 }
@@ -567,9 +590,15 @@ int hilbus_unixcan_send(struct hilbus *bus, const struct canfd_frame *frame, int
     struct canfd_frame out = *frame;
     out.flags = fd ? (uint8_t)(out.flags | HIL_UNIXCAN_FDF) : 0; /* the wire's flags byte */
     size_t size = fd ? HIL_UNIXCAN_FD_SIZE : HIL_UNIXCAN_CLASSIC_SIZE;
-    int failed = 0;
+    int failed = 0, clocked = 0;
     refresh_peers(bus);
+    for (int i = 0; i < bus->n_peers; i++) clocked |= bus->arbiter[i];
     for (int i = 0; i < bus->n_peers;) {
+        /* a bit clock on the channel: classic frames to it alone, CAN FD ones past it */
+        if (clocked && bus->arbiter[i] != (unsigned char)!fd) {
+            i++;
+            continue;
+        }
         ssize_t n = send_to_peer(bus, i, &out, size);
         if (n == (ssize_t)size) {
             bus->congested[i] = 0;

@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -46,7 +47,8 @@ from rig.bench.description import BenchDescription
 from rig.data import capture
 from rig.link.bus import BusLink, ForeignNodes, Signals
 from rig.link.clock import LockstepClock
-from rig.supervisor import StopReport
+from rig.supervisor import ChildFailed, StopReport
+from rig.supervisor import tail as supervisor_tail
 
 OWN = "up"  # the bench's own unixcan channel: up-<pid>
 PACES = ("realtime", "wall")
@@ -138,7 +140,7 @@ class LiveBench:
 
     def __init__(self, desc: BenchDescription, *, folder: Path | None = None,
                  rt_priority: int | None = None, pace: str = "realtime",
-                 log: Log | None = None) -> None:
+                 log: Log | None = None, bitrate: int | None = None) -> None:
         if desc.virtual is None:
             raise ValueError(f"{desc.name}: not a virtual bench (no [virtual] section)")
         self.desc = desc
@@ -150,6 +152,8 @@ class LiveBench:
             raise ValueError(f"pace {pace!r}: one of {', '.join(PACES)}")
         self.pace = pace
         self.rt_priority = rt_priority
+        self.bitrate = bitrate  # a bit clock on the channel (rig.bus.arbiter), or None
+        self.bit_clock_summary = ""  # its last line, once stopped
         # (in real time the programs take it themselves; paced by the wall clock the pacer
         # gives it to every process of the bench once they are up)
         prio = () if rt_priority is None or pace != "realtime" else (
@@ -211,6 +215,8 @@ class LiveBench:
                     make_fifo(child.pid, prio)
                 make_fifo(os.getpid(), prio)
             self._grid0 = time.monotonic()
+        if self.bitrate is not None:
+            self._start_bit_clock(transport, channel, d.virtual.ready_timeout_s)
         assert ends.console_port is not None and ends.modbus_port is not None
         self.address = Address(transport, channel, ends.console_port, d.modbus.host,
                                ends.modbus_port, self.dir / BENCH_FILE)
@@ -223,6 +229,36 @@ class LiveBench:
         self._transport = transport
         self._t0 = time.monotonic()
         return self.address
+
+    def _start_bit_clock(self, transport: str, channel: str, timeout_s: float) -> None:
+        """``rig bus arbiter`` on the bench's channel, at the bench's priority (the plant's
+        in real time), ready once its socket is there."""
+        from rig.bus import arbiter
+
+        assert self.bench is not None
+        if transport != "unixcan":
+            raise BenchRefused("a bit clock (--bitrate) is the fallback bus's: SocketCAN's "
+                               "vcan delivers at once and has no bit timing")
+        child = self.bench.sup.start("arbiter", [
+            sys.executable, "-m", "rig", "bus", "arbiter", "--channel", channel,
+            "--bitrate", str(self.bitrate)])
+        deadline = time.monotonic() + timeout_s
+        while not arbiter.socket_path(channel).exists():
+            self.bench.sup.check()
+            if time.monotonic() > deadline:
+                raise ChildFailed("arbiter", f"no bit clock on {channel} within {timeout_s:g} s",
+                                  child.log_tail())
+            time.sleep(0.02)
+        if self.pace == "wall":
+            prio = WALL_PRIORITY if self.rt_priority is None else self.rt_priority
+        else:
+            plant = self.bench.sup.children.get("plant_rt")
+            try:
+                prio = os.sched_getparam(plant.pid).sched_priority if plant else 0
+            except OSError:
+                prio = 0
+        if prio > 0:
+            make_fifo(child.pid, prio)
 
     def bench_file_text(self) -> str:
         """The running bench as a real bench's description: every real-bench command takes
@@ -345,6 +381,10 @@ class LiveBench:
                 self.address.bench_file.unlink()
         if self.bench is not None:
             reports = self.bench.stop()
+            clock = reports.get("arbiter")
+            if clock is not None:
+                lines = supervisor_tail(self.bench.sup.children["arbiter"].stdout_log)
+                self.bit_clock_summary = lines.strip().splitlines()[-1] if lines.strip() else ""
         if self.link is not None:
             with contextlib.suppress(Exception):
                 self.link.close()

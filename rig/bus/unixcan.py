@@ -432,7 +432,7 @@ class UnixCanBus(can.BusABC):
         failed: list[str] = []
         with self._lock:
             self._refresh_peers()
-            for peer in list(self._peers):
+            for peer in self._targets(msg.is_fd):
                 try:
                     self._send_to(datagram, peer)
                     self._congested.discard(peer)
@@ -462,6 +462,14 @@ class UnixCanBus(can.BusABC):
                 f"unixcan channel {self.channel}: node {name} (pid {name.split('-', 1)[0]}), "
                 f"which loses no frame, took none for {WIRE.lossless_stall_s * 1e3:.0f} ms "
                 f"(its queue stayed full): frame 0x{msg.arbitration_id:X} not delivered to it")
+
+    def _targets(self, fd: bool) -> list[str]:
+        """Every peer; with a bit clock on the channel (``rig.bus.arbiter``), a classic frame
+        goes to it alone and a CAN FD frame to every peer but it."""
+        arbiter = [p for p in self._peers if os.path.basename(p) == WIRE.arbiter_socket]
+        if not arbiter:
+            return list(self._peers)
+        return [p for p in self._peers if p not in arbiter] if fd else arbiter
 
     def _send_to(self, datagram: bytes, peer: str) -> None:
         try:

@@ -65,6 +65,7 @@ class UnixCanWire:
     socket_suffix: str
     python_tag: str
     lossless_mark: str
+    arbiter: str
     rescan_interval_s: float
     full_peer_grace_s: float
     lossless_stall_s: float
@@ -86,6 +87,12 @@ class UnixCanWire:
     def is_lossless(self, socket_name: str) -> bool:
         """Whether a node's socket name says it must lose no frame ([socket] lossless_mark)."""
         return socket_name.endswith(self.lossless_mark + self.socket_suffix)
+
+    @property
+    def arbiter_socket(self) -> str:
+        """The bit clock's socket name in a channel folder ([socket] arbiter): lossless, so
+        that a sender waits for the bus, as a CAN controller does, rather than drop."""
+        return self.arbiter + self.lossless_mark + self.socket_suffix
 
     def fallback_base_path(self) -> str:
         return self.fallback_base.replace("{uid}", str(os.geteuid()))
@@ -126,7 +133,7 @@ def load(text: str) -> UnixCanWire:
         socket_mode=int(directory["socket_mode"]),
         group_socket_mode=int(directory["group_socket_mode"]),
         socket_suffix=str(sock["suffix"]), python_tag=str(sock["python_tag"]),
-        lossless_mark=str(sock["lossless_mark"]),
+        lossless_mark=str(sock["lossless_mark"]), arbiter=str(sock["arbiter"]),
         rescan_interval_s=int(timing["rescan_interval_ms"]) / 1000.0,
         full_peer_grace_s=int(timing["full_peer_grace_ms"]) / 1000.0,
         lossless_stall_s=int(timing["lossless_stall_ms"]) / 1000.0,

@@ -35,6 +35,24 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                          "worst-case latency passes its period.")
     cliargs.command(ld, _load)
 
+    ar = bsub.add_parser(
+        "arbiter", help="give a fallback-bus channel a bit clock (classic CAN's timing)",
+        description="Holds the channel's classic CAN frames to their bit times at BITRATE, "
+        "one at a time, the lowest identifier first, as on the lab's bus (rig.bus.arbiter); "
+        "CAN FD frames (the virtual wires) pass as before. For a free-running bench (rig up "
+        "--bitrate starts one), never a lockstep run. Prints the bus's figures every 5 s and "
+        "when stopped (Ctrl-C, SIGTERM, --for).",
+        epilog="exit status: 0 stopped; 2 usage; 3 the channel has a bit clock already or its "
+        "folder cannot be used.")
+    cliargs.add_shared(ar, "channel", env="HIL_CHANNEL",
+                       help="the unixcan channel (default: $HIL_CHANNEL, else vcan0)")
+    ar.add_argument("--bitrate", type=cliargs.number(int, minimum=1), default=None,
+                    metavar="BIT/S", help="default: the drive protocol's (protocols/drive.dbc "
+                    "Baudrate: 1000000)")
+    ar.add_argument("--for", dest="for_s", type=cliargs.number(float, minimum=0.0),
+                    default=None, metavar="S", help="stop by itself after S seconds")
+    cliargs.command(ar, _arbiter)
+
 
 def _channel_options(p: argparse.ArgumentParser, what: str) -> None:
     cliargs.add_shared(p, "channel", env="HIL_CHANNEL", help=what)
@@ -99,6 +117,42 @@ def _load(args: argparse.Namespace) -> int:
                   f"period ({x.period_s * 1e6:.0f} µs)", file=sys.stderr)
             status = 1
     return status
+
+
+def _arbiter(args: argparse.Namespace) -> int:
+    import threading
+    import time
+
+    from rig.bus import arbiter, load
+    from rig.supervisor import Terminated, terminate_as_exception
+
+    channel = args.channel or "vcan0"
+    rate = args.bitrate or load.bitrate("drive")
+    try:
+        clock = arbiter.Arbiter(channel, rate)
+    except arbiter.ArbiterError as exc:
+        print(f"rig bus arbiter: {exc}", file=sys.stderr)
+        return 3
+    stop = threading.Event()
+    runner = threading.Thread(target=clock.run, args=(stop,), name="arbiter", daemon=True)
+    print(f"rig bus arbiter: unixcan channel {channel} at {rate} bit/s", flush=True)
+    runner.start()
+    try:
+        with terminate_as_exception():
+            t_end = None if args.for_s is None else time.monotonic() + args.for_s
+            while t_end is None or time.monotonic() < t_end:
+                time.sleep(min(5.0, max(0.0, t_end - time.monotonic())) if t_end else 5.0)
+                print(f"rig bus arbiter: {clock.stats.line(time.monotonic() - clock.t0)}",
+                      flush=True)
+    except (KeyboardInterrupt, Terminated):
+        pass
+    finally:
+        stop.set()
+        runner.join(timeout=5.0)
+        clock.close()
+    print(f"rig bus arbiter: stopped: {clock.stats.line(time.monotonic() - clock.t0)}",
+          flush=True)
+    return 0
 
 
 def _status(args: argparse.Namespace) -> int:

@@ -63,6 +63,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    "wall: in lockstep, granted bench time as the wall clock passes (for a "
                    "machine that cannot hold 10 kHz real time: nothing is lost, the bench "
                    "time pauses when the machine falls behind)")
+    p.add_argument("--bitrate", type=cliargs.number(int, minimum=1), default=None,
+                   metavar="BIT/S", help="give the bench's fallback-bus channel the lab's bit "
+                   "timing (rig bus arbiter): classic CAN frames one at a time for their bits, "
+                   "the lowest id first; the virtual wires (CAN FD) as before. E.g. 1000000, "
+                   "the drive's; lower to see an overloaded bus")
     p.add_argument("--rt-priority", type=cliargs.number(int, minimum=0, maximum=99),
                    default=None, metavar="N",
                    help="SCHED_FIFO priority: in real time of plant_rt and fw_host (default: "
@@ -93,7 +98,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     if copy is not None and (copy.exists() or copy.is_symlink()):
         print(f"rig up: --bench-file {copy} exists; refused (name a new file)", file=sys.stderr)
         return EXIT_USAGE
-    bench = live.LiveBench(desc, rt_priority=args.rt_priority, pace=args.pace)
+    bench = live.LiveBench(desc, rt_priority=args.rt_priority, pace=args.pace,
+                           bitrate=args.bitrate)
     status = EXIT_OK
     wrote_copy = False
     with terminate_as_exception():
@@ -146,6 +152,9 @@ def _print_address(desc, addr, copy: Path | None, bench) -> None:  # type: ignor
     _say(f"  modbus     tcp {addr.modbus_host}:{addr.modbus_port} unit {desc.modbus.unit}")
     _say(f"  bench file {file}")
     _say(f"  real time  {rt}")
+    if bench.bitrate is not None:
+        _say(f"  bit clock  {bench.bitrate} bit/s: classic frames one at a time for their "
+             "bits, the lowest id first (rig bus arbiter)")
     if bench.pace == "realtime" and "SCHED_FIFO" not in rt:
         _say("             (SCHED_FIFO not granted: periods may slip on a loaded machine; "
              "run as root or give the user an rtprio limit, `ulimit -r`)")
@@ -171,4 +180,6 @@ def _print_exit(reports, bench) -> None:  # type: ignore[no-untyped-def]
             if key in c:
                 bits.append(f"{key} {c[key]}")
         _say(f"rig up: {name}: {', '.join(bits)}")
+    if bench.bit_clock_summary:
+        _say(f"rig up: {bench.bit_clock_summary.removeprefix('rig bus ')}")
     _say("rig up: stopped; channel released, files removed")

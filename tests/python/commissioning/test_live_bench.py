@@ -266,3 +266,21 @@ def test_the_health_line_gives_the_slip_rate_per_minute() -> None:
     assert "slipped 600 (1200/min)" in line
     assert "slipped ≈0 (0/min)" in Health(60.0, 1, 0, 0, 0, 0, 0, "IDLE (1)").line()
     assert "slipped ? " in Health(0.5, None, 0, None, 0, 0, 0, "?").line()
+
+
+def test_a_bench_with_the_labs_bit_timing(bus_dir: dict[str, str], tmp_path: Path) -> None:
+    """``rig up --bitrate``: the drive's classic frames through the bit clock (a parameter
+    read goes there and back), the virtual wires past it; the clock's figures when it stops,
+    and nothing left behind (its socket neither)."""
+    up = Up(bus_dir, tmp_path, "--pace", "wall", "--bitrate", "1000000", *LOADED_MACHINE)
+    try:
+        assert "bit clock  1000000 bit/s" in up.text()
+        name, _ = writable_param()
+        r = rig(bus_dir, "param", "get", name, "--bench", str(up.bench_file))
+        assert r.returncode == 0 and float(r.stdout.split("=")[1].split()[0]) == 1000.0, r
+    finally:
+        status = up.stop()
+    assert status == 0, up.text()
+    summary = re.search(r"rig up: arbiter: stopped: (\d+) classic frames", up.text())
+    assert summary and int(summary.group(1)) > 0, up.text()
+    check_left_nothing(up, bus_dir)
