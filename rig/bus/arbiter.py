@@ -37,7 +37,6 @@ from rig.bus import bittime, unixcan
 from rig.bus.unixcan_wire import WIRE
 
 POLL_S = 0.1  # idle: how often the stop flag is looked at
-RECENT_CHANGE_S = 0.1  # the folder changed this recently: re-read it for every frame
 
 
 class ArbiterError(RuntimeError):
@@ -176,23 +175,9 @@ class Arbiter:
                                                 sender, now))
             self.stats.max_queue = max(self.stats.max_queue, len(self._queue))
 
-    def _refresh(self) -> None:
-        """The nodes as a sender sees them (``rig.bus.unixcan``): the folder re-read when its
-        timestamp moved, on every frame while a change is recent (timestamps are coarse), and
-        at least every rescan interval."""
-        now = time.time()
-        if (now - self._last_scan > WIRE.rescan_interval_s
-                or now - self._dir_mtime < RECENT_CHANGE_S):
-            self._scan()
-            return
-        try:
-            if self._dir.stat().st_mtime != self._dir_mtime:
-                self._scan()
-        except OSError:
-            pass
-
     def _deliver(self, item: _Queued) -> None:
-        self._refresh()
+        if unixcan.folder_stale(self._dir, self._last_scan, self._dir_mtime):
+            self._scan()  # the nodes as a sender sees them
         for peer in self._peers:
             if peer == item.sender:
                 continue

@@ -199,6 +199,20 @@ def channel_dir(channel: str) -> Path:
     return folder
 
 
+def folder_stale(folder: Path, last_scan: float, folder_mtime: float) -> bool:
+    """Whether a node's list of the channel's sockets, read at ``last_scan`` (``time.time``)
+    when the folder's timestamp was ``folder_mtime``, must be read again: the timestamp moved,
+    or the rescan interval passed, or the last change is recent (timestamps are coarse: a node
+    that joined within the tick of the last read would be missed)."""
+    now = time.time()
+    if now - last_scan > WIRE.rescan_interval_s or now - folder_mtime < _RECENT_CHANGE_S:
+        return True
+    try:
+        return folder.stat().st_mtime != folder_mtime
+    except OSError:
+        return False
+
+
 def peer_socket_ok(path: str, group: int | None) -> bool:
     """A folder entry that may be a peer: a socket of this user (or of the bus's group)."""
     try:
@@ -409,17 +423,8 @@ class UnixCanBus(can.BusABC):
             self._connected.pop(gone).close()
 
     def _refresh_peers(self) -> None:
-        now = time.time()
-        # Directory timestamps are coarse: keep re-reading while a change is recent.
-        if (now - self._last_scan > WIRE.rescan_interval_s
-                or now - self._dir_mtime < _RECENT_CHANGE_S):
+        if folder_stale(self._dir, self._last_scan, self._dir_mtime):
             self._scan_peers()
-            return
-        try:
-            if self._dir.stat().st_mtime != self._dir_mtime:
-                self._scan_peers()
-        except OSError:
-            pass
 
     # -- sending ----------------------------------------------------------------------
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
