@@ -141,16 +141,8 @@ class Arbiter:
         self.t0 = time.monotonic()
 
     def _scan(self) -> None:
-        self._last_scan = time.time()
-        try:
-            self._dir_mtime = self._dir.stat().st_mtime
-            names = os.listdir(self._dir)
-        except OSError:
-            self._peers = []
-            return
-        self._peers = [str(self._dir / n) for n in names
-                       if n.endswith(WIRE.socket_suffix) and n != WIRE.arbiter_socket
-                       and unixcan.peer_socket_ok(str(self._dir / n), self._group)]
+        view = unixcan.scan_folder(self._dir, WIRE.arbiter_socket, self._group)
+        self._last_scan, self._dir_mtime, self._peers = view.scanned, view.mtime, view.peers
 
     def _take(self, now: float) -> None:
         """Every datagram waiting, into the queue (a node's second frame of an identifier

@@ -38,6 +38,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -197,6 +198,35 @@ def channel_dir(channel: str) -> Path:
     folder = base / channel
     _own_directory(folder, mode, group, tighten=True)
     return folder
+
+
+@dataclass(frozen=True)
+class FolderView:
+    scanned: float  # when (time.time)
+    mtime: float  # the folder's timestamp then (0: unreadable)
+    peers: list[str]  # every node's socket but one's own
+    foreign: int  # entries that are not the user's (or the group's) sockets
+
+
+def scan_folder(folder: Path, own: str, group: int | None) -> FolderView:
+    """The channel's sockets as a node sees them: every ``*<suffix>`` of the user (or the
+    bus's group) but its own."""
+    scanned = time.time()
+    try:
+        mtime = folder.stat().st_mtime
+        names = os.listdir(folder)
+    except OSError:
+        return FolderView(scanned, 0.0, [], 0)
+    peers, foreign = [], 0
+    for n in names:
+        if not n.endswith(WIRE.socket_suffix) or n == own:
+            continue
+        path = str(folder / n)
+        if peer_socket_ok(path, group):
+            peers.append(path)
+        else:
+            foreign += 1
+    return FolderView(scanned, mtime, peers, foreign)
 
 
 def folder_stale(folder: Path, last_scan: float, folder_mtime: float) -> bool:
@@ -400,23 +430,9 @@ class UnixCanBus(can.BusABC):
 
     # -- membership -------------------------------------------------------------------
     def _scan_peers(self) -> None:
-        self._last_scan = time.time()
-        try:
-            self._dir_mtime = self._dir.stat().st_mtime
-            names = os.listdir(self._dir)
-        except OSError:
-            self._peers = []
-            return
-        own = self._path.name
-        peers = []
-        for n in names:
-            if not n.endswith(WIRE.socket_suffix) or n == own:
-                continue
-            path = str(self._dir / n)
-            if peer_socket_ok(path, self._group):
-                peers.append(path)
-            else:
-                self.stats["foreign_entries"] += 1
+        view = scan_folder(self._dir, self._path.name, self._group)
+        self._last_scan, self._dir_mtime, peers = view.scanned, view.mtime, view.peers
+        self.stats["foreign_entries"] += view.foreign
         self._peers = peers
         self._congested.intersection_update(self._peers)
         for gone in set(self._connected) - set(peers):
