@@ -69,6 +69,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
                    help="with --live --web: the gRPC server's port (default 9876)")
     cliargs.add_shared(p, "timeout",
                        help="wall-clock limit per scenario, s (default: from the scenario)")
+    p.add_argument("--stall-s", type=cliargs.number(float, minimum=0.1), default=None,
+                   metavar="S", help="on a bus in lockstep: no progress at all for S seconds "
+                   "of wall time ends the run as stalled (default 10; a machine that may "
+                   "starve the bench longer, e.g. a TCG VM on a loaded host, needs more)")
     p.add_argument("--no-record", action="store_true",
                    help="skip writing recording.rrd (the verdict does not depend on it)")
     p.add_argument("--no-figures", action="store_true",
@@ -328,6 +332,7 @@ def _run_with(args: argparse.Namespace, target: Any, out: Path, live_url: str | 
         confirm=not args.no_confirm, cluster=args.cluster,
         no_worker_timeout_s=args.no_worker_timeout,
         can_log=args.can_log,
+        **({"stall_s": args.stall_s} if args.stall_s is not None else {}),
     )
     started = time.time()
     try:

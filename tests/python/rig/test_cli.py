@@ -103,6 +103,7 @@ def test_a_misspelt_scenario_or_profile_names_the_nearest(
     (["sweep", "smoke", "--param", "rs=1,2", "--workers", "0"], "argument --workers"),
     (["view", "x", "--web", "--web-port", "70000"], "argument --web-port: 70000 is out of "
      "range"),
+    (["run", "smoke", "--stall-s", "0"], "argument --stall-s: 0 is out of range"),
 ])
 def test_bad_values_are_usage_errors(argv: list[str], message: str,
                                      capsys: pytest.CaptureFixture[str]) -> None:
@@ -178,3 +179,12 @@ def _env() -> dict[str, str]:
     import os
 
     return {k: v for k, v in os.environ.items() if k not in ("HIL_CHANNEL", "HIL_BUS")}
+
+
+def test_the_stall_ceiling_reaches_the_run_s_options() -> None:
+    from rig.link.clock import STALL_S
+    from rig.run.options import RunOptions
+
+    args = cli.build_parser().parse_args(["run", "smoke", "--stall-s", "60"])
+    assert args.stall_s == 60.0
+    assert RunOptions(out=Path("x")).stall_s == STALL_S  # the default when not given
