@@ -515,13 +515,14 @@ class UnixCanBus(can.BusABC):
     def _wait_for_lossless(self, datagram: bytes, peer: str) -> None:
         """A frame to a lossless peer whose queue is full: wait until it takes it (this
         node's reader thread goes on taking its own frames meanwhile), at most
-        ``lossless_stall_s`` (then TimeoutError)."""
+        ``lossless_stall_s`` (then TimeoutError). Sent from this node's own socket, as every
+        frame: the bit clock (``rig.bus.arbiter``) goes by the sender's name."""
         start = time.monotonic()
         give_up = start + WIRE.lossless_stall_s
         self.stats["tx_stalls"] += 1
         try:
             conn = self._connected.get(peer)
-            if conn is None:  # a socket connected to it: poll() says when its queue has room
+            if conn is None:  # connected to it, poll() says when its queue has room
                 conn = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
                 conn.setblocking(False)
                 conn.connect(peer)
@@ -530,7 +531,7 @@ class UnixCanBus(can.BusABC):
             poller.register(conn, select.POLLOUT)
             while True:
                 try:
-                    conn.send(datagram)
+                    self._sock.sendto(datagram, peer)
                     return
                 except BlockingIOError:
                     pass

@@ -163,3 +163,70 @@ def test_a_dead_clocks_socket_is_taken_over(channel: str) -> None:
         assert second.path.exists()
     finally:
         second.close()
+
+
+def test_a_sender_that_waited_for_the_clock_is_still_known_to_it(channel: str) -> None:
+    """More frames than the clock's socket queues (net.unix.max_dgram_qlen) before it runs:
+    the sender waits for it (it is lossless), and the frames it sent while waiting still come
+    from its own socket, so none is delivered back to it."""
+    qlen = int(Path("/proc/sys/net/unix/max_dgram_qlen").read_text())
+    ids = [0x100 + k for k in range(qlen + 5)]
+    clock = arbiter.Arbiter(channel, 100_000)
+    rx, tx = _bus(channel), _bus(channel)
+    stop = threading.Event()
+    runner = threading.Thread(target=clock.run, args=(stop,), daemon=True)
+    try:
+        sender = threading.Thread(target=lambda: [tx.send(_classic(i)) for i in ids],
+                                  daemon=True)
+        sender.start()
+        sender.join(timeout=0.5)
+        assert sender.is_alive()  # waiting for the clock, whose queue is full
+        runner.start()
+        sender.join(timeout=EVENT_S)
+        assert not sender.is_alive()
+        got = []
+        while len(got) < len(ids):
+            m = rx.recv(timeout=EVENT_S)
+            assert m is not None, got
+            got.append(m.arbitration_id)
+        assert sorted(got) == ids
+        assert tx.recv(timeout=0.5) is None  # nothing came back to the sender
+        assert clock.stats.frames == len(ids) and not clock.stats.overruns
+    finally:
+        stop.set()
+        if runner.is_alive():
+            runner.join(timeout=5)
+        clock.close()
+        rx.shutdown()
+        tx.shutdown()
+
+
+def test_a_c_sender_that_waited_for_the_clock_is_still_known_to_it(channel: str) -> None:
+    """The same from C (hilbus): one identifier, more frames than the clock's queue holds,
+    sent before it runs; every frame beyond the first is an overrun of that C node's own
+    mailbox, the ones it sent while it waited too."""
+    qlen = int(Path("/proc/sys/net/unix/max_dgram_qlen").read_text())
+    clock = arbiter.Arbiter(channel, 100_000)
+    stop = threading.Event()
+    runner = threading.Thread(target=clock.run, args=(stop,), daemon=True)
+    proc = subprocess.Popen([str(_paths.binary("hilbus_tool")), "send", "--bus", "unixcan",
+                             "--channel", channel, "--id", "0x300", "--count", str(qlen + 5)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(0.5)  # (if it is not waiting yet, the check below holds all the same)
+        runner.start()
+        _, err = proc.communicate(timeout=EVENT_S)
+        assert proc.returncode == 0, err
+        deadline = time.monotonic() + EVENT_S
+        while clock.stats.frames < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert clock.stats.frames == 1
+        assert sum(clock.stats.overruns.values()) == qlen + 4
+        assert [k.split("-", 1)[0] for k in clock.stats.overruns] == [str(proc.pid)]
+    finally:
+        stop.set()
+        if runner.is_alive():
+            runner.join(timeout=5)
+        clock.close()
+        if proc.poll() is None:
+            proc.kill()
