@@ -93,6 +93,7 @@ class ArbiterStats:
 class _Queued:
     key: tuple[int, int, int, int]
     seq: int
+    id_word: int = field(compare=False)
     datagram: bytes = field(compare=False)
     sender: str = field(compare=False)
     queued_at: float = field(compare=False)
@@ -111,26 +112,16 @@ class Arbiter:
         except OSError as exc:
             raise ArbiterError(str(exc)) from exc
         self.path = self._dir / WIRE.arbiter_socket
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         if self.path.exists() or self.path.is_symlink():
-            try:
-                self._sock.connect(str(self.path))
-            except OSError:
-                self.path.unlink(missing_ok=True)  # a dead one's socket
-            else:
-                self._sock.close()
-                raise ArbiterError(f"unixcan channel {channel} has a bit clock already "
-                                   f"({self.path})")
-            self._sock.close()
-            self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        for opt in (socket.SO_SNDBUF, socket.SO_RCVBUF):
-            self._sock.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
-        self._sock.bind(str(self.path))
-        os.chmod(self.path, WIRE.group_socket_mode if self._group is not None
-                 else WIRE.socket_mode)
-        if self._group is not None:
-            os.chown(self.path, -1, self._group)
-        self._sock.setblocking(False)
+            with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as probe:
+                try:
+                    probe.connect(str(self.path))
+                except OSError:
+                    self.path.unlink(missing_ok=True)  # a dead one's socket
+                else:
+                    raise ArbiterError(f"unixcan channel {channel} has a bit clock already "
+                                       f"({self.path})")
+        self._sock = unixcan.bind_node_socket(self.path, self._group)
         self.stats = ArbiterStats()
         self._queue: list[_Queued] = []
         self._pending: set[tuple[str, int]] = set()  # (sender, id word) queued: its mailbox
@@ -163,8 +154,8 @@ class Arbiter:
                 continue
             self._pending.add((sender, id_word))
             self._seq += 1
-            heapq.heappush(self._queue, _Queued(arbitration_key(id_word), self._seq, datagram,
-                                                sender, now))
+            heapq.heappush(self._queue, _Queued(arbitration_key(id_word), self._seq, id_word,
+                                                datagram, sender, now))
             self.stats.max_queue = max(self.stats.max_queue, len(self._queue))
 
     def _deliver(self, item: _Queued) -> None:
@@ -215,8 +206,7 @@ class Arbiter:
             self._take(now)
             if on_wire is not None and now >= ends:
                 self._deliver(on_wire)
-                self._pending.discard((on_wire.sender,
-                                       int.from_bytes(on_wire.datagram[0:4], "little")))
+                self._pending.discard((on_wire.sender, on_wire.id_word))
                 on_wire = None
             if on_wire is None and self._queue:
                 on_wire = heapq.heappop(self._queue)

@@ -200,6 +200,21 @@ def channel_dir(channel: str) -> Path:
     return folder
 
 
+def bind_node_socket(path: Path, group: int | None) -> socket.socket:
+    """A node's datagram socket bound at ``path`` (which must not exist), non-blocking, with
+    the wire's mode and group."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    for opt in (socket.SO_SNDBUF, socket.SO_RCVBUF):
+        sock.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
+    sock.bind(str(path))
+    # The folder is closed already; the socket's own mode says the same to whoever looks.
+    os.chmod(path, WIRE.group_socket_mode if group is not None else WIRE.socket_mode)
+    if group is not None:
+        os.chown(path, -1, group)
+    sock.setblocking(False)
+    return sock
+
+
 @dataclass(frozen=True)
 class FolderView:
     scanned: float  # when (time.time)
@@ -387,17 +402,8 @@ class UnixCanBus(can.BusABC):
         self._path = self._dir / name
         if len(os.fsencode(self._path)) >= 108:
             raise can.CanInitializationError(f"unixcan: socket path {self._path} is too long")
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        for opt in (socket.SO_SNDBUF, socket.SO_RCVBUF):
-            self._sock.setsockopt(socket.SOL_SOCKET, opt, 4 << 20)
         self._path.unlink(missing_ok=True)
-        self._sock.bind(str(self._path))
-        # The folder is closed already; the socket's own mode says the same to whoever looks.
-        os.chmod(self._path, WIRE.group_socket_mode if self._group is not None
-                 else WIRE.socket_mode)
-        if self._group is not None:
-            os.chown(self._path, -1, self._group)
-        self._sock.setblocking(False)
+        self._sock = bind_node_socket(self._path, self._group)
         self._peers: list[str] = []
         self._congested: set[str] = set()
         self._connected: dict[str, socket.socket] = {}  # lossless peers waited for
