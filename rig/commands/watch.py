@@ -8,12 +8,19 @@ on the virtual bench, the plant's truth (BENCH_TRUTH) beside it."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rig import cliargs
 from rig.exit_status import EXIT_ENV, EXIT_OK, EXIT_USAGE
+
+if TYPE_CHECKING:
+    import rerun as rr
+
+    from rig.link.bus import BusLink
 
 FLUSH_EVERY_S = 0.25  # the viewer gets what was heard this often
 QUIET_WARNING_S = 5.0  # nothing heard this long: say so (once), and keep listening
@@ -79,51 +86,43 @@ def cmd_watch(args: argparse.Namespace) -> int:
         print(f"rig watch: {exc}", file=sys.stderr)
         return EXIT_ENV
     try:
-        if args.save is not None:
-            return _watch(link, _file_stream(args.save), args.for_s)
-        if not args.web and not webview.has_display():
-            print(f"rig watch: {webview.NO_DISPLAY}: the live view goes to the web viewer",
-                  file=sys.stderr)
-            args.web = True
-        if not args.web:
-            from rig.results import recording
-
-            grpc = args.grpc_port or webview.DEFAULT_GRPC_PORT
+        with contextlib.ExitStack() as viewer:
             try:
-                stream = recording.spawn_live(f"{link.where} (watch)",
-                                              webview.start_native(grpc_port=grpc))
+                stream = _stream(args, f"{link.where} (watch)", viewer)
             except webview.WebViewerError as exc:
                 print(f"rig watch: {exc}", file=sys.stderr)
                 return EXIT_ENV
             return _watch(link, stream, args.for_s)
-        try:
-            viewer = webview.start(web_port=args.web_port or webview.DEFAULT_WEB_PORT,
-                                   grpc_port=args.grpc_port or webview.DEFAULT_GRPC_PORT)
-        except webview.WebViewerError as exc:
-            print(f"rig watch: {exc}", file=sys.stderr)
-            return EXIT_ENV
-        with viewer:
-            print(f"rig watch: {link.where} in the web viewer at {viewer.url()} (Ctrl-C "
-                  "detaches)", file=sys.stderr, flush=True)
-            from rig.results import recording
-
-            return _watch(link, recording.spawn_live(f"{link.where} (watch)", viewer.grpc_url),
-                          args.for_s)
     finally:
         link.close()
 
 
-def _file_stream(path: Path):  # type: ignore[no-untyped-def]
-    import rerun as rr
+def _stream(args: argparse.Namespace, title: str,
+            viewer: contextlib.ExitStack) -> rr.RecordingStream:
+    """Where the view goes: the file of --save, a native window, or the web viewer (the
+    default without a display), whose server ``viewer`` stops."""
+    import rerun as rr  # (for --save: the others import it through recording)
 
-    from rig.results import recording
+    from rig.results import recording, webview
 
-    rec = rr.RecordingStream(recording.APP_ID + "_live")
-    rec.save(path)
-    return rec
+    if args.save is not None:
+        rec = rr.RecordingStream(recording.APP_ID + "_live")
+        rec.save(args.save)
+        return rec
+    grpc = args.grpc_port or webview.DEFAULT_GRPC_PORT
+    if not args.web and not webview.has_display():
+        print(f"rig watch: {webview.NO_DISPLAY}: the live view goes to the web viewer",
+              file=sys.stderr)
+    elif not args.web:
+        return recording.spawn_live(title, webview.start_native(grpc_port=grpc))
+    server = viewer.enter_context(webview.start(
+        web_port=args.web_port or webview.DEFAULT_WEB_PORT, grpc_port=grpc))
+    print(f"rig watch: the live view in the web viewer at {server.url()} (Ctrl-C detaches)",
+          file=sys.stderr, flush=True)
+    return recording.spawn_live(title, server.grpc_url)
 
 
-def _watch(link, stream, for_s: float | None) -> int:  # type: ignore[no-untyped-def]
+def _watch(link: BusLink, stream: rr.RecordingStream, for_s: float | None) -> int:
     """Streams what ``link`` hears until Ctrl-C, SIGTERM or ``for_s``; 0 (detached)."""
     from rig.results import recording
     from rig.run.live import LiveFeed
