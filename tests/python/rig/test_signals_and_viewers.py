@@ -16,7 +16,6 @@ No display here (these tests remove DISPLAY and WAYLAND_DISPLAY, or set one nobo
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
 import subprocess
@@ -25,19 +24,10 @@ import time
 from pathlib import Path
 
 import pytest
+from viewer_support import assert_ports_freed, listening, no_display_env
 from waits import EVENT_S
 
 from rig.results import webview
-
-VENV_BIN = str(Path(sys.executable).parent)
-
-
-def _env(**extra: str) -> dict[str, str]:
-    """This environment without a display, the venv's `rerun` on PATH (where the hang was)."""
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")}
-    env["PATH"] = VENV_BIN + os.pathsep + env.get("PATH", "")
-    return {**env, **extra}
 
 
 def _rig(*args: str, env: dict[str, str]) -> subprocess.Popen[str]:
@@ -45,18 +35,10 @@ def _rig(*args: str, env: dict[str, str]) -> subprocess.Popen[str]:
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
 
 
-def _listening(port: int) -> bool:
-    try:
-        socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
-        return True
-    except OSError:
-        return False
-
-
 def test_sigterm_while_the_results_are_worked_out_leaves_them_whole(tmp_path: Path) -> None:
     out = tmp_path / "run"
     proc = _rig("run", "table2_1000rpm_1nm", "--bus", "inproc", "--out", str(out), "--quiet",
-                env=_env())
+                env=no_display_env())
     deadline = time.monotonic() + 300
     # capture/ is made when the merge starts, after the bench stopped: the post-processing
     # (merge, verdicts, recording) takes about 2 s from then on here
@@ -84,7 +66,7 @@ def test_sigterm_after_the_verdict_is_written_keeps_the_verdict_s_exit_status(
     for attempt in range(5):
         out = tmp_path / f"run{attempt}"
         proc = _rig("run", target, "--bus", "inproc", "--out", str(out), "--quiet",
-                    "--no-record", "--no-figures", env=_env())
+                    "--no-record", "--no-figures", env=no_display_env())
         deadline = time.monotonic() + 300
         while not (out / "result.json").exists():  # renamed into place whole
             assert proc.poll() is None, proc.communicate()[0]
@@ -109,7 +91,7 @@ def test_live_without_a_display_uses_the_web_viewer_and_ends(tmp_path: Path, cha
     where = ["--bus", "unixcan", "--channel", channel] if bus == "unixcan" else ["--bus", bus]
     proc = _rig("run", "smoke", *where, "--live",
                 "--web-port", str(web), "--grpc-port", str(grpc), "--out", str(out),
-                "--quiet", env=_env())
+                "--quiet", env=no_display_env())
     try:
         text, _ = proc.communicate(timeout=180)
     except subprocess.TimeoutExpired:
@@ -119,10 +101,7 @@ def test_live_without_a_display_uses_the_web_viewer_and_ends(tmp_path: Path, cha
     assert proc.returncode == 0, text
     assert "no display here" in text and "web viewer" in text and f":{web}/" in text, text
     assert json.loads((out / "result.json").read_text())["passed"]
-    deadline = time.monotonic() + EVENT_S
-    while (_listening(web) or _listening(grpc)) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not _listening(web) and not _listening(grpc)  # the server ended with the run
+    assert_ports_freed(web, grpc)  # the server ended with the run
 
 
 def test_a_live_viewer_that_cannot_open_is_reported_at_once(tmp_path: Path,
@@ -131,7 +110,7 @@ def test_a_live_viewer_that_cannot_open_is_reported_at_once(tmp_path: Path,
     goes on without a live view (with rerun's own spawn it waited for ever)."""
     out = tmp_path / "run"
     proc = _rig("run", "smoke", "--bus", "unixcan", "--channel", channel, "--live",
-                "--out", str(out), "--quiet", env=_env(DISPLAY=":97"))
+                "--out", str(out), "--quiet", env=no_display_env(DISPLAY=":97"))
     try:
         text, _ = proc.communicate(timeout=180)
     except subprocess.TimeoutExpired:
@@ -148,7 +127,7 @@ def test_a_live_viewer_that_cannot_open_is_reported_at_once(tmp_path: Path,
 def _a_run(tmp_path: Path) -> Path:
     out = tmp_path / "run"
     done = subprocess.run([sys.executable, "-m", "rig", "run", "smoke", "--bus", "inproc",
-                           "--out", str(out), "--quiet"], env=_env(), capture_output=True,
+                           "--out", str(out), "--quiet"], env=no_display_env(), capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     return out
@@ -156,7 +135,7 @@ def _a_run(tmp_path: Path) -> Path:
 
 def test_view_without_a_display_says_use_web(tmp_path: Path) -> None:
     out = _a_run(tmp_path)
-    done = subprocess.run([sys.executable, "-m", "rig", "view", str(out)], env=_env(),
+    done = subprocess.run([sys.executable, "-m", "rig", "view", str(out)], env=no_display_env(),
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 3, done.stderr
     assert "no display here" in done.stderr and f"rig view --web {out}" in done.stderr
@@ -168,7 +147,7 @@ def test_view_without_a_display_says_use_web(tmp_path: Path) -> None:
     x_server, display = _silent_x_server()
     grpc = webview.free_port()
     proc = subprocess.Popen([sys.executable, "-m", "rig", "view", str(out), "--grpc-port",
-                             str(grpc)], env=_env(DISPLAY=display), text=True,
+                             str(grpc)], env=no_display_env(DISPLAY=display), text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         deadline = time.monotonic() + 60
@@ -218,18 +197,15 @@ def test_view_web_stopped_by_sigterm_frees_both_ports(tmp_path: Path) -> None:
     out = _a_run(tmp_path)
     web, grpc = webview.free_port(), webview.free_port()
     proc = _rig("view", "--web", str(out), "--web-port", str(web), "--grpc-port", str(grpc),
-                env=_env())
+                env=no_display_env())
     deadline = time.monotonic() + 60
-    while not (_listening(web) and _listening(grpc)):
+    while not (listening(web) and listening(grpc)):
         assert proc.poll() is None, proc.communicate()[0]
         assert time.monotonic() < deadline, "the web viewer never listened"
         time.sleep(0.1)
     proc.send_signal(signal.SIGTERM)
     proc.communicate(timeout=30)
-    deadline = time.monotonic() + EVENT_S
-    while (_listening(web) or _listening(grpc)) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not _listening(web) and not _listening(grpc)
+    assert_ports_freed(web, grpc)
 
 
 def _children(pid: int) -> set[int]:
@@ -266,9 +242,9 @@ def test_view_web_killed_by_any_signal_takes_the_server_with_it(tmp_path: Path,
     out = _a_run(tmp_path)
     web, grpc = webview.free_port(), webview.free_port()
     proc = _rig("view", "--web", str(out), "--web-port", str(web), "--grpc-port", str(grpc),
-                env=_env())
+                env=no_display_env())
     deadline = time.monotonic() + 60
-    while not (_listening(web) and _listening(grpc)):
+    while not (listening(web) and listening(grpc)):
         assert proc.poll() is None, proc.communicate()[0]
         assert time.monotonic() < deadline, "the web viewer never listened"
         time.sleep(0.1)
@@ -277,8 +253,8 @@ def test_view_web_killed_by_any_signal_takes_the_server_with_it(tmp_path: Path,
     proc.send_signal(getattr(signal, sig))
     proc.communicate(timeout=30)
     deadline = time.monotonic() + EVENT_S
-    while (any(not _gone(p) for p in server) or _listening(web) or _listening(grpc)) \
+    while (any(not _gone(p) for p in server) or listening(web) or listening(grpc)) \
             and time.monotonic() < deadline:
         time.sleep(0.1)
     assert [p for p in server if not _gone(p)] == []
-    assert not _listening(web) and not _listening(grpc)
+    assert not listening(web) and not listening(grpc)

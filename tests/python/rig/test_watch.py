@@ -3,38 +3,25 @@ With a running bench: tests/python/commissioning/test_live_bench.py."""
 
 from __future__ import annotations
 
-import os
-import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-from waits import EVENT_S
+from viewer_support import assert_ports_freed, no_display_env
 
 from rig.results import webview
 
 
 def _env(base: Path) -> dict[str, str]:
     base.chmod(0o700)
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET", "HIL_CHANNEL")}
-    env["UNIXCAN_DIR"] = str(base)
-    env["PATH"] = str(Path(sys.executable).parent) + os.pathsep + env.get("PATH", "")
+    env = no_display_env(UNIXCAN_DIR=str(base))
+    env.pop("HIL_CHANNEL", None)
     return env
 
 
 def _watch(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "rig", "watch", *args], env=env,
                           capture_output=True, text=True, timeout=120, check=False)
-
-
-def _listening(port: int) -> bool:
-    try:
-        socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
-        return True
-    except OSError:
-        return False
 
 
 def test_a_bench_that_starts_its_own_programs_is_refused(tmp_path: Path) -> None:
@@ -64,7 +51,4 @@ def test_without_a_display_the_web_viewer_lives_as_long_as_the_watch(tmp_path: P
     assert "no display here" in done.stderr and f":{web}/" in done.stderr, done.stderr
     assert "nothing heard on unixcan quiet" in done.stderr, done.stderr
     assert "detached (0 frames heard" in done.stderr, done.stderr
-    deadline = time.monotonic() + EVENT_S
-    while (_listening(web) or _listening(grpc)) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not _listening(web) and not _listening(grpc)
+    assert_ports_freed(web, grpc)
