@@ -7,6 +7,7 @@ import json
 import sys
 
 from rig import cliargs
+from rig.exit_status import EXIT_ENV, EXIT_FAIL, EXIT_OK
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -82,21 +83,21 @@ def _up(args: argparse.Namespace) -> int:
         except RuntimeError as exc:
             if transport == "socketcan":
                 print(f"rig bus up: {exc}", file=sys.stderr)
-                return 1
+                return EXIT_FAIL
         else:
             print(f"socketcan {channel} up (CAN FD MTU 72)")
-            return 0
+            return EXIT_OK
     elif transport == "socketcan":
         print("rig bus up: this kernel has no CAN support; use --bus unixcan or `rig vm`",
               file=sys.stderr)
-        return 1
+        return EXIT_FAIL
     try:
         folder = unixcan.channel_dir(channel)
     except OSError as exc:
         print(f"rig bus up: {exc}", file=sys.stderr)
-        return 3
+        return EXIT_ENV
     print(f"unixcan {channel} ready ({folder})")
-    return 0
+    return EXIT_OK
 
 
 def _load(args: argparse.Namespace) -> int:
@@ -105,17 +106,17 @@ def _load(args: argparse.Namespace) -> int:
     print(load.table("drive"))
     loads, rate = load.message_loads("drive"), load.bitrate("drive")
     total = load.total_pct(loads, rate)
-    status = 0
+    status = EXIT_OK
     if total > load.TELEMETRY_LIMIT_PCT:
         print(f"rig bus load: {total:.1f} % is above {load.TELEMETRY_LIMIT_PCT:g} %",
               file=sys.stderr)
-        status = 1
+        status = EXIT_FAIL
     for x in latency.worst_case_latencies(loads, rate):
         if not x.meets_period:
             worst = "unbounded" if x.worst_s is None else f"{x.worst_s * 1e6:.0f} µs"
             print(f"rig bus load: {x.name}'s worst-case latency ({worst}) is beyond its "
                   f"period ({x.period_s * 1e6:.0f} µs)", file=sys.stderr)
-            status = 1
+            status = EXIT_FAIL
     return status
 
 
@@ -132,7 +133,7 @@ def _arbiter(args: argparse.Namespace) -> int:
         clock = arbiter.Arbiter(channel, rate)
     except arbiter.ArbiterError as exc:
         print(f"rig bus arbiter: {exc}", file=sys.stderr)
-        return 3
+        return EXIT_ENV
     stop = threading.Event()
     runner = threading.Thread(target=clock.run, args=(stop,), name="arbiter", daemon=True)
     print(f"rig bus arbiter: unixcan channel {channel} at {rate} bit/s", flush=True)
@@ -141,7 +142,7 @@ def _arbiter(args: argparse.Namespace) -> int:
         with terminate_as_exception():
             t_end = None if args.for_s is None else time.monotonic() + args.for_s
             while t_end is None or time.monotonic() < t_end:
-                time.sleep(min(5.0, max(0.0, t_end - time.monotonic())) if t_end else 5.0)
+                time.sleep(5.0 if t_end is None else min(5.0, max(0.0, t_end - time.monotonic())))
                 print(f"rig bus arbiter: {clock.stats.line(time.monotonic() - clock.t0)}",
                       flush=True)
     except (KeyboardInterrupt, Terminated):
@@ -152,7 +153,7 @@ def _arbiter(args: argparse.Namespace) -> int:
         clock.close()
     print(f"rig bus arbiter: stopped: {clock.stats.line(time.monotonic() - clock.t0)}",
           flush=True)
-    return 0
+    return EXIT_OK
 
 
 def _status(args: argparse.Namespace) -> int:
@@ -167,4 +168,4 @@ def _status(args: argparse.Namespace) -> int:
         "interface_exists": rigbus.interface_exists(channel),
         "unixcan_dir": str(unixcan.base_dir()),
     }))
-    return 0
+    return EXIT_OK
