@@ -12,8 +12,9 @@ run; the CRC delimiter, the ACK slot and delimiter, the end of frame (7) and the
 
 from __future__ import annotations
 
+from rig.bus.load import UNSTUFFED_TAIL_BITS
+
 CRC15_POLY = 0x4599  # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1
-UNSTUFFED_TAIL_BITS = 1 + 2 + 7 + 3  # CRC delimiter, ACK slot and delimiter, EOF, intermission
 STUFF_RUN = 5
 
 
